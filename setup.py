@@ -1,0 +1,37 @@
+"""ament_python package setup: colcon in a ROS 2 workspace, pip in the stand-alone .venv.
+
+Runtime dependencies are declared in package.xml (rosdep) and, for the stand-alone path,
+pinned in requirements/standalone.txt; install_requires stays empty of them on purpose so
+that colcon never pulls the ROS wheels into a workspace.
+"""
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'fabric_guidance'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'config', 'scenes'), glob('config/scenes/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='fabric_guidance developers',
+    maintainer_email='fabric-guidance@example.org',
+    description='Directional guidance through a pneumatic fabric suit (Yokoe et al. 2025).',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'fabric-guidance = fabric_guidance.cli:main',
+        ],
+    },
+)
