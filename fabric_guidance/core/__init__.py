@@ -1,0 +1,27 @@
+"""The paper's mathematics and task logic as plain Python: no rclpy, no ROS messages.
+
+geometry     frames (Unity -> REP 103) and the horizontal/vertical target angles
+power_law    P = a*theta^b + c, its inverse, the Levenberg-Marquardt fit (Algorithm 1)
+feedback     the gaze-error feedback law (Eq. 5), per direction and for all four
+channels     direction pressures onto named suit/arm channels in a configured order
+calibration  Algorithm 1 as a state machine, and the calibration file
+conditions   the four guidance conditions of the experiments
+speech       the phrase of condition 4
+"""
+from .calibration import Calibration, CalibrationFileError, CalibrationProcedure, pressure_schedule
+from .channels import ChannelMap, ChannelMapError
+from .conditions import CONDITIONS, Condition, condition
+from .feedback import ADJUSTED, FIXED, PAPER_GAIN, PAPER_P_MAX, FeedbackLaw, GuidanceController
+from .geometry import (DIRECTIONS, GazeAngles, GeometryError, angles_between, split_directions,
+                       target_direction, unit_vector, unity_to_ros_point, unity_to_ros_quaternion, wrap_deg)
+from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
+from .speech import phrase
+
+__all__ = [
+    'ADJUSTED', 'CONDITIONS', 'Calibration', 'CalibrationFileError', 'CalibrationFitError',
+    'CalibrationProcedure', 'ChannelMap', 'ChannelMapError', 'Condition', 'DIRECTIONS', 'FIXED',
+    'FeedbackLaw', 'FitReport', 'GazeAngles', 'GeometryError', 'GuidanceController', 'PAPER_GAIN',
+    'PAPER_P_MAX', 'PowerLaw', 'angles_between', 'condition', 'fit_power_law', 'phrase',
+    'pressure_schedule', 'split_directions', 'target_direction', 'unit_vector', 'unity_to_ros_point',
+    'unity_to_ros_quaternion', 'wrap_deg',
+]

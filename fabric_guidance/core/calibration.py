@@ -1,0 +1,338 @@
+"""Algorithm 1 of the paper as a state machine that needs no ROS, and the calibration file.
+
+For each direction k (left, right, down, up): vent and let the wearer face front (rest), take
+the initial gaze g0, then apply n increasing pressures up to P_MAX, each for a dwell; at the end
+of each dwell record the angle reached from g0 in direction k (the median over a short window,
+so one noisy gaze sample does not become a calibration point). After the last step fit
+P = a*theta^b + c by Levenberg-Marquardt. Any direction that cannot be fitted fails the whole
+procedure with its reason; nothing is written then.
+
+The caller drives it: tick(t, gaze) with the latest gaze direction (REP 103) returns the
+pressure to apply to which direction now. It is the same code in a node, in the headless
+simulator and in tests.
+
+The calibration file is YAML a person can read: schema version, units, wearer, date, P_MAX,
+and per direction the coefficients, the raw points and the fit report. It is written
+atomically (temporary file, fsync, rename) so a crash never leaves half a file, and read back
+with validation that names the field at fault.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+import math
+import os
+from pathlib import Path
+import tempfile
+from typing import Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from .feedback import PAPER_P_MAX
+from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
+from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
+
+SCHEMA_VERSION = 1
+#: The paper's 10 steps per direction.
+PAPER_STEPS = 10
+
+
+class CalibrationFileError(ValueError):
+    """A calibration file that cannot be used, naming the file, the field and the reason."""
+
+
+def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, first: float | None = None) -> np.ndarray:
+    """Increasing pressures ending at p_max (Algorithm 1: 0 <= P_k1 < ... < P_kn <= P_MAX).
+
+    By default evenly spaced from p_max/steps; `first` sets the lowest step instead.
+    """
+    if not (isinstance(steps, (int, np.integer)) and steps >= 3):
+        raise ValueError(f'a calibration needs at least 3 steps, got {steps!r}')
+    if not (math.isfinite(p_max) and p_max > 0):
+        raise ValueError(f'p_max must be finite and > 0 kPa, got {p_max}')
+    lo = p_max / steps if first is None else float(first)
+    if not 0.0 <= lo < p_max:
+        raise ValueError(f'the first step must lie in [0, {p_max}) kPa, got {lo}')
+    return np.linspace(lo, p_max, steps)
+
+
+@dataclass(frozen=True)
+class DirectionCalibration:
+    law: PowerLaw
+    pressures: tuple[float, ...]  # kPa
+    angles: tuple[float, ...]     # deg
+    fit: Mapping                  # FitReport.as_dict()
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A wearer's power laws, one per direction, with the points they came from."""
+
+    wearer: str
+    p_max: float
+    directions: Mapping[str, DirectionCalibration]
+    created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec='seconds'))
+
+    @property
+    def laws(self) -> list[PowerLaw]:
+        """Power laws in direction order (left, right, down, up)."""
+        return [self.directions[d].law for d in DIRECTIONS]
+
+    @classmethod
+    def from_laws(cls, wearer: str, laws: Sequence[PowerLaw], p_max: float = PAPER_P_MAX) -> 'Calibration':
+        """A calibration from known laws (no points): for defaults and simulation."""
+        dirs = {d: DirectionCalibration(law, (), (), {}) for d, law in zip(DIRECTIONS, laws)}
+        return cls(wearer, p_max, dirs)
+
+    def to_dict(self) -> dict:
+        return {
+            'schema_version': SCHEMA_VERSION,
+            'units': {'pressure': 'kPa', 'angle': 'deg'},
+            'model': 'P = a * theta^b + c',
+            'wearer': self.wearer,
+            'created': self.created,
+            'p_max_kpa': float(self.p_max),
+            'directions': {
+                d: {
+                    'a': c.law.a, 'b': c.law.b, 'c': c.law.c,
+                    'points': {'pressure_kpa': [float(x) for x in c.pressures],
+                               'angle_deg': [float(x) for x in c.angles]},
+                    'fit': dict(c.fit),
+                } for d, c in self.directions.items()
+            },
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write atomically: readers see the old file or the new one, never a partial one."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        text = yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
+        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+        try:
+            with os.fdopen(fd, 'w') as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    @classmethod
+    def from_dict(cls, data, source: str = 'calibration') -> 'Calibration':
+        def fail(fieldname: str, reason: str):
+            raise CalibrationFileError(f'{source}: field "{fieldname}" {reason}')
+
+        if not isinstance(data, Mapping):
+            raise CalibrationFileError(f'{source}: expected a YAML mapping at the top level')
+        if data.get('schema_version') != SCHEMA_VERSION:
+            fail('schema_version', f'must be {SCHEMA_VERSION}, got {data.get("schema_version")!r}')
+        units = data.get('units')
+        if units != {'pressure': 'kPa', 'angle': 'deg'}:
+            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {units!r}')
+        wearer = data.get('wearer')
+        if not isinstance(wearer, str) or not wearer:
+            fail('wearer', 'must be a non-empty string')
+        p_max = data.get('p_max_kpa')
+        if isinstance(p_max, bool) or not isinstance(p_max, (int, float)) or not (math.isfinite(p_max) and p_max > 0):
+            fail('p_max_kpa', f'must be a finite number > 0, got {p_max!r}')
+        dirs = data.get('directions')
+        if not isinstance(dirs, Mapping) or set(dirs) != set(DIRECTIONS):
+            got = sorted(dirs) if isinstance(dirs, Mapping) else dirs
+            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {got!r}')
+        out = {}
+        for d in DIRECTIONS:
+            entry = dirs[d]
+            if not isinstance(entry, Mapping):
+                fail(f'directions.{d}', 'must be a mapping with a, b, c')
+            try:
+                law = PowerLaw(entry.get('a'), entry.get('b'), entry.get('c'))
+            except (TypeError, ValueError) as exc:
+                fail(f'directions.{d}', f'has unusable coefficients: {exc}')
+            points = entry.get('points') or {}
+            pressures = points.get('pressure_kpa', []) if isinstance(points, Mapping) else None
+            angles = points.get('angle_deg', []) if isinstance(points, Mapping) else None
+            if (not isinstance(pressures, list) or not isinstance(angles, list) or len(pressures) != len(angles)
+                    or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in pressures + angles)):
+                fail(f'directions.{d}.points', 'must hold equal-length lists of finite pressure_kpa and angle_deg')
+            fit = entry.get('fit') or {}
+            if not isinstance(fit, Mapping):
+                fail(f'directions.{d}.fit', 'must be a mapping')
+            out[d] = DirectionCalibration(law, tuple(map(float, pressures)), tuple(map(float, angles)), dict(fit))
+        created = data.get('created', '')
+        return cls(wearer, float(p_max), out, str(created))
+
+    @classmethod
+    def load(cls, path: str | Path) -> 'Calibration':
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise CalibrationFileError(f'cannot read calibration file {path}: {exc}') from None
+        return cls.from_dict(data, source=str(path))
+
+
+# Phases of the procedure.
+REST = 'rest'      # vented, wearer returns to face front; g0 is taken at its end
+APPLY = 'apply'    # a pressure step is applied for a dwell; the angle is recorded at its end
+DONE = 'done'
+FAILED = 'failed'
+
+
+@dataclass(frozen=True)
+class CalibrationCommand:
+    """What to do now: apply `pressure` (kPa) to `direction` (None: vent everything)."""
+
+    phase: str
+    direction: str | None
+    pressure: float
+    step: int          # 1-based step within the direction; 0 while resting
+    progress: float    # 0..1 over the whole procedure
+
+
+class CalibrationProcedure:
+    """Algorithm 1, driven by tick(t, gaze). Times in seconds, pressures in kPa."""
+
+    def __init__(self, wearer: str, p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS,
+                 dwell_s: float = 3.0, rest_s: float = 3.0, record_window_s: float = 0.5,
+                 directions: Sequence[str] = DIRECTIONS, first_pressure: float | None = None,
+                 fit_tolerance: float = 1e-10, min_r2: float | None = None):
+        for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f'{name} must be finite and >= 0 s, got {value}')
+        if record_window_s > dwell_s or record_window_s > rest_s:
+            raise ValueError('record_window_s must not exceed dwell_s or rest_s')
+        unknown = [d for d in directions if d not in DIRECTIONS]
+        if unknown or not directions:
+            raise ValueError(f'directions must be a non-empty subset of {DIRECTIONS}, got {list(directions)}')
+        self.wearer = wearer
+        self.p_max = float(p_max)
+        self.schedule = pressure_schedule(p_max, steps, first_pressure)
+        self.dwell_s, self.rest_s, self.window_s = dwell_s, rest_s, record_window_s
+        self.directions = list(directions)
+        self.fit_tolerance, self.min_r2 = fit_tolerance, min_r2
+        self.fits: dict[str, FitReport] = {}
+        self.points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.error: str | None = None
+        self._dir_index = 0
+        self._step = 0           # 0: resting before the direction's first step
+        self._phase_start: float | None = None
+        self._g0: np.ndarray | None = None
+        self._window: list[tuple[float, np.ndarray]] = []
+        self._angles: list[float] = []
+        self._phase = REST
+        self._last_t: float | None = None
+
+    @property
+    def phase(self) -> str:
+        return self._phase
+
+    @property
+    def duration_s(self) -> float:
+        """Planned length of the whole procedure."""
+        return len(self.directions) * (self.rest_s + len(self.schedule) * self.dwell_s)
+
+    def _command(self, t: float) -> CalibrationCommand:
+        n = len(self.schedule)
+        if self._phase in (DONE, FAILED):
+            return CalibrationCommand(self._phase, None, 0.0, 0, 1.0 if self._phase == DONE else self._progress(t))
+        direction = self.directions[self._dir_index]
+        pressure = 0.0 if self._phase == REST else float(self.schedule[self._step - 1])
+        return CalibrationCommand(self._phase, direction if self._phase == APPLY else None, pressure,
+                                  self._step, self._progress(t))
+
+    def _progress(self, t: float) -> float:
+        per_dir = self.rest_s + len(self.schedule) * self.dwell_s
+        done = self._dir_index * per_dir + (self.rest_s + (self._step - 1) * self.dwell_s if self._step else 0.0)
+        if self._phase_start is not None:
+            limit = self.dwell_s if self._phase == APPLY else self.rest_s
+            done += min(max(t - self._phase_start, 0.0), limit)
+        return min(done / self.duration_s, 1.0) if self.duration_s > 0 else 1.0
+
+    def fail(self, reason: str) -> CalibrationCommand:
+        """Abort (e.g. the gaze went stale): vent, record the reason, write nothing."""
+        self.error = reason
+        self._phase = FAILED
+        return CalibrationCommand(FAILED, None, 0.0, 0, 0.0)
+
+    def tick(self, t: float, gaze: Sequence[float] | None) -> CalibrationCommand:
+        """Advance to time t with the latest gaze direction (None: no valid gaze this tick)."""
+        if self._phase in (DONE, FAILED):
+            return self._command(t)
+        if not math.isfinite(t):
+            return self.fail(f'time is not finite: {t}')
+        if self._last_t is not None and t < self._last_t:
+            return self.fail('the clock jumped back during calibration')
+        self._last_t = t
+        if self._phase_start is None:
+            self._phase_start = t
+        if gaze is not None:
+            try:
+                self._window.append((t, unit_vector(gaze, 'gaze')))
+            except GeometryError as exc:
+                return self.fail(f'invalid gaze during calibration: {exc}')
+        length = self.rest_s if self._phase == REST else self.dwell_s
+        # Keep only the samples of the recording window at the end of this phase.
+        self._window = [(ts, g) for ts, g in self._window if ts >= self._phase_start + length - self.window_s]
+        if t - self._phase_start < length:
+            return self._command(t)
+        # The phase is over: record what it measured and move on.
+        if not self._window:
+            return self.fail(f'no gaze sample at the end of {self._phase} step {self._step} '
+                             f'({self.directions[self._dir_index]})')
+        try:
+            if self._phase == REST:
+                # Mean of unit vectors: a wearer looking about wildly at rest has no mean direction.
+                g0 = np.mean([g for _, g in self._window], axis=0)
+                angles_between(g0, g0)
+                self._g0 = g0
+                self._angles = []
+            else:
+                k = DIRECTIONS.index(self.directions[self._dir_index])
+                reached = [angles_between(self._g0, g).by_direction()[k] for _, g in self._window]
+                self._angles.append(float(np.median(reached)))
+        except GeometryError as exc:
+            return self.fail(f'no usable gaze direction at the end of {self._phase} step {self._step} '
+                             f'({self.directions[self._dir_index]}): {exc}')
+        self._window = []
+        self._phase_start = t
+        if self._step < len(self.schedule):
+            self._step += 1
+            self._phase = APPLY
+            return self._command(t)
+        return self._finish_direction(t)
+
+    def _finish_direction(self, t: float) -> CalibrationCommand:
+        direction = self.directions[self._dir_index]
+        angles = np.array(self._angles)
+        try:
+            report = fit_power_law(angles, self.schedule, self.p_max, xtol=self.fit_tolerance,
+                                   ftol=self.fit_tolerance, min_r2=self.min_r2)
+        except CalibrationFitError as exc:
+            self.points[direction] = (self.schedule.copy(), angles)
+            return self.fail(f'{direction}: {exc}')
+        self.fits[direction] = report
+        self.points[direction] = (self.schedule.copy(), angles)
+        self._dir_index += 1
+        self._step = 0
+        if self._dir_index == len(self.directions):
+            self._phase = DONE
+        else:
+            self._phase = REST
+        return self._command(t)
+
+    def result(self, base: Calibration | None = None) -> Calibration:
+        """The calibration after DONE. Directions not calibrated now are taken from `base`."""
+        if self._phase != DONE:
+            raise CalibrationFitError(self.error or f'calibration is not finished (phase {self._phase})')
+        dirs = dict(base.directions) if base is not None else {}
+        for d, report in self.fits.items():
+            p, a = self.points[d]
+            dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)), tuple(map(float, a)), report.as_dict())
+        missing = [d for d in DIRECTIONS if d not in dirs]
+        if missing:
+            raise CalibrationFitError(f'directions {missing} were neither calibrated nor given by a base calibration')
+        return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})

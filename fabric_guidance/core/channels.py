@@ -1,0 +1,105 @@
+"""Direction pressures onto named PLC channels, in one fixed, configured order.
+
+A channel map (config/channel_map.yaml) lists every channel in the order the command vector
+uses (the ros2_controllers convention: a Float64MultiArray in a configured joint order) and,
+per layout, which channels each of the four directions drives:
+
+- layout "suit" (conditions 1 and 2): F1-F4 forward bend (down), B1-B4 backward bend (up),
+  L1-L2 left twist, R1-R2 right twist (the paper's Fig. 4);
+- layout "arm" (condition 3): the six arm muscles (i)-(vi), mapped as in the paper's Table II.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from .geometry import DIRECTIONS
+
+
+class ChannelMapError(ValueError):
+    """A channel map file or mapping that is not usable, naming the field and the reason."""
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    channels: tuple[str, ...]
+    #: layout name -> (n_channels x 4) 0/1 matrix: channel i is driven by direction k.
+    _selection: Mapping[str, np.ndarray]
+
+    @property
+    def layouts(self) -> tuple[str, ...]:
+        return tuple(self._selection)
+
+    def channels_of(self, layout: str, direction: str) -> tuple[str, ...]:
+        k = DIRECTIONS.index(direction)
+        sel = self._selection_for(layout)
+        return tuple(self.channels[i] for i in np.flatnonzero(sel[:, k]))
+
+    def _selection_for(self, layout: str) -> np.ndarray:
+        try:
+            return self._selection[layout]
+        except KeyError:
+            raise ChannelMapError(f'unknown layout {layout!r}; the map has {list(self._selection)}') from None
+
+    def to_channels(self, direction_pressures: Sequence[float], layout: str) -> np.ndarray:
+        """Per-channel pressures (kPa) in the configured order; channels not used are 0."""
+        p = np.asarray(direction_pressures, dtype=float)
+        if p.shape != (len(DIRECTIONS),):
+            raise ValueError(f'need {len(DIRECTIONS)} direction pressures {DIRECTIONS}, got shape {p.shape}')
+        return self._selection_for(layout) @ p
+
+    def to_directions(self, channel_pressures: Sequence[float], layout: str) -> np.ndarray:
+        """Mean pressure per direction (left, right, down, up) from per-channel pressures."""
+        c = np.asarray(channel_pressures, dtype=float)
+        if c.shape != (len(self.channels),):
+            raise ValueError(f'need {len(self.channels)} channel pressures, got shape {c.shape}')
+        sel = self._selection_for(layout)
+        return (c @ sel) / sel.sum(axis=0)
+
+    @classmethod
+    def from_dict(cls, data: Mapping, source: str = 'channel map') -> 'ChannelMap':
+        if not isinstance(data, Mapping):
+            raise ChannelMapError(f'{source}: expected a mapping with "channels" and "layouts"')
+        channels = data.get('channels')
+        if not isinstance(channels, list) or not channels or not all(isinstance(c, str) and c for c in channels):
+            raise ChannelMapError(f'{source}: field "channels" must be a non-empty list of channel names')
+        if len(set(channels)) != len(channels):
+            dup = sorted({c for c in channels if channels.count(c) > 1})
+            raise ChannelMapError(f'{source}: field "channels" names {dup} more than once')
+        layouts = data.get('layouts')
+        if not isinstance(layouts, Mapping) or not layouts:
+            raise ChannelMapError(f'{source}: field "layouts" must map layout names to directions')
+        selection = {}
+        for name, directions in layouts.items():
+            where = f'{source}: layouts.{name}'
+            if not isinstance(directions, Mapping) or set(directions) != set(DIRECTIONS):
+                got = sorted(directions) if isinstance(directions, Mapping) else directions
+                raise ChannelMapError(f'{where} must name exactly the directions {list(DIRECTIONS)}, got {got}')
+            sel = np.zeros((len(channels), len(DIRECTIONS)))
+            for k, direction in enumerate(DIRECTIONS):
+                names = directions[direction]
+                if not isinstance(names, list) or not names:
+                    raise ChannelMapError(f'{where}.{direction} must be a non-empty list of channels')
+                for ch in names:
+                    if ch not in channels:
+                        raise ChannelMapError(f'{where}.{direction}: channel {ch!r} is not in "channels"')
+                    i = channels.index(ch)
+                    if sel[i].any():
+                        raise ChannelMapError(f'{where}.{direction}: channel {ch!r} already drives another direction')
+                    sel[i, k] = 1.0
+            sel.setflags(write=False)
+            selection[str(name)] = sel
+        return cls(tuple(channels), selection)
+
+    @classmethod
+    def load(cls, path: str | Path) -> 'ChannelMap':
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise ChannelMapError(f'cannot read channel map {path}: {exc}') from None
+        return cls.from_dict(data, source=str(path))

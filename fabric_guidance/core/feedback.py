@@ -1,0 +1,162 @@
+"""The gaze-error feedback law of the paper (Eq. 5) for one direction, and for all four.
+
+For direction k with target angle theta_t (from the initial gaze g0 to the target) and current
+angle theta (from g0 to the current gaze), the error is e = theta_t - theta and
+
+    P <- P + G * (f(theta_t) - f(theta))   if theta_t > 0 and de/dt > 0  (error grows)
+    P <- P                                 if theta_t > 0 and de/dt <= 0 (error shrinks)
+    P  = 0                                 if theta_t <= 0
+
+starting from P = f(theta_t). The increment is applied once per control step (the paper
+states no rate; the step rate is a parameter of the node). The result is clamped to
+[0, P_MAX], and so is the state: the paper's suit "did not change" above 375 kPa, so no
+hidden wind-up builds beyond the limit.
+
+The sign of de/dt is all the law needs. It is taken from successive samples with dt > 0
+only: a repeated timestamp (dt = 0) holds; a clock that jumps back (a bag replay that loops)
+restarts the derivative from that sample and holds, so neither can produce a step.
+
+Mode "adjusted" is conditions 1 and 3; "fixed" (condition 2) keeps P = f(theta_t).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Sequence
+
+import numpy as np
+
+from .geometry import DIRECTIONS, angles_between
+from .power_law import PowerLaw
+
+ADJUSTED = 'adjusted'
+FIXED = 'fixed'
+MODES = (ADJUSTED, FIXED)
+
+#: The paper's adjustment gain G (conditions 1 and 3).
+PAPER_GAIN = 0.05
+#: The paper's pressure limit, kPa.
+PAPER_P_MAX = 375.0
+
+
+def _finite(value: float, name: str) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f'{name} is not finite: {value}')
+    return value
+
+
+@dataclass
+class FeedbackLaw:
+    """Eq. 5 for one direction k. Pressure in kPa, angles in degrees, time in seconds."""
+
+    law: PowerLaw
+    p_max: float = PAPER_P_MAX
+    gain: float = PAPER_GAIN
+    mode: str = ADJUSTED
+    #: de/dt must exceed this (deg/s) to count as "the error grows"; 0 is the paper's law.
+    rate_deadband: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f'mode must be one of {MODES}, got {self.mode!r}')
+        if not (math.isfinite(self.p_max) and self.p_max > 0):
+            raise ValueError(f'p_max must be finite and > 0 kPa, got {self.p_max}')
+        if not (math.isfinite(self.gain) and self.gain >= 0):
+            raise ValueError(f'gain must be finite and >= 0, got {self.gain}')
+        if not (math.isfinite(self.rate_deadband) and self.rate_deadband >= 0):
+            raise ValueError(f'rate_deadband must be finite and >= 0 deg/s, got {self.rate_deadband}')
+        self.reset()
+
+    def reset(self) -> None:
+        """Vent and forget: the next step starts again from f(theta_t)."""
+        self.pressure = 0.0
+        self.active = False
+        self._last_error: float | None = None
+        self._last_time: float | None = None
+
+    def _clamp(self, p: float) -> float:
+        if not math.isfinite(p):  # cannot happen with a valid PowerLaw; vent rather than pass it on
+            return 0.0
+        return min(max(p, 0.0), self.p_max)
+
+    def step(self, theta_target: float, theta: float, t: float) -> float:
+        """Advance the law by one sample; return the commanded pressure in [0, p_max].
+
+        Raises ValueError for a non-finite input and leaves the state as it was.
+        """
+        theta_target = _finite(theta_target, 'target angle')
+        theta = _finite(theta, 'gaze angle')
+        t = _finite(t, 'time')
+        if theta_target <= 0.0:
+            self.reset()
+            return 0.0
+        error = theta_target - theta
+        if not self.active:
+            self.active = True
+            self.pressure = self._clamp(self.law.pressure(theta_target))
+            self._last_error, self._last_time = error, t
+            return self.pressure
+        if self._last_time is None or t < self._last_time:
+            # Clock jumped back: restart the derivative here rather than read a jump.
+            self._last_error, self._last_time = error, t
+            return self.pressure
+        dt = t - self._last_time
+        if dt == 0.0:
+            return self.pressure
+        rate = (error - self._last_error) / dt
+        self._last_error, self._last_time = error, t
+        if self.mode == ADJUSTED and rate > self.rate_deadband:
+            increment = self.gain * (self.law.pressure(theta_target) - self.law.pressure(theta))
+            self.pressure = self._clamp(self.pressure + increment)
+        return self.pressure
+
+
+class GuidanceController:
+    """Eq. 5 in all four directions for one target, from gaze directions (REP 103).
+
+    begin() records the initial gaze g0; target and current angles are measured from g0, as in
+    the paper's calibration (Fig. 5) so that f_k maps them to pressure.
+    """
+
+    def __init__(self, laws: Sequence[PowerLaw], p_max: float = PAPER_P_MAX, gain: float | Sequence[float] = PAPER_GAIN,
+                 mode: str = ADJUSTED, rate_deadband: float = 0.0):
+        if len(laws) != len(DIRECTIONS):
+            raise ValueError(f'need one power law per direction {DIRECTIONS}, got {len(laws)}')
+        gains = [gain] * len(DIRECTIONS) if np.ndim(gain) == 0 else list(gain)
+        if len(gains) != len(DIRECTIONS):
+            raise ValueError(f'need one gain per direction {DIRECTIONS}, got {len(gains)}')
+        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband) for law, g in zip(laws, gains)]
+        self.p_max = p_max
+        self.initial_gaze: np.ndarray | None = None
+
+    def begin(self, gaze: Sequence[float]) -> None:
+        """Start guidance toward a new target from the current gaze direction."""
+        angles_between(gaze, gaze)  # validates the vector
+        self.initial_gaze = np.asarray(gaze, dtype=float)
+        for d in self.directions:
+            d.reset()
+
+    def vent(self) -> np.ndarray:
+        """Zero every direction; the next update starts from f(theta_t) again."""
+        self.initial_gaze = None
+        for d in self.directions:
+            d.reset()
+        return np.zeros(len(DIRECTIONS))
+
+    @property
+    def pressures(self) -> np.ndarray:
+        return np.array([d.pressure for d in self.directions])
+
+    def update(self, gaze: Sequence[float], target: Sequence[float], t: float) -> np.ndarray:
+        """Pressures (left, right, down, up) in kPa for the current gaze and target directions.
+
+        Raises ValueError (a GeometryError for degenerate vectors) for invalid input, with
+        the state unchanged; the caller vents.
+        """
+        if self.initial_gaze is None:
+            self.begin(gaze)
+        theta_t = angles_between(self.initial_gaze, target).by_direction()
+        theta = angles_between(self.initial_gaze, gaze).by_direction()
+        _finite(t, 'time')
+        return np.array([d.step(tt, th, t) for d, tt, th in zip(self.directions, theta_t, theta)])

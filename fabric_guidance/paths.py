@@ -1,0 +1,24 @@
+"""Where the package's share files (config/, launch/) are, in a workspace or a checkout."""
+from __future__ import annotations
+
+from pathlib import Path
+
+PACKAGE = 'fabric_guidance'
+
+
+def share_dir() -> Path:
+    """The installed share/fabric_guidance in a ROS workspace, else the source checkout."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        try:
+            return Path(get_package_share_directory(PACKAGE))
+        except (PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH unset (no workspace)
+            pass
+    except ImportError:
+        pass
+    return Path(__file__).resolve().parent.parent
+
+
+def config_path(name: str) -> Path:
+    """A file under config/ (e.g. 'channel_map.yaml')."""
+    return share_dir() / 'config' / name
