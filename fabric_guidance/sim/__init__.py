@@ -1,0 +1,1 @@
+"""Simulation: simulated wearers and the effects a scene can switch on."""
