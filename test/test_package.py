@@ -1,0 +1,61 @@
+"""The package as ROS 2 and colcon see it, and the core's independence from ROS."""
+import ast
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+ROS_MODULES = ('rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_msgs', 'diagnostic_msgs',
+               'visualization_msgs', 'rosidl', 'rcl_interfaces', 'builtin_interfaces')
+
+
+def test_importing_the_core_loads_no_ros_module():
+    code = ('import sys, fabric_guidance.core, fabric_guidance.sim.headless; '
+            f'print([m for m in sys.modules if m.split(".")[0].startswith({ROS_MODULES!r})])')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == '[]'
+
+
+def test_core_source_has_no_ros_import():
+    for path in (ROOT / 'fabric_guidance' / 'core').glob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+            assert not any(n.split('.')[0].startswith(ROS_MODULES) for n in names), f'{path.name} imports {names}'
+
+
+def test_package_xml_is_format_3_ament_python_with_the_dependencies():
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    assert root.get('format') == '3'
+    assert root.findtext('name') == 'fabric_guidance'
+    assert root.find('export/build_type').text == 'ament_python'
+    exec_deps = {e.text for e in root.findall('exec_depend')}
+    assert {'rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_msgs', 'diagnostic_msgs', 'python3-numpy',
+            'python3-scipy', 'python3-pymodbus', 'python3-transforms3d', 'python3-yaml'} <= exec_deps
+    assert {'launch_pytest', 'python3-pytest'} <= {e.text for e in root.findall('test_depend')}
+
+
+def test_colcon_reads_no_wheel_pins():
+    """colcon reads package.xml, setup.py and setup.cfg: the ROS wheels must not be in them."""
+    for name in ('package.xml', 'setup.py', 'setup.cfg'):
+        assert 'ros-rclpy' not in (ROOT / name).read_text(), name
+    assert 'ros-rclpy[fastrtps]==' in (ROOT / 'requirements' / 'standalone.txt').read_text()
+
+
+def test_ament_layout():
+    assert (ROOT / 'resource' / 'fabric_guidance').is_file()
+    cfg = (ROOT / 'setup.cfg').read_text()
+    assert 'script_dir=$base/lib/fabric_guidance' in cfg and 'install_scripts=$base/lib/fabric_guidance' in cfg
+    setup = (ROOT / 'setup.py').read_text()
+    for needle in ("'share/ament_index/resource_index/packages'", "glob('launch/*.launch.py')",
+                   "glob('config/*.yaml')"):
+        assert needle in setup
+
+
+def test_demo_prints_the_worked_example(tmp_path):
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'demo', '--out', str(tmp_path)],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert '4 of 4 targets found' in out.stdout
+    assert (tmp_path / 'demo-wearer.yaml').is_file()
