@@ -1,0 +1,24 @@
+"""The PLC layer: register map, Modbus TCP client, mock PLC. No ROS code here.
+
+register_map  which register carries which channel; kPa <-> counts, clamped to p_max
+regulator     the PLC's regulator lag and heartbeat watchdog, simulated in plain Python
+modbus        PlcClient and MockPlcServer, the only module that imports pymodbus
+
+The pymodbus-backed names are imported lazily, so the register map and the simulation can
+be used (and tested) where pymodbus is not installed.
+"""
+from .register_map import ChannelRegisters, RegisterMap, RegisterMapError
+from .regulator import FirstOrderLag, RegulatorSim, ScanResult, Watchdog
+
+_MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError')
+
+__all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcLinkError',
+           'RegisterMap', 'RegisterMapError', 'RegulatorSim', 'ScanResult', 'Watchdog']
+
+
+def __getattr__(name: str):
+    # PEP 562: import pymodbus only when a Modbus name is actually used.
+    if name in _MODBUS_NAMES:
+        from . import modbus
+        return getattr(modbus, name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

@@ -1,0 +1,232 @@
+"""Which PLC register carries which channel, and how kPa become 16-bit register counts.
+
+The register map (config/plc_register_map.yaml) is the single place that says where each
+channel's pressure command goes (a holding register), where its measured pressure comes from
+(an input register), where the heartbeat goes, and how pressures are scaled. It is validated
+when loaded, so a bad file fails at start-up with the file, the field and the reason, not
+later on the wire.
+
+Encoding is where the pressure limit is enforced last before the wire: every command is
+clamped to [0, p_max_kpa] before scaling and anything non-finite becomes 0 (vent), so no
+count above ``p_max_counts`` can be produced whatever the caller passes.
+
+Addresses are 0-based protocol addresses (what goes into the Modbus frame), not the
+1-based "40001"-style register numbers of some PLC manuals.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+#: Largest value of a 16-bit register and largest protocol address.
+REGISTER_MAX = 0xFFFF
+#: A Modbus "write multiple registers" request carries at most 123 registers; keeping every
+#: channel in one request keeps a command vector atomic on the PLC side.
+MAX_CHANNELS = 123
+#: Modbus unit ids a server answers to (0 is broadcast: no reply, so no confirmation).
+UNIT_ID_RANGE = (1, 247)
+
+_TOP_FIELDS = ('unit_id', 'p_max_kpa', 'counts_per_kpa', 'heartbeat_register', 'channels')
+_CHANNEL_FIELDS = ('name', 'command_register', 'measured_register')
+
+
+class RegisterMapError(ValueError):
+    """A register map that is not usable; the message names the file, the field and the reason."""
+
+
+@dataclass(frozen=True)
+class ChannelRegisters:
+    """One channel: its name, command holding register and measured input register."""
+    name: str
+    command_register: int
+    measured_register: int
+
+
+@dataclass(frozen=True)
+class RegisterMap:
+    """Validated register map; build it with :meth:`load` or :meth:`from_dict`."""
+    unit_id: int
+    p_max_kpa: float
+    counts_per_kpa: float
+    heartbeat_register: int
+    channels: tuple[ChannelRegisters, ...]
+    source: str = 'register map'
+
+    # ------------------------------------------------------------------ views
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Channel names in command-vector order."""
+        return tuple(c.name for c in self.channels)
+
+    @property
+    def command_registers(self) -> tuple[int, ...]:
+        """Holding-register addresses of the commands, in channel order."""
+        return tuple(c.command_register for c in self.channels)
+
+    @property
+    def measured_registers(self) -> tuple[int, ...]:
+        """Input-register addresses of the measured pressures, in channel order."""
+        return tuple(c.measured_register for c in self.channels)
+
+    @property
+    def p_max_counts(self) -> int:
+        """Largest command count ever produced: p_max_kpa * counts_per_kpa, rounded down.
+
+        Rounded down (not to nearest) so that decode(p_max_counts) never exceeds p_max_kpa.
+        """
+        return int(math.floor(self.p_max_kpa * self.counts_per_kpa))
+
+    def __len__(self) -> int:
+        return len(self.channels)
+
+    def command_block(self) -> tuple[int, int] | None:
+        """(start_address, count) if the command registers are contiguous and ascending.
+
+        Then one write-multiple-registers request writes the whole command vector, so the
+        PLC never sees half of an update. None otherwise (the client then writes one by one).
+        """
+        return _block(self.command_registers)
+
+    def measured_block(self) -> tuple[int, int] | None:
+        """(start_address, count) if the measured input registers are contiguous, else None."""
+        return _block(self.measured_registers)
+
+    def is_mapped_holding(self, address: int) -> bool:
+        """True for the holding registers the package may write: the commands and the heartbeat."""
+        return address == self.heartbeat_register or address in self.command_registers
+
+    # ------------------------------------------------------------- conversion
+    def encode(self, pressures_kpa: Sequence[float]) -> list[int]:
+        """Command pressures (kPa, channel order) -> register counts, safe by construction.
+
+        Each value is clamped to [0, p_max_kpa] before scaling; NaN and +-inf become 0 (vent:
+        a value that is not a number is not a command to pressurise). A vector of the wrong
+        length raises ValueError rather than being padded or truncated.
+        """
+        p = np.asarray(pressures_kpa, dtype=float)
+        if p.shape != (len(self.channels),):
+            raise ValueError(f'{self.source}: need {len(self.channels)} pressures (kPa) in the order '
+                             f'{list(self.names)}, got shape {p.shape}')
+        p = np.where(np.isfinite(p), p, 0.0)
+        p = np.clip(p, 0.0, self.p_max_kpa)
+        counts = np.rint(p * self.counts_per_kpa)
+        # Rounding to nearest could step one count past a p_max that is not a whole count.
+        counts = np.clip(counts, 0, self.p_max_counts)
+        return [int(c) for c in counts]
+
+    def decode(self, counts: Sequence[int]) -> np.ndarray:
+        """Register counts (channel order) -> pressures in kPa."""
+        c = np.asarray(counts, dtype=float)
+        if c.shape != (len(self.channels),):
+            raise ValueError(f'{self.source}: need {len(self.channels)} register values, got shape {c.shape}')
+        return c / self.counts_per_kpa
+
+    # ---------------------------------------------------------------- loading
+    @classmethod
+    def load(cls, path: str | Path, expected_channels: Sequence[str] | None = None) -> 'RegisterMap':
+        """Read and validate a register map YAML file."""
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise RegisterMapError(f'cannot read register map {path}: {exc}') from None
+        return cls.from_dict(data, source=str(path), expected_channels=expected_channels)
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = 'register map',
+                  expected_channels: Sequence[str] | None = None) -> 'RegisterMap':
+        """Validate a parsed mapping; ``expected_channels`` (e.g. the channel map's order) must
+        then match the channel names exactly, in order."""
+        def fail(field: str, reason: str) -> RegisterMapError:
+            return RegisterMapError(f'{source}: field "{field}" {reason}')
+
+        if not isinstance(data, Mapping):
+            raise RegisterMapError(f'{source}: expected a mapping with the fields {list(_TOP_FIELDS)}, '
+                                   f'got {type(data).__name__}')
+        for field in _TOP_FIELDS:
+            if field not in data:
+                raise fail(field, 'is missing')
+        # Unknown fields are rejected: a misspelt field in a safety configuration should not
+        # be silently ignored.
+        for field in data:
+            if field not in _TOP_FIELDS:
+                raise fail(field, f'is not a known field (known: {list(_TOP_FIELDS)})')
+
+        unit_id = _integer(data['unit_id'], *UNIT_ID_RANGE, fail, 'unit_id')
+        heartbeat = _integer(data['heartbeat_register'], 0, REGISTER_MAX, fail, 'heartbeat_register')
+        p_max = _positive(data['p_max_kpa'], fail, 'p_max_kpa')
+        scale = _positive(data['counts_per_kpa'], fail, 'counts_per_kpa')
+        if p_max * scale > REGISTER_MAX:
+            raise fail('p_max_kpa', f'* counts_per_kpa = {p_max * scale:g} counts does not fit a 16-bit '
+                                    f'register (max {REGISTER_MAX})')
+
+        raw = data['channels']
+        if not isinstance(raw, list) or not raw:
+            raise fail('channels', 'must be a non-empty list of {name, command_register, measured_register}')
+        if len(raw) > MAX_CHANNELS:
+            raise fail('channels', f'has {len(raw)} entries; one Modbus write carries at most {MAX_CHANNELS}')
+        channels = []
+        for i, entry in enumerate(raw):
+            where = f'channels[{i}]'
+            if not isinstance(entry, Mapping):
+                raise fail(where, f'must be a mapping with {list(_CHANNEL_FIELDS)}, got {entry!r}')
+            for field in _CHANNEL_FIELDS:
+                if field not in entry:
+                    raise fail(f'{where}.{field}', 'is missing')
+            for field in entry:
+                if field not in _CHANNEL_FIELDS:
+                    raise fail(f'{where}.{field}', f'is not a known field (known: {list(_CHANNEL_FIELDS)})')
+            name = entry['name']
+            if not isinstance(name, str) or not name:
+                raise fail(f'{where}.name', f'must be a non-empty string, got {name!r}')
+            channels.append(ChannelRegisters(
+                name,
+                _integer(entry['command_register'], 0, REGISTER_MAX, fail, f'{where}.command_register'),
+                _integer(entry['measured_register'], 0, REGISTER_MAX, fail, f'{where}.measured_register')))
+
+        for field in _CHANNEL_FIELDS:
+            _unique([getattr(c, field) for c in channels], fail, field)
+        for i, c in enumerate(channels):
+            if c.command_register == heartbeat:
+                raise fail('heartbeat_register', f'{heartbeat} is also the command register of channel '
+                                                 f'{c.name!r} (channels[{i}])')
+        if expected_channels is not None:
+            names = [c.name for c in channels]
+            if names != list(expected_channels):
+                raise fail('channels', f'names {names} do not match the expected channels, in order, '
+                                       f'{list(expected_channels)}')
+        return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source)
+
+
+# ------------------------------------------------------------------- helpers
+def _block(addresses: Sequence[int]) -> tuple[int, int] | None:
+    start = addresses[0]
+    if list(addresses) == list(range(start, start + len(addresses))):
+        return start, len(addresses)
+    return None
+
+
+def _integer(value: Any, lo: int, hi: int, fail, field: str) -> int:
+    # bool is an int subclass; "true" as an address is a typo, not 1.
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise fail(field, f'must be an integer in {lo}..{hi}, got {value!r}')
+    return value
+
+
+def _positive(value: Any, fail, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise fail(field, f'must be a positive finite number, got {value!r}')
+    return float(value)
+
+
+def _unique(values: list, fail, field: str) -> None:
+    seen: dict = {}
+    for i, v in enumerate(values):
+        if v in seen:
+            raise fail(f'channels[{i}].{field}', f'duplicates {v!r} of channels[{seen[v]}].{field}')
+        seen[v] = i
