@@ -22,3 +22,12 @@ def share_dir() -> Path:
 def config_path(name: str) -> Path:
     """A file under config/ (e.g. 'channel_map.yaml')."""
     return share_dir() / 'config' / name
+
+
+def resolve(value: str, default_name: str) -> Path:
+    """A file parameter: '' is the package's config/<default_name>; '~' is expanded; a relative
+    path is taken from the package share (so parameter files work from any directory)."""
+    if not value:
+        return config_path(default_name)
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else share_dir() / path

@@ -102,3 +102,19 @@ def test_target_direction_from_eye_to_target():
     np.testing.assert_allclose(d, [math.sqrt(0.5), math.sqrt(0.5), 0.0])
     with pytest.raises(GeometryError, match='zero length'):
         target_direction([1, 1, 1], [1, 1, 1])
+
+
+def test_gaze_ray_as_a_pose_orientation_round_trips():
+    from fabric_guidance.core.geometry import ray_direction, ray_orientation
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        d = rng.normal(size=3)
+        q = ray_orientation(d)
+        np.testing.assert_allclose(ray_direction(q), d / np.linalg.norm(d), atol=1e-12)
+        y_axis = quaternions.quat2mat([q[3], q[0], q[1], q[2]])[:, 1]
+        assert abs(y_axis[2]) < 1e-12                    # no roll: the y axis stays horizontal
+    # 30 deg up and 90 deg left: yaw +90, pitch -30 in REP 103 (positive pitch looks down).
+    q = ray_orientation([0.0, math.cos(math.radians(30)), math.sin(math.radians(30))])
+    np.testing.assert_allclose(ray_direction(q), [0.0, math.cos(math.radians(30)), 0.5], atol=1e-12)
+    with pytest.raises(GeometryError):
+        ray_orientation([0, 0, 0])

@@ -13,7 +13,8 @@ from .channels import ChannelMap, ChannelMapError
 from .conditions import CONDITIONS, Condition, condition
 from .feedback import ADJUSTED, FIXED, PAPER_GAIN, PAPER_P_MAX, FeedbackLaw, GuidanceController
 from .geometry import (DIRECTIONS, GazeAngles, GeometryError, angles_between, split_directions,
-                       target_direction, unit_vector, unity_to_ros_point, unity_to_ros_quaternion, wrap_deg)
+                       ray_direction, ray_orientation, target_direction, unit_vector, unity_to_ros_point,
+                       unity_to_ros_quaternion, wrap_deg)
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 from .speech import phrase
 
@@ -22,6 +23,7 @@ __all__ = [
     'CalibrationProcedure', 'ChannelMap', 'ChannelMapError', 'Condition', 'DIRECTIONS', 'FIXED',
     'FeedbackLaw', 'FitReport', 'GazeAngles', 'GeometryError', 'GuidanceController', 'PAPER_GAIN',
     'PAPER_P_MAX', 'PowerLaw', 'angles_between', 'condition', 'fit_power_law', 'phrase',
-    'pressure_schedule', 'split_directions', 'target_direction', 'unit_vector', 'unity_to_ros_point',
+    'pressure_schedule', 'ray_direction', 'ray_orientation', 'split_directions', 'target_direction', 'unit_vector',
+    'unity_to_ros_point',
     'unity_to_ros_quaternion', 'wrap_deg',
 ]

@@ -28,7 +28,7 @@ import math
 from typing import Sequence
 
 import numpy as np
-from transforms3d import quaternions
+from transforms3d import euler, quaternions
 
 #: The paper's directions in index order k-1: left twist, right twist, forward bend, backward bend.
 DIRECTIONS: tuple[str, ...] = ('left', 'right', 'down', 'up')
@@ -166,3 +166,22 @@ def target_direction(eye: Sequence[float], target: Sequence[float]) -> np.ndarra
     e = _finite_vector(eye, 'gaze origin')
     t = _finite_vector(target, 'target position')
     return unit_vector(t - e, 'target relative to the gaze origin')
+
+
+def ray_orientation(direction: Sequence[float]) -> np.ndarray:
+    """Quaternion (x, y, z, w) of a frame whose x axis points along `direction`, with no roll
+    (its y axis stays horizontal): how the gaze ray travels as a geometry_msgs/Pose."""
+    d = unit_vector(direction, 'gaze direction')
+    yaw = math.atan2(d[1], d[0])
+    pitch = -math.atan2(d[2], math.hypot(d[0], d[1]))  # REP 103: positive pitch looks down
+    w, x, y, z = euler.euler2quat(0.0, pitch, yaw, 'sxyz')
+    return np.array([x, y, z, w])
+
+
+def ray_direction(q_xyzw: Sequence[float]) -> np.ndarray:
+    """The unit x axis of an orientation (x, y, z, w): the gaze direction of a gaze pose."""
+    q = np.asarray(q_xyzw, dtype=float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        raise GeometryError(f'quaternion must be 4 finite numbers (x, y, z, w), got {q.tolist()}')
+    x, y, z, w = _unit(q, 'quaternion')
+    return quaternions.quat2mat([w, x, y, z])[:, 0]
