@@ -20,6 +20,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'config', 'calibrations'), glob('config/calibrations/*.yaml')),
         (os.path.join('share', package_name, 'config', 'scenes'), glob('config/scenes/*.yaml')),
     ],
     install_requires=['setuptools'],
@@ -32,6 +33,12 @@ setup(
     entry_points={
         'console_scripts': [
             'fabric-guidance = fabric_guidance.cli:main',
+            'gaze_bridge = fabric_guidance.nodes.gaze_bridge:main',
+            'target_selector = fabric_guidance.nodes.target_selector:main',
+            'pressure_controller = fabric_guidance.nodes.pressure_controller:main',
+            'plc_output = fabric_guidance.nodes.plc_output:main',
+            'mock_plc = fabric_guidance.nodes.mock_plc:main',
+            'wearer_sim = fabric_guidance.nodes.wearer_sim:main',
         ],
     },
 )

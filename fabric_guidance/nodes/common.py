@@ -1,0 +1,125 @@
+"""What every node of the package shares: topic names, QoS, parameter descriptors, diagnostics
+and a main loop that runs the node's safe shutdown (vent) on SIGINT and SIGTERM.
+
+Nodes stay thin: they parse parameters, wire topics and services, and call the core.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from typing import Any, Callable, Sequence
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+from rclpy.signals import SignalHandlerOptions
+
+# Topic and service names, relative so that a namespace or a remap moves them together.
+GAZE = 'gaze'                          # geometry_msgs/PoseStamped, x axis along the gaze ray
+HEAD_POSE = 'head_pose'                # geometry_msgs/PoseStamped
+TARGET = 'target'                      # geometry_msgs/PointStamped, active target position
+ACTIVE_TARGET = 'active_target'        # std_msgs/String, name of the active target ('' = none)
+TARGET_FOUND = 'target_found'          # std_msgs/String, name of a target the wearer just found
+PRESSURE_COMMAND = 'pressure_command'  # std_msgs/Float64MultiArray, kPa, channel order
+MEASURED_PRESSURE = 'measured_pressure'  # std_msgs/Float64MultiArray, kPa, channel order
+SPEECH = 'speech'                      # std_msgs/String, condition 4's phrase
+CALIBRATION_STATUS = 'calibration_status'  # std_msgs/String, progress of a running calibration
+DIAGNOSTICS = '/diagnostics'
+
+#: The frame of the immersive space (REP 103 axes, Unity's world origin).
+IMMERSIVE_FRAME = 'immersive'
+
+# Gaze: best effort, newest only (a late gaze sample is worth nothing).
+SENSOR_QOS = qos_profile_sensor_data
+# Commands: reliable, a short queue (ros2_controllers' command topics use reliable depth 10).
+COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+# State that a late joiner must see (the active target): reliable, transient local.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Events that must not be lost (target found, speech): reliable, a longer queue.
+EVENT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+
+
+def declare(node: Node, name: str, default: Any, description: str, unit: str = '',
+            low: float | int | None = None, high: float | int | None = None, read_only: bool = False) -> Any:
+    """Declare a parameter with a descriptor (description, unit, range) and return its value."""
+    text = f'{description} [{unit}]' if unit else description
+    desc = ParameterDescriptor(description=text, read_only=read_only,
+                               additional_constraints=f'unit: {unit}' if unit else '')
+    if low is not None and high is not None:
+        if isinstance(default, bool):
+            pass
+        elif isinstance(default, int):
+            desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        elif isinstance(default, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
+    return node.declare_parameter(name, default, desc).value
+
+
+def status(node: Node, name: str, level: bytes, message: str, values: dict) -> DiagnosticStatus:
+    """One DiagnosticStatus named '<node>: <name>' with its key/values as strings."""
+    return DiagnosticStatus(level=level, name=f'{node.get_name()}: {name}', message=message,
+                            hardware_id=node.get_fully_qualified_name(),
+                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+
+def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStatus]) -> None:
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = list(statuses)
+    publisher.publish(msg)
+
+
+class _Stop(Exception):
+    pass
+
+
+def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
+    ROS context is still up so that it can still publish or write, and exit 0.
+
+    rclpy's own signal handlers would shut the context down first; ours stop the spin instead.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+        raise _Stop()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+    except (_Stop, ExternalShutdownException):
+        pass
+    except Exception as exc:  # a start-up error (bad parameter or file) ends with its message
+        if node is None:
+            print(f'[fabric_guidance] cannot start: {exc}', flush=True)
+            code = 1
+        else:
+            raise
+    finally:
+        # Ignore further signals while venting: a second Ctrl-C must not skip it.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if node is not None:
+            safe_shutdown = getattr(node, 'safe_shutdown', None)
+            if safe_shutdown is not None:
+                safe_shutdown()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code

@@ -1,0 +1,295 @@
+"""pressure_controller: the feedback law (Eq. 5) on live gaze and target, the four conditions,
+and Algorithm 1 run live with the wearer.
+
+Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String)
+Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `channels` parameter),
+            speech (String, condition 4), calibration_status (String), /diagnostics
+Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
+
+It publishes a command every control step, all zeros whenever it must not guide: disabled,
+vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PointStamped, PoseStamped
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import SetBool, Trigger
+
+from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
+                    angles_between, condition, phrase, ray_direction, target_direction)
+from ..core.calibration import DONE, FAILED
+from ..core.geometry import DIRECTIONS
+from ..paths import resolve
+from .common import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, GAZE, LATCHED_QOS,
+                     PRESSURE_COMMAND, SENSOR_QOS, SPEECH, TARGET, declare, publish_diagnostics, run, status)
+
+
+class PressureController(Node):
+    def __init__(self):
+        super().__init__('pressure_controller')
+        self.condition = condition(declare(self, 'condition', 1, 'guidance condition: 1 surface adjusted, '
+                                           '2 surface fixed, 3 arm adjusted, 4 speech', low=1, high=4))
+        self.gain = declare(self, 'gain', 0.05, 'adjustment gain G of Eq. 5', low=0.0, high=10.0)
+        self.p_max = declare(self, 'p_max_kpa', 375.0, 'no command above this leaves the node', 'kPa',
+                             low=0.0, high=1000.0)
+        rate = declare(self, 'control_rate_hz', 30.0, 'Eq. 5 steps per second', 'Hz', low=1.0, high=1000.0)
+        self.gaze_timeout = declare(self, 'gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long',
+                                    's', low=0.01, high=10.0)
+        self.deadband = declare(self, 'rate_deadband_dps', 0.0, 'de/dt must exceed this to count as growing',
+                                'deg/s', low=0.0, high=1000.0)
+        cal_file = declare(self, 'calibration_file', '', "the wearer's calibration file (YAML); '' = none: "
+                           'no guidance until calibrated')
+        cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
+                          "'' = ~/.fabric_guidance/calibrations")
+        self.wearer = declare(self, 'wearer', 'wearer', 'name of the wearer (the calibration file name)')
+        self.cal_steps = declare(self, 'calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)',
+                                 low=3, high=50)
+        self.cal_dwell = declare(self, 'calibration_dwell_s', 3.0, 'time at each pressure step', 's',
+                                 low=0.05, high=60.0)
+        self.cal_rest = declare(self, 'calibration_rest_s', 3.0, 'vented rest before each direction', 's',
+                                low=0.05, high=60.0)
+        self.cal_window = declare(self, 'calibration_window_s', 0.5, 'the recorded angle is the median over '
+                                  'the last part of a dwell', 's', low=0.01, high=60.0)
+        channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
+        self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
+
+        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
+        self.layout = self.condition.layout or 'suit'
+        declare(self, 'channels', list(self.channel_map.channels),
+                'order of pressure_command (as ros2_controllers joints)', read_only=True)
+        self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'
+        self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
+        self.controller = self._make_controller()
+
+        self.enabled = True
+        self.gaze_origin = self.gaze_direction = None
+        self.gaze_received = -float('inf')   # time.monotonic(): staleness is judged on the wall clock
+        self.target = None
+        self.target_name = ''
+        self.awaiting_target = False          # a new name came; wait for a position published after it
+        self.speech_due = False
+        self.procedure: CalibrationProcedure | None = None
+        self.last_status = ''
+        self.vent_reason = 'starting'
+        self.invalid_inputs = 0
+
+        self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
+        self.speech_pub = self.create_publisher(String, SPEECH, EVENT_QOS)
+        self.status_pub = self.create_publisher(String, CALIBRATION_STATUS, EVENT_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
+        self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
+        self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
+        self.create_service(Trigger, 'start_calibration', self.on_start_calibration)
+        self.create_service(SetBool, 'enable', self.on_enable)
+        self.create_service(Trigger, 'vent', self.on_vent)
+        self.create_timer(1.0 / rate, self.step)
+        self.create_timer(1.0, self.publish_diagnostics)
+        self.zeros = np.zeros(len(self.channel_map.channels))
+        self.get_logger().info(
+            f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
+            f'calibration: {cal_file or "none"}')
+
+    def _make_controller(self) -> GuidanceController | None:
+        if self.calibration is None or not self.condition.haptic:
+            return None
+        return GuidanceController(self.calibration.laws, p_max=min(self.p_max, self.calibration.p_max),
+                                  gain=self.gain, mode=self.condition.mode, rate_deadband=self.deadband)
+
+    # ---- inputs
+    def on_gaze(self, msg: PoseStamped) -> None:
+        p, q = msg.pose.position, msg.pose.orientation
+        try:
+            direction = ray_direction([q.x, q.y, q.z, q.w])
+            origin = np.array([p.x, p.y, p.z])
+            if not np.all(np.isfinite(origin)):
+                raise GeometryError('gaze origin is not finite')
+        except GeometryError:
+            self.invalid_inputs += 1
+            return
+        self.gaze_origin, self.gaze_direction = origin, direction
+        self.gaze_received = time.monotonic()
+
+    def on_active_target(self, msg: String) -> None:
+        if msg.data == self.target_name:
+            return
+        self.target_name = msg.data
+        self.target = None
+        self.awaiting_target = bool(msg.data)
+        if self.controller is not None:
+            self.controller.vent()
+
+    def on_target(self, msg: PointStamped) -> None:
+        point = np.array([msg.point.x, msg.point.y, msg.point.z])
+        if not np.all(np.isfinite(point)):
+            self.invalid_inputs += 1
+            return
+        if not self.target_name:
+            return
+        self.target = point
+        if self.awaiting_target:
+            self.awaiting_target = False
+            self.speech_due = self.condition.speech
+            if self.controller is not None:
+                self.controller.vent()   # the next step begins from the gaze at that moment
+
+    # ---- services
+    def on_start_calibration(self, request, response):
+        if self.procedure is not None:
+            response.success, response.message = False, 'a calibration is already running'
+            return response
+        try:
+            self.procedure = CalibrationProcedure(
+                self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
+                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest))
+        except ValueError as exc:
+            response.success, response.message = False, f'cannot calibrate: {exc}'
+            return response
+        response.success = True
+        response.message = (f'calibrating {self.wearer}: {len(DIRECTIONS)} directions x {self.cal_steps} steps, '
+                            f'about {self.procedure.duration_s:.0f} s')
+        self.get_logger().info(response.message)
+        return response
+
+    def on_enable(self, request, response):
+        self.enabled = bool(request.data)
+        if not self.enabled and self.controller is not None:
+            self.controller.vent()
+        response.success, response.message = True, 'guidance enabled' if self.enabled else 'guidance disabled (vented)'
+        return response
+
+    def on_vent(self, request, response):
+        self.enabled = False
+        if self.controller is not None:
+            self.controller.vent()
+        if self.procedure is not None:
+            self.procedure.fail('vented by request')
+        self.publish(self.zeros)
+        response.success, response.message = True, 'vented; call enable to guide again'
+        return response
+
+    # ---- the control step
+    def publish(self, channels: np.ndarray) -> None:
+        # Last line of defence: nothing above P_MAX and nothing non-finite leaves this node.
+        safe = np.clip(np.nan_to_num(channels, nan=0.0, posinf=0.0, neginf=0.0), 0.0, self.p_max)
+        self.command_pub.publish(Float64MultiArray(data=safe.tolist()))
+
+    def step(self) -> None:
+        t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
+        fresh = time.monotonic() - self.gaze_received <= self.gaze_timeout
+        if self.procedure is not None:
+            self.publish(self.calibration_step(t, fresh))
+            return
+        if self.speech_due and fresh and self.target is not None:
+            self.say()
+        reason = self.why_not_guide(fresh)
+        if reason:
+            self.vent_reason = reason
+            if self.controller is not None:
+                self.controller.vent()
+            self.publish(self.zeros)
+            return
+        try:
+            direction_pressures = self.controller.update(
+                self.gaze_direction, target_direction(self.gaze_origin, self.target), t)
+        except ValueError as exc:
+            self.invalid_inputs += 1
+            self.vent_reason = f'invalid input: {exc}'
+            self.controller.vent()
+            self.publish(self.zeros)
+            return
+        self.vent_reason = ''
+        self.publish(self.channel_map.to_channels(direction_pressures, self.layout))
+
+    def why_not_guide(self, fresh: bool) -> str:
+        if not self.enabled:
+            return 'disabled'
+        if not self.condition.haptic:
+            return 'condition 4 (speech) drives no muscle'
+        if self.controller is None:
+            return 'no calibration: call start_calibration or set calibration_file'
+        if not self.target_name or self.target is None:
+            return 'no active target'
+        if not fresh:
+            return f'no valid gaze for {self.gaze_timeout} s'
+        return ''
+
+    def say(self) -> None:
+        self.speech_due = False
+        try:
+            angles = angles_between(self.gaze_direction, target_direction(self.gaze_origin, self.target))
+        except GeometryError:
+            return
+        text = phrase(angles.horizontal, angles.vertical)
+        self.speech_pub.publish(String(data=text))
+        self.get_logger().info(f'speech for {self.target_name}: "{text}"')
+        if self.speak and shutil.which('espeak-ng'):
+            subprocess.Popen(['espeak-ng', text], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def calibration_step(self, t: float, fresh: bool) -> np.ndarray:
+        proc = self.procedure
+        if not fresh:
+            proc.fail(f'the gaze stream stopped for more than {self.gaze_timeout} s')
+        cmd = proc.tick(t, self.gaze_direction if fresh else None)
+        direction_pressures = np.zeros(len(DIRECTIONS))
+        if cmd.direction is not None:
+            direction_pressures[DIRECTIONS.index(cmd.direction)] = cmd.pressure
+        text = (f'{cmd.phase} {cmd.direction or ""} step {cmd.step}/{self.cal_steps} '
+                f'{cmd.pressure:.0f} kPa {100 * cmd.progress:.0f}%')
+        if cmd.phase == DONE:
+            text = self.finish_calibration()
+        elif cmd.phase == FAILED:
+            text = f'failed: {proc.error}; the previous calibration is kept'
+            self.get_logger().error(f'calibration {text}')
+            self.procedure = None
+        if text != self.last_status:
+            self.last_status = text
+            self.status_pub.publish(String(data=text))
+        return self.channel_map.to_channels(direction_pressures, self.layout) if self.procedure else self.zeros
+
+    def finish_calibration(self) -> str:
+        proc, self.procedure = self.procedure, None
+        try:
+            cal = proc.result(base=self.calibration)
+            path = cal.save(self.cal_dir / f'{self.wearer}.yaml')
+        except (ValueError, OSError) as exc:
+            self.get_logger().error(f'calibration not saved: {exc}')
+            return f'failed: {exc}; the previous calibration is kept'
+        self.calibration = cal
+        self.controller = self._make_controller()
+        fits = ', '.join(f'{d} R^2 {cal.directions[d].fit.get("r2", float("nan")):.3f}' for d in DIRECTIONS)
+        self.get_logger().info(f'calibration written to {path} ({fits})')
+        return f'done: {path}'
+
+    def publish_diagnostics(self) -> None:
+        if self.procedure is not None:
+            level, message = DiagnosticStatus.OK, f'calibrating: {self.last_status}'
+        elif self.vent_reason:
+            level, message = DiagnosticStatus.WARN, f'vented: {self.vent_reason}'
+        else:
+            level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
+        pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
+        values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs}
+        values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
+        publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
+
+    def safe_shutdown(self) -> None:
+        self.publish(self.zeros)
+        self.get_logger().info('vented on shutdown')
+
+
+def main(args=None) -> int:
+    return run(PressureController, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""The graph without `launch`: the package's nodes as separate processes with its parameter
+files, the way launch/sim.launch.py starts them, plus a probe node to watch them.
+
+Used by `fabric-guidance demo` and by the tests (launch and launch_ros do not install from the
+package index). Every graph gets its own ROS_DOMAIN_ID and discovery stays on localhost, so
+concurrent runs and other machines are never heard.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from typing import Any, Callable
+
+from .paths import share_dir
+
+ROOT = share_dir()
+CONFIG = ROOT / 'config'
+_counter = itertools.count()
+
+
+def fresh_domain_id() -> int:
+    """A domain id (1..100) distinct for every graph of this process and unlikely to be shared
+    with another test process: the pid spreads processes, the counter graphs within one."""
+    return 1 + (os.getpid() * 13 + next(_counter)) % 100
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float, interval: float = 0.02, what: str = 'condition') -> Any:
+    """Poll until predicate() is truthy; return its value, or fail with `what` at the deadline."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out after {timeout:.1f} s waiting for {what}')
+        time.sleep(interval)
+
+
+class Graph:
+    """Nodes of the package as separate processes, the way a launch file starts them."""
+
+    def __init__(self, log_dir: Path, domain_id: int | None = None):
+        self.domain_id = fresh_domain_id() if domain_id is None else domain_id
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                        PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
+
+    def start(self, node: str, params_files=('guidance.yaml',), **overrides) -> subprocess.Popen:
+        """Start fabric_guidance.nodes.<node> with the package's parameter files (in order) and
+        `-p name:=value` overrides."""
+        cmd = [sys.executable, '-m', f'fabric_guidance.nodes.{node}', '--ros-args']
+        for f in params_files:
+            cmd += ['--params-file', str(CONFIG / f)]
+        for key, value in overrides.items():
+            cmd += ['-p', f'{key}:={_param_text(value)}']
+        log = open(self.log_dir / f'{node}.log', 'w')
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=ROOT)
+        self.processes[node] = proc
+        return proc
+
+    def log(self, node: str) -> str:
+        return (self.log_dir / f'{node}.log').read_text()
+
+    def stop(self, node: str, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
+        proc = self.processes[node]
+        if proc.poll() is None:
+            proc.send_signal(sig)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                raise AssertionError(f'{node} did not exit within {timeout} s of signal {sig}')
+        return proc.returncode
+
+    def stop_all(self) -> None:
+        for name, proc in list(self.processes.items()):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in self.processes.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop_all()
+
+
+def _param_text(value) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_param_text(v) for v in value) + ']'
+    if isinstance(value, str):
+        return f"'{value}'" if value == '' else value
+    return repr(value)
+
+
+class Probe:
+    """An rclpy node in this process, on the graph's domain, spinning in a background thread."""
+
+    def __init__(self, domain_id: int, name: str = 'test_probe'):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._lock = threading.Lock()
+        self.messages: dict[str, list] = {}
+        self._running = True
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while self._running and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def subscribe(self, msg_type, topic: str, qos, callback: Callable[[Any], None] | None = None) -> list:
+        """Collect every message on `topic`; returns the (growing) list. `callback`, if given,
+        also sees each message (on the probe's thread)."""
+        received = self.messages.setdefault(topic, [])
+
+        def keep(msg):
+            with self._lock:
+                received.append(msg)
+            if callback is not None:
+                callback(msg)
+        self.node.create_subscription(msg_type, topic, keep, qos)
+        return received
+
+    def latest(self, topic: str):
+        with self._lock:
+            msgs = self.messages.get(topic, [])
+            return msgs[-1] if msgs else None
+
+    def call(self, srv_type, name: str, request, timeout: float = 10.0):
+        client = self.node.create_client(srv_type, name)
+        wait_until(lambda: client.service_is_ready(), timeout, what=f'service {name}')
+        future = client.call_async(request)
+        wait_until(future.done, timeout, what=f'response of {name}')
+        return future.result()
+
+    def close(self):
+        self._running = False
+        self._thread.join(5)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.shutdown(context=self.context)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,253 @@
+"""pressure_controller as a process: Eq. 5 on live topics, the four conditions, venting on
+stale gaze and on request, and Algorithm 1 run live through its service.
+
+The test plays gaze_bridge and target_selector (publishing gaze, target and active_target)
+and, for calibration, the wearer (answering each command with the angle its own law gives).
+"""
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped, PoseStamped
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import SetBool, Trigger
+
+from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
+from fabric_guidance.core.geometry import DIRECTIONS
+from fabric_guidance.nodes import common
+from rosgraph import CONFIG, Graph, Probe, wait_until
+
+SIM_CAL = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
+CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
+EYE = np.array([0.0, 0.0, 1.2])
+GAZE_TIMEOUT_S = 0.3
+#: Stale gaze to vented command: gaze_timeout_s + one control period (30 Hz) + delivery margin.
+VENT_DEADLINE_S = GAZE_TIMEOUT_S + 1 / 30 + 0.5
+
+
+def direction(yaw_deg, pitch_deg=0.0):
+    y, p = math.radians(yaw_deg), math.radians(pitch_deg)
+    return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
+
+
+class FakeUpstream:
+    """Publishes gaze at 50 Hz (yaw/pitch settable) and the active target, as the bridge and
+    the selector do: the target position is republished at 10 Hz, so a controller that learns
+    the name after the position still gets a position after the name."""
+
+    def __init__(self, probe: Probe):
+        node = probe.node
+        self.gaze_pub = node.create_publisher(PoseStamped, common.GAZE, common.SENSOR_QOS)
+        self.target_pub = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
+        self.name_pub = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
+        self.yaw = self.pitch = 0.0
+        self.target = None
+        self.sending = threading.Event()
+        self.sending.set()
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        n = 0
+        while not self._stop:
+            n += 1
+            if self.target is not None and n % 5 == 0:
+                self.target_pub.publish(self.target)
+            if self.sending.is_set():
+                msg = PoseStamped()
+                msg.header.frame_id = common.IMMERSIVE_FRAME
+                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
+                q = ray_orientation(direction(self.yaw, self.pitch))
+                o = msg.pose.orientation
+                o.x, o.y, o.z, o.w = q
+                self.gaze_pub.publish(msg)
+            time.sleep(0.02)
+
+    def activate(self, name, yaw_deg, pitch_deg=0.0, distance=2.0):
+        point = EYE + distance * direction(yaw_deg, pitch_deg)
+        msg = PointStamped()
+        msg.header.frame_id = common.IMMERSIVE_FRAME
+        msg.point.x, msg.point.y, msg.point.z = point
+        self.target = msg
+        self.target_pub.publish(msg)
+        self.name_pub.publish(String(data=name))
+        self.target_pub.publish(msg)
+
+    def close(self):
+        self._stop = True
+        self._thread.join(2)
+
+
+@pytest.fixture
+def controller(tmp_path, request):
+    params = getattr(request, 'param', {})
+    graph = Graph(tmp_path / 'logs')
+    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+                calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S, **params)
+    probe = Probe(graph.domain_id)
+    commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+    upstream = FakeUpstream(probe)
+    try:
+        yield graph, probe, upstream, commands
+    finally:
+        upstream.close()
+        probe.close()
+        graph.stop_all()
+
+
+def latest(probe):
+    msg = probe.latest(common.PRESSURE_COMMAND)
+    return None if msg is None else dict(zip(CMAP.channels, msg.data))
+
+
+def channels_equal(probe, expected, tol=1e-6):
+    now = latest(probe)
+    return now is not None and all(abs(now[c] - expected.get(c, 0.0)) <= tol for c in CMAP.channels)
+
+
+def test_target_40_left_drives_left_twist_to_the_calibrated_pressure(controller):
+    graph, probe, upstream, _ = controller
+    f_left_40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f_left_40, 'L2': f_left_40}), 10.0,
+               what=f'L1, L2 at f_left(40) = {f_left_40:.2f} kPa and every other channel at 0')
+
+
+def test_error_growing_raises_the_pressure_and_fixed_condition_does_not(controller):
+    graph, probe, upstream, _ = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    for step in range(40):             # the wearer turns right, away from the target
+        upstream.yaw = -0.5 * step
+        time.sleep(0.02)
+    wait_until(lambda: latest(probe)['L1'] > f40 + 1.0, 5.0, what='L1 rising above f(40) while the error grows')
+
+
+@pytest.mark.parametrize('controller', [{'condition': 2}], indirect=True)
+def test_condition_2_holds_f_of_target(controller):
+    graph, probe, upstream, commands = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    n = len(commands)
+    for step in range(40):
+        upstream.yaw = -0.5 * step
+        time.sleep(0.02)
+    wait_until(lambda: len(commands) > n + 20, 5.0, what='commands while the wearer turns away')
+    assert all(abs(m.data[CMAP.channels.index('L1')] - f40) < 1e-9 for m in commands[n:])
+
+
+@pytest.mark.parametrize('controller', [{'condition': 3}], indirect=True)
+def test_condition_3_drives_the_arm_muscles_of_table_2(controller):
+    graph, probe, upstream, _ = controller
+    f_up = SIM_CAL.laws[3].pressure(20.0)
+    upstream.activate('t1', 0.0, 20.0)
+    wait_until(lambda: channels_equal(probe, {'arm_i': f_up, 'arm_iv': f_up}, tol=1e-3), 10.0,
+               what='arm (i) and (iv) at f_up(20), suit channels at 0')
+
+
+@pytest.mark.parametrize('controller', [{'condition': 4}], indirect=True)
+def test_condition_4_speaks_once_per_target_and_drives_nothing(controller):
+    graph, probe, upstream, commands = controller
+    speech = probe.subscribe(String, common.SPEECH, common.EVENT_QOS)
+    upstream.activate('t1', -36.0, 12.0)
+    wait_until(lambda: speech, 10.0, what='the phrase')
+    n = len(commands)
+    wait_until(lambda: len(commands) > n + 30, 5.0, what='a second of commands')
+    assert [m.data for m in speech] == ['36 to the right and 12 upward']
+    assert all(max(m.data) == 0.0 for m in commands)
+    upstream.activate('t2', 20.0, -5.0)
+    wait_until(lambda: len(speech) == 2, 10.0, what='the phrase of the second target')
+    assert speech[1].data == '20 to the left and 5 downward'
+
+
+def test_stale_gaze_vents_within_the_deadline(controller):
+    graph, probe, upstream, _ = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    upstream.sending.clear()
+    t0 = time.monotonic()
+    wait_until(lambda: channels_equal(probe, {}), VENT_DEADLINE_S, what='every channel at 0 after the gaze stopped')
+    print(f'stale gaze vented after {time.monotonic() - t0:.3f} s (deadline {VENT_DEADLINE_S:.2f} s)')
+    upstream.sending.set()
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guidance resuming with the gaze')
+
+
+def test_vent_and_enable_services(controller):
+    graph, probe, upstream, _ = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    assert probe.call(Trigger, 'vent', Trigger.Request()).success
+    wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
+    assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding again')
+
+
+def test_sigterm_vents_before_exit(controller):
+    graph, probe, upstream, commands = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    import signal
+    assert graph.stop('pressure_controller', signal.SIGTERM) == 0
+    wait_until(lambda: channels_equal(probe, {}), 2.0, what='the last command sent being all zeros')
+    assert 'vented on shutdown' in graph.log('pressure_controller')
+
+
+FAST_CAL = dict(calibration_steps=5, calibration_dwell_s=0.4, calibration_rest_s=0.4, calibration_window_s=0.15,
+                wearer='alice')
+ALICE = [PowerLaw(18.0, 0.7, 22.0), PowerLaw(25.0, 0.6, 18.0), PowerLaw(45.0, 0.5, 28.0), PowerLaw(35.0, 0.6, 30.0)]
+SIGN = {'left': (1, 0), 'right': (-1, 0), 'down': (0, -1), 'up': (0, 1)}
+
+
+def answer_as(upstream, probe, laws, stop):
+    """Play the wearer: for each command, look at the angle this wearer's law gives it."""
+    while not stop.is_set():
+        now = latest(probe)
+        if now is not None:
+            per_dir = CMAP.to_directions(np.array([now[c] for c in CMAP.channels]), 'suit')
+            yaw = pitch = 0.0
+            for d, p, law in zip(DIRECTIONS, per_dir, laws):
+                if p > 0:
+                    angle = law.theta(p, 375.0)
+                    yaw += SIGN[d][0] * angle
+                    pitch += SIGN[d][1] * angle
+            upstream.yaw, upstream.pitch = yaw, pitch
+        time.sleep(0.01)
+
+
+@pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
+def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(controller, tmp_path):
+    graph, probe, upstream, _ = controller
+    status = probe.subscribe(String, common.CALIBRATION_STATUS, common.EVENT_QOS)
+    stop = threading.Event()
+    wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
+    wearer.start()
+    try:
+        reply = probe.call(Trigger, 'start_calibration', Trigger.Request())
+        assert reply.success, reply.message
+        wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 30.0, what='calibration end')
+        assert status[-1].data.startswith('done'), [m.data for m in status]
+        assert any('left step 3/5' in m.data for m in status)        # progress was reported
+        path = tmp_path / 'calibrations' / 'alice.yaml'
+        cal = Calibration.load(path)
+        for fitted, true in zip(cal.laws, ALICE):
+            th = np.linspace(5.0, 40.0, 8)
+            assert np.max(np.abs(fitted.pressure(th) - true.pressure(th))) < 5.0   # kPa over the guided range
+        before = path.read_bytes()
+    finally:
+        stop.set()
+        wearer.join(2)
+    # A wearer who does not move: the fit is refused and alice.yaml stays as it was.
+    upstream.yaw = upstream.pitch = 0.0
+    n = len(status)
+    assert probe.call(Trigger, 'start_calibration', Trigger.Request()).success
+    wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 30.0, what='the refused calibration')
+    assert 'distinct angles' in status[-1].data
+    assert path.read_bytes() == before
