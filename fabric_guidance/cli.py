@@ -1,4 +1,8 @@
-"""fabric-guidance: the package's command line. `fabric-guidance demo` is `make demo`."""
+"""fabric-guidance: the package's command line.
+
+  demo      the simulated ROS graph, a guided session, what happened (`make demo`)
+  example   the core alone on a worked example (no ROS)
+"""
 from __future__ import annotations
 
 import argparse
@@ -67,16 +71,22 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='fabric-guidance', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True)
-    demo = sub.add_parser('demo', help='run the embedded default session and print what happened')
-    demo.add_argument('--out', type=Path, default=None,
-                      help='folder for the files the demo writes (default: a temporary folder)')
+    demo = sub.add_parser('demo', help='run the simulated ROS graph for a short guided session and report it')
+    demo.add_argument('--condition', type=int, default=1, choices=(1, 2, 3),
+                      help='guidance condition (1 surface adjusted, 2 surface fixed, 3 arm adjusted)')
+    demo.add_argument('--timeout', type=float, default=45.0, help='give up after this many seconds')
+    demo.add_argument('--out', type=Path, default=None, help='folder for logs (default: a temporary folder)')
+    example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
+    example.add_argument('--out', type=Path, default=None,
+                         help='folder for the calibration file (default: a temporary folder)')
     args = parser.parse_args(argv)
     if args.command == 'demo':
-        if args.out is not None:
-            return run_worked_example(args.out)
-        with tempfile.TemporaryDirectory(prefix='fabric-guidance-demo-') as tmp:
-            return run_worked_example(Path(tmp))
-    return 2
+        from .demo import run_demo  # imports rclpy: only for the graph
+        return run_demo(args.condition, args.timeout, args.out)
+    if args.out is not None:
+        return run_worked_example(args.out)
+    with tempfile.TemporaryDirectory(prefix='fabric-guidance-example-') as tmp:
+        return run_worked_example(Path(tmp))
 
 
 if __name__ == '__main__':

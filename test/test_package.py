@@ -53,8 +53,8 @@ def test_ament_layout():
         assert needle in setup
 
 
-def test_demo_prints_the_worked_example(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'demo', '--out', str(tmp_path)],
+def test_example_prints_the_worked_example(tmp_path):
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'example', '--out', str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert '4 of 4 targets found' in out.stdout
