@@ -76,7 +76,8 @@ class FeedbackLaw:
         self._last_time: float | None = None
 
     def _clamp(self, p: float) -> float:
-        if not math.isfinite(p):  # cannot happen with a valid PowerLaw; vent rather than pass it on
+        # An increment can overflow to +inf with an absurd gain: that is "above P_MAX", not NaN.
+        if math.isnan(p):
             return 0.0
         return min(max(p, 0.0), self.p_max)
 

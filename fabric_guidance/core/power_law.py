@@ -27,6 +27,11 @@ THETA_MAX = 180.0
 #: Derivatives are evaluated no closer to 0 than this (degrees), so they stay bounded
 #: where b < 1 (f' ~ theta**(b-1)) or b > 1 (the inverse's derivative ~ theta**(1-b)).
 THETA_EPS = 0.01
+#: Smallest a accepted: far below any real wearer (a = 375 / 180**20 is ~1e-43), far above
+#: the subnormal range where 1 / (a*b) overflows.
+A_MIN = 1e-100
+#: Largest d(theta)/dP reported, deg/kPa: the whole angle range per 1e-4 kPa.
+INVERSE_SLOPE_MAX = 1e6
 #: log of the largest |f| the model may reach (about 1e260 kPa): keeps sums and differences of f finite.
 LOG_F_MAX = 600.0
 #: Smallest number of distinct angles the three coefficients can be fitted to.
@@ -50,8 +55,8 @@ class PowerLaw:
             value = getattr(self, name)
             if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
                 raise ValueError(f'power law coefficient {name} must be a finite number, got {value!r}')
-        if not self.a > 0:
-            raise ValueError(f'power law coefficient a must be > 0 (pressure rises with angle), got {self.a}')
+        if not self.a >= A_MIN:
+            raise ValueError(f'power law coefficient a must be >= {A_MIN:g} (pressure rises with angle), got {self.a}')
         if not B_MIN <= self.b <= B_MAX:
             raise ValueError(f'power law exponent b must be within [{B_MIN}, {B_MAX}], got {self.b}')
         # f must stay finite over the whole angle range: a * 180**b + c far from float overflow.
@@ -91,9 +96,11 @@ class PowerLaw:
         return float(out) if np.ndim(out) == 0 else out
 
     def inverse_slope(self, pressure, p_max: float):
-        """d(theta)/dP in deg/kPa of the inverse, bounded: evaluated at theta >= THETA_EPS."""
+        """d(theta)/dP in deg/kPa of the inverse, bounded: evaluated at theta >= THETA_EPS and
+        capped at INVERSE_SLOPE_MAX."""
         t = np.maximum(np.asarray(self.theta(pressure, p_max), dtype=float), THETA_EPS)
-        out = 1.0 / (self.a * self.b * np.power(t, self.b - 1.0))
+        with np.errstate(over='ignore', divide='ignore'):
+            out = np.minimum(1.0 / (self.a * self.b * np.power(t, self.b - 1.0)), INVERSE_SLOPE_MAX)
         return float(out) if np.ndim(out) == 0 else out
 
     def as_dict(self) -> dict:
