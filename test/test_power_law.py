@@ -40,7 +40,9 @@ def test_slopes_by_hand_and_bounded_at_zero():
 
 
 @pytest.mark.parametrize('kwargs, match', [
-    (dict(a=0.0, b=1.0, c=0.0), 'a must be > 0'),
+    (dict(a=0.0, b=1.0, c=0.0), 'a must be >= 1e-100'),
+    (dict(a=5e-324, b=1.0, c=0.0), 'a must be >= 1e-100'),
+    (dict(a=1e300, b=5.0, c=0.0), 'overflow'),
     (dict(a=1.0, b=0.0, c=0.0), 'exponent b'),
     (dict(a=1.0, b=25.0, c=0.0), 'exponent b'),
     (dict(a=float('nan'), b=1.0, c=0.0), 'finite'),
