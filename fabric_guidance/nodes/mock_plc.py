@@ -1,0 +1,80 @@
+"""mock_plc: a simulated pressure PLC on Modbus TCP, for tests and the demo.
+
+Runs fabric_guidance.plc.MockPlcServer (same register map as the real PLC, regulator lag,
+heartbeat watchdog) and reports what was written to it: the largest pressure ever written per
+channel and, on /diagnostics, every write above p_max or outside the register map.
+
+Publishes: mock_plc/max_written_kpa (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
+"""
+from __future__ import annotations
+
+import sys
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, declare, publish_diagnostics, run, status
+from fabric_guidance.paths import resolve
+from fabric_guidance.plc import MockPlcServer, RegisterMap
+
+MAX_WRITTEN = 'mock_plc/max_written_kpa'
+
+
+class MockPlc(Node):
+
+    def __init__(self):
+        super().__init__('mock_plc')
+        host = declare(self, 'host', '127.0.0.1', 'address to listen on (Modbus TCP)', read_only=True)
+        port = declare(self, 'port', 1502, 'TCP port to listen on (0: any free port)', '', 0, 65535,
+                       read_only=True)
+        register_map_file = declare(self, 'register_map_file', '',
+                                    "register map (YAML); '' = the package's config/plc_register_map.yaml",
+                                    read_only=True)
+        tau_s = declare(self, 'regulator_tau_s', 0.15, 'first-order lag of each electro-pneumatic regulator',
+                        's', 0.0, 10.0, read_only=True)
+        watchdog_s = declare(self, 'watchdog_s', 0.5, 'vent all channels when the heartbeat stops for this long',
+                             's', 0.01, 3600.0, read_only=True)
+        update_hz = declare(self, 'update_hz', 100.0, 'regulator simulation rate', 'Hz', 1.0, 1000.0,
+                            read_only=True)
+        status_rate_hz = declare(self, 'status_rate_hz', 10.0,
+                                 'mock_plc/max_written_kpa and /diagnostics publication rate', 'Hz', 0.1, 100.0,
+                                 read_only=True)
+
+        self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'))
+        self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
+                                    update_hz=update_hz).start()
+        self.address = f'{host}:{self.server.port}'
+        self._max_pub = self.create_publisher(Float64MultiArray, MAX_WRITTEN, COMMAND_QOS)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.create_timer(1.0 / status_rate_hz, self._on_status_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f'mock PLC listening on {self.address}: {len(self.register_map)} channels, '
+                               f'p_max {self.register_map.p_max_kpa:g} kPa, regulator tau {tau_s:g} s, '
+                               f'watchdog {watchdog_s:g} s')
+
+    def _on_status_timer(self) -> None:
+        written = self.server.max_written_kpa()
+        self._max_pub.publish(Float64MultiArray(data=[float(written[name]) for name in self.register_map.names]))
+        over, outside = len(self.server.over_limit_writes), len(self.server.out_of_map_writes)
+        if over or outside:
+            level = DiagnosticStatus.ERROR
+            message = f'{over} writes above p_max, {outside} writes outside the register map'
+        else:
+            level, message = DiagnosticStatus.OK, 'every write within the register map and p_max'
+        values = {'over-limit writes': over, 'out-of-map writes': outside,
+                  'watchdog trips': self.server.watchdog_trips, 'watchdog armed': self.server.watchdog_armed,
+                  'max written kPa': f'{max(written.values()):g}', 'address': self.address}
+        publish_diagnostics(self, self._diagnostics_pub, [status(self, 'mock PLC', level, message, values)])
+
+    def safe_shutdown(self) -> None:
+        self.server.stop()
+        self.get_logger().info(f'mock PLC on {self.address} stopped')
+
+
+def main(args=None):
+    return run(lambda: MockPlc(), args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,246 @@
+"""plc_output: pressure commands (kPa, channel order) to the PLC over Modbus TCP.
+
+Every cycle at write_rate_hz, while the link is up, the node writes the latest command clamped
+to min(p_max_kpa, the register map's p_max_kpa), or zeros (vent) when no valid command arrived
+within command_timeout_s or the latest one was invalid; then it bumps the heartbeat the PLC's
+watchdog watches, reads the measured pressures back and publishes them. A lost link is retried
+with an exponential backoff, and the latest fresh command is written again once it is back.
+On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
+
+Subscribes: pressure_command (std_msgs/Float64MultiArray, kPa, channel order)
+Publishes:  measured_pressure (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from fabric_guidance.core.channels import ChannelMap
+from fabric_guidance.nodes.common import (COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND,
+                                          declare, publish_diagnostics, run, status)
+from fabric_guidance.paths import resolve
+from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
+
+#: Errors about bad commands or an unreachable PLC are logged at most this often [s].
+LOG_THROTTLE_S = 1.0
+
+
+class PlcOutput(Node):
+
+    def __init__(self):
+        super().__init__('plc_output')
+        # Every parameter is read once, here; read-only so that `ros2 param set` cannot appear
+        # to change a value (a pressure limit above all) that the running node does not use.
+        self.plc_host = declare(self, 'plc_host', '127.0.0.1', "the PLC's address (Modbus TCP)", read_only=True)
+        self.plc_port = declare(self, 'plc_port', 1502, "the PLC's Modbus TCP port", '', 1, 65535, read_only=True)
+        register_map_file = declare(self, 'register_map_file', '',
+                                    "register map (YAML); '' = the package's config/plc_register_map.yaml",
+                                    read_only=True)
+        channel_map_file = declare(self, 'channel_map_file', '',
+                                   "channel map (YAML); '' = the package's config/channel_map.yaml", read_only=True)
+        p_max_param = declare(self, 'p_max_kpa', 375.0,
+                              'commands are clamped to this (and to the register map p_max_kpa) before writing',
+                              'kPa', 0.0, 1000.0, read_only=True)
+        write_rate_hz = declare(self, 'write_rate_hz', 50.0, 'commands and heartbeat written per second',
+                                'Hz', 1.0, 1000.0, read_only=True)
+        self.command_timeout_s = declare(self, 'command_timeout_s', 0.5,
+                                         'vent when no valid command arrived for this long', 's', 0.01, 60.0,
+                                         read_only=True)
+        modbus_timeout_s = declare(self, 'modbus_timeout_s', 0.2, 'timeout of one Modbus request or connection',
+                                   's', 0.01, 10.0, read_only=True)
+        self.reconnect_min_s = declare(self, 'reconnect_min_s', 0.2,
+                                       'wait after a lost link, doubling up to reconnect_max_s', 's', 0.01, 600.0,
+                                       read_only=True)
+        self.reconnect_max_s = declare(self, 'reconnect_max_s', 5.0, 'longest wait between reconnection attempts',
+                                       's', 0.01, 600.0, read_only=True)
+        diagnostics_period_s = declare(self, 'diagnostics_period_s', 1.0, '/diagnostics publication period',
+                                       's', 0.05, 60.0, read_only=True)
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError(f'parameter "reconnect_min_s" ({self.reconnect_min_s} s) must not exceed '
+                             f'"reconnect_max_s" ({self.reconnect_max_s} s)')
+
+        channel_path = resolve(channel_map_file, 'channel_map.yaml')
+        channel_map = ChannelMap.load(channel_path)
+        self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'),
+                                             expected_channels=channel_map.channels)
+        # The channel order, read-only like ros2_controllers' `joints`: it comes from the channel map.
+        channels = declare(self, 'channels', list(channel_map.channels),
+                           'channel order of pressure_command and measured_pressure (from channel_map_file)',
+                           read_only=True)
+        if list(channels) != list(channel_map.channels):
+            raise ValueError(f'parameter "channels" {list(channels)} does not match the channel order of '
+                             f'{channel_path}: {list(channel_map.channels)}')
+        self.p_max_kpa = min(p_max_param, self.register_map.p_max_kpa)
+        self.n = len(self.register_map)
+        self.plc_address = f'{self.plc_host}:{self.plc_port}'
+
+        self._zeros = np.zeros(self.n)
+        self._command = self._zeros        # latest valid command, already clamped [kPa]
+        self._command_s: float | None = None  # time.monotonic() of its arrival
+        self._invalid = False              # the latest message was invalid: vent until a valid one
+        self._vent_reason = ''
+        self._client = PlcClient(self.register_map, self.plc_host, self.plc_port, timeout_s=modbus_timeout_s)
+        self._link_up = False
+        self._ever_connected = False
+        self._backoff_s = self.reconnect_min_s
+        self._next_attempt_s = time.monotonic()
+        self._last_error = 'not connected yet'
+        self._heartbeat = 0
+        self._writes = self._link_failures = self._reconnects = self._invalid_commands = 0
+        self._last_round_trip_s: float | None = None
+
+        self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command, COMMAND_QOS)
+        # Steady clock: writing, heartbeat and venting never wait for a simulated /clock.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._timers = [self.create_timer(1.0 / write_rate_hz, self._on_write_timer, clock=steady),
+                        self.create_timer(diagnostics_period_s, self._on_diagnostics_timer, clock=steady)]
+        self.get_logger().info(
+            f'writing {self.n} channels {list(channel_map.channels)} to the PLC at {self.plc_address} '
+            f'at {write_rate_hz:g} Hz, p_max {self.p_max_kpa:g} kPa (parameter {p_max_param:g}, register map '
+            f'{self.register_map.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s')
+
+    # ---------------------------------------------------------------- commands
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        p = np.asarray(msg.data, dtype=float)
+        if p.shape != (self.n,) or not np.all(np.isfinite(p)):
+            why = (f'{p.size} values, need {self.n}' if p.shape != (self.n,)
+                   else f'non-finite values on channels {[int(i) for i in np.flatnonzero(~np.isfinite(p))]}')
+            self._invalid_commands += 1
+            self._invalid, self._command = True, self._zeros
+            self.get_logger().error(f'invalid pressure_command ({why}): venting all channels',
+                                    throttle_duration_sec=LOG_THROTTLE_S)
+            return
+        if np.any(p > self.p_max_kpa):
+            self.get_logger().warning(f'pressure_command above p_max ({p.max():g} kPa): clamped to '
+                                   f'{self.p_max_kpa:g} kPa', throttle_duration_sec=LOG_THROTTLE_S)
+        self._invalid = False
+        self._command = np.clip(p, 0.0, self.p_max_kpa)
+        self._command_s = time.monotonic()
+
+    def _target(self, now_s: float) -> tuple[np.ndarray, str]:
+        """What to write now, and why it is zeros ('' when it is the command)."""
+        if self._invalid:
+            return self._zeros, 'invalid command'
+        if self._command_s is None:
+            return self._zeros, 'no command received yet'
+        if now_s - self._command_s > self.command_timeout_s:
+            return self._zeros, f'stale command (none for {self.command_timeout_s:g} s)'
+        return self._command, ''
+
+    # ------------------------------------------------------------------- cycle
+    def _on_write_timer(self) -> None:
+        now = time.monotonic()
+        if not self._link_up:
+            # A connection attempt is this cycle's only blocking call (at most modbus_timeout_s).
+            if now >= self._next_attempt_s:
+                self._connect()
+            return
+        target, reason = self._target(now)
+        if reason != self._vent_reason:
+            if reason:
+                self.get_logger().warning(f'venting all channels: {reason}')
+            else:
+                self.get_logger().info('writing commands')
+            self._vent_reason = reason
+        try:
+            # The first failing request ends the cycle: one timeout at most per cycle.
+            round_trip_s = self._client.write_pressures(target)
+            self._heartbeat += 1
+            self._client.write_heartbeat(self._heartbeat)
+            measured = self._client.read_measured_kpa()
+        except PlcLinkError as exc:
+            self._link_lost(exc)
+            return
+        self._writes += 1
+        self._last_round_trip_s = round_trip_s
+        self._backoff_s = self.reconnect_min_s  # a whole cycle went through: the link is good
+        self._measured_pub.publish(Float64MultiArray(data=[float(v) for v in measured]))
+
+    def _connect(self) -> None:
+        self._client.close()  # always a fresh socket
+        if self._client.connect():
+            self._link_up = True
+            if self._ever_connected:
+                self._reconnects += 1
+            self._ever_connected = True
+            self.get_logger().info(f'connected to the PLC at {self.plc_address}')
+            return
+        self._last_error = f'cannot connect to {self.plc_address}'
+        self._schedule_reconnect()
+        self.get_logger().error(f'PLC at {self.plc_address} unreachable; next attempt in '
+                                f'{self._next_attempt_s - time.monotonic():.1f} s',
+                                throttle_duration_sec=LOG_THROTTLE_S)
+
+    def _link_lost(self, exc: PlcLinkError) -> None:
+        self._link_up = False
+        self._link_failures += 1
+        self._last_error = str(exc)
+        self._client.close()
+        self._schedule_reconnect()
+        self.get_logger().error(f'PLC link lost: {exc}; reconnecting (the PLC watchdog vents meanwhile)')
+
+    def _schedule_reconnect(self) -> None:
+        self._next_attempt_s = time.monotonic() + self._backoff_s
+        self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
+
+    # ------------------------------------------------------------- diagnostics
+    def _on_diagnostics_timer(self) -> None:
+        _, reason = self._target(time.monotonic())
+        if not self._link_up:
+            level, message = DiagnosticStatus.ERROR, f'PLC link down: {self._last_error}'
+        elif reason:
+            level, message = DiagnosticStatus.WARN, f'venting: {reason}'
+        else:
+            level, message = DiagnosticStatus.OK, 'writing commands'
+        age = 'never' if self._command_s is None else f'{time.monotonic() - self._command_s:.3f}'
+        rtt = 'none' if self._last_round_trip_s is None else f'{1e3 * self._last_round_trip_s:.2f}'
+        values = {'connected': self._link_up, 'last round trip ms': rtt, 'writes': self._writes,
+                  'link failures': self._link_failures, 'reconnects': self._reconnects,
+                  'invalid commands': self._invalid_commands, 'command age s': age,
+                  'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}'}
+        publish_diagnostics(self, self._diagnostics_pub, [status(self, 'PLC output', level, message, values)])
+
+    # ---------------------------------------------------------------- shutdown
+    def safe_shutdown(self) -> None:
+        """Vent every channel and confirm it by reading the command registers back."""
+        for timer in self._timers:
+            timer.cancel()
+        log = self.get_logger()
+        error = None
+        # Two tries: the second on a fresh connection, in case the signal cut a request short.
+        for attempt in range(2):
+            try:
+                if attempt > 0 or not self._link_up:
+                    self._client.close()
+                    if not self._client.connect():
+                        error = f'cannot connect to {self.plc_address}'
+                        break  # one quick attempt only: do not hold the shutdown up
+                round_trip_s = self._client.vent()
+                left = self._client.read_commands_kpa()
+            except PlcLinkError as exc:
+                error = str(exc)
+                continue
+            if not np.any(left):
+                log.info(f'vented all {self.n} channels on shutdown (round trip {1e3 * round_trip_s:.1f} ms)')
+                error = None
+                break
+            error = f'command registers read back {list(left)} after venting'
+        if error is not None:
+            log.error(f'could not vent on shutdown: {error}; the PLC watchdog vents once the heartbeat stops')
+        self._client.close()
+
+
+def main(args=None):
+    return run(lambda: PlcOutput(), args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
