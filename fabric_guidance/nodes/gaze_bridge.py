@@ -1,0 +1,257 @@
+"""gaze_bridge: the HoloLens gaze stream (UDP, docs/gaze_wire_format.md) into ROS.
+
+A receiver thread blocks on the UDP socket and, for every datagram, in this order:
+drops it when the sender is not in allowed_senders ('sender'); parses it with
+core.gaze_wire.parse_datagram, dropping it under the WireFormatError's reason; tracks its
+sequence number, dropping duplicates and reordered samples ('stale'); drops it when the
+HoloLens marks eye tracking as not valid and require_eye_tracking_valid is set
+('eye_tracking_invalid'); otherwise publishes it on `gaze` and `head_pose`.
+
+The sequence number is tracked before the eye-tracking check so that samples the bridge
+drops on purpose are not counted as lost on the network.
+
+Publishing happens on the receiver thread (rclpy publishers are thread-safe), so the rate
+does not depend on the executor; nothing is logged per sample. /diagnostics reports the
+counters every diagnostics_period_s.
+
+Published:  gaze (geometry_msgs/PoseStamped, x axis along the gaze ray), head_pose
+            (geometry_msgs/PoseStamped), /diagnostics (diagnostic_msgs/DiagnosticArray).
+"""
+from __future__ import annotations
+
+import ipaddress
+import socket
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+
+from fabric_guidance.core.gaze_wire import REASONS, SeqStatus, SequenceTracker, WireFormatError, parse_datagram
+from fabric_guidance.core.geometry import GeometryError, ray_orientation
+from fabric_guidance.nodes.common import (DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME, SENSOR_QOS, declare,
+                                          publish_diagnostics, run, status)
+
+#: Receive buffer asked for (the kernel caps it at net.core.rmem_max): ~10 s of samples at 90 Hz
+#: would fit in far less, but a burst must not be lost while the thread is descheduled.
+RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
+#: recvfrom timeout: how long safe_shutdown waits for the thread at most.
+RECEIVE_TIMEOUT_S = 0.1
+#: Loss rate (sequence gaps over the last period) above which the stream is reported WARN.
+MAX_LOSS_RATE = 0.05
+#: Drop reasons of the bridge besides WireFormatError.reason.
+BRIDGE_REASONS: tuple[str, ...] = ('sender', 'stale', 'eye_tracking_invalid', 'internal')
+
+
+class GazeBridge(Node):
+
+    def __init__(self):
+        super().__init__('gaze_bridge')
+        self.bind_address = declare(self, 'bind_address', '127.0.0.1',
+                                    'UDP address to listen on', read_only=True)
+        self.port = declare(self, 'port', 5005, 'UDP port to listen on', '-', 1, 65535, read_only=True)
+        allowed = declare(self, 'allowed_senders', ['127.0.0.1'],
+                          'sender IP addresses accepted; datagrams from others are dropped', read_only=True)
+        self.max_datagram_bytes = declare(self, 'max_datagram_bytes', 1024,
+                                          'larger datagrams are dropped unread', 'bytes', 64, 65507,
+                                          read_only=True)
+        self.require_valid = declare(self, 'require_eye_tracking_valid', True,
+                                     'drop samples the HoloLens marks as not valid', read_only=True)
+        self.frame_id = declare(self, 'frame_id', IMMERSIVE_FRAME,
+                                'frame of the published poses (the immersive space)', read_only=True)
+        self.period = declare(self, 'diagnostics_period_s', 1.0, 'diagnostics period', 's', 0.05, 60.0,
+                              read_only=True)
+
+        try:
+            family = socket.AF_INET6 if ipaddress.ip_address(self.bind_address).version == 6 else socket.AF_INET
+        except ValueError:
+            raise ValueError(f"parameter 'bind_address': {self.bind_address!r} is not an IP address") from None
+        self.allowed_senders = self._parse_senders(allowed)
+        if not self.allowed_senders:
+            self.get_logger().warn("parameter 'allowed_senders' is empty: every datagram will be dropped")
+
+        self._lock = threading.Lock()  # guards the counters below (receiver thread and timer)
+        self._dropped = {reason: 0 for reason in REASONS + BRIDGE_REASONS}
+        self._received = 0
+        self._published = 0
+        self._tracker = SequenceTracker()
+        self._last = (0, 0, 0, 0, time.monotonic())  # received, published, seq received, seq lost, when
+
+        self._gaze_pub = self.create_publisher(PoseStamped, GAZE, SENSOR_QOS)
+        self._head_pub = self.create_publisher(PoseStamped, HEAD_POSE, SENSOR_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            self._sock.bind((self.bind_address, self.port))
+            self._sock.settimeout(RECEIVE_TIMEOUT_S)
+        except OSError as exc:
+            self._sock.close()
+            raise OSError(f'cannot listen on {self.bind_address}:{self.port} '
+                          f"(parameters 'bind_address', 'port'): {exc}") from None
+        self.receive_buffer_bytes = self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._receive_loop, name='gaze_bridge_udp', daemon=True)
+        self._thread.start()
+        self._timer = self.create_timer(self.period, self._publish_diagnostics)
+        self.get_logger().info(
+            f'listening on {self.bind_address}:{self.port} (receive buffer {self.receive_buffer_bytes} bytes), '
+            f'accepting {sorted(self.allowed_senders)}, publishing {GAZE} and {HEAD_POSE} in {self.frame_id!r}')
+
+    @staticmethod
+    def _parse_senders(values) -> frozenset[str]:
+        senders = set()
+        for value in values or []:
+            if value == '':
+                continue
+            try:
+                senders.add(str(ipaddress.ip_address(value)))
+            except ValueError:
+                raise ValueError(f"parameter 'allowed_senders': {value!r} is not an IP address") from None
+        return frozenset(senders)
+
+    # --- receiver thread ------------------------------------------------------------------
+
+    def _receive_loop(self) -> None:
+        sock, stop = self._sock, self._stop
+        bufsize = self.max_datagram_bytes + 1  # a longer datagram arrives truncated to this: 'oversize'
+        mapped = sock.family == socket.AF_INET6  # an IPv6 socket reports IPv4 senders as ::ffff:a.b.c.d
+        while not stop.is_set():
+            try:
+                data, address = sock.recvfrom(bufsize)
+            except socket.timeout:
+                continue
+            except OSError as exc:
+                if stop.is_set():
+                    break
+                self.get_logger().error(f'UDP receive failed: {exc}', throttle_duration_sec=5.0)
+                stop.wait(RECEIVE_TIMEOUT_S)
+                continue
+            sender = address[0]
+            if mapped and sender.startswith('::ffff:'):
+                sender = sender[7:]
+            try:
+                self._handle(data, sender)
+            except Exception as exc:  # noqa: BLE001 - the stream must survive anything
+                with self._lock:
+                    self._dropped['internal'] += 1
+                self.get_logger().error(f'datagram dropped by an internal error: {exc!r}',
+                                        throttle_duration_sec=5.0)
+
+    def _handle(self, data: bytes, sender: str) -> None:
+        stamp = self.get_clock().now().to_msg()
+        lock, dropped = self._lock, self._dropped
+        if sender not in self.allowed_senders:
+            with lock:
+                self._received += 1
+                dropped['sender'] += 1
+            return
+        try:
+            sample = parse_datagram(data, self.max_datagram_bytes)
+        except WireFormatError as exc:
+            with lock:
+                self._received += 1
+                dropped[exc.reason] = dropped.get(exc.reason, 0) + 1
+            return
+        with lock:
+            self._received += 1
+            seq_status = self._tracker.update(sample.seq)
+            if seq_status is SeqStatus.STALE:
+                dropped['stale'] += 1
+                return
+            if self.require_valid and not sample.eye_tracking_valid:
+                dropped['eye_tracking_invalid'] += 1
+                return
+        try:
+            q = ray_orientation(sample.gaze_direction)
+        except GeometryError:  # parse_datagram already rejects these; kept as a guard
+            with lock:
+                dropped['zero_vector'] += 1
+            return
+
+        gaze = PoseStamped()
+        gaze.header.stamp = stamp
+        gaze.header.frame_id = self.frame_id
+        p, o = gaze.pose.position, gaze.pose.orientation
+        p.x, p.y, p.z = (float(c) for c in sample.gaze_origin)
+        o.x, o.y, o.z, o.w = (float(c) for c in q)
+        head = PoseStamped()
+        head.header.stamp = stamp
+        head.header.frame_id = self.frame_id
+        p, o = head.pose.position, head.pose.orientation
+        p.x, p.y, p.z = (float(c) for c in sample.head_position)
+        o.x, o.y, o.z, o.w = (float(c) for c in sample.head_orientation)
+        self._gaze_pub.publish(gaze)
+        self._head_pub.publish(head)
+        with lock:
+            self._published += 1
+
+    # --- diagnostics ----------------------------------------------------------------------
+
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            received, published = self._received, self._published
+            seq_received, seq_lost = self._tracker.received, self._tracker.lost
+            loss_rate, restarts = self._tracker.loss_rate, self._tracker.restarts
+            dropped = dict(self._dropped)
+        last_received, last_published, last_seq_received, last_seq_lost, last_time = self._last
+        self._last = (received, published, seq_received, seq_lost, now)
+        dt = max(now - last_time, 1e-9)
+        new_received, new_published = received - last_received, published - last_published
+        new_seq = (seq_received - last_seq_received) + (seq_lost - last_seq_lost)
+        period_loss = (seq_lost - last_seq_lost) / new_seq if new_seq else 0.0
+        new_dropped = new_received - new_published
+
+        if new_received == 0:
+            level, message = DiagnosticStatus.WARN, f'no datagram for {dt:.1f} s'
+        elif new_published == 0:
+            level, message = DiagnosticStatus.WARN, (f'no gaze published for {dt:.1f} s: all {new_received} '
+                                                     'datagrams dropped')
+        elif period_loss > MAX_LOSS_RATE:
+            level, message = DiagnosticStatus.WARN, f'{100 * period_loss:.1f} % of samples lost over {dt:.1f} s'
+        else:
+            level, message = DiagnosticStatus.OK, f'{new_published / dt:.1f} Hz gaze'
+            if new_dropped:
+                message += f', {new_dropped} datagrams dropped'
+        values = {
+            'bind_address': f'{self.bind_address}:{self.port}',
+            'received': received,
+            'published': published,
+            'dropped': sum(dropped.values()),
+            **{f'dropped_{reason}': count for reason, count in dropped.items()},
+            'lost': seq_lost,
+            'loss_rate': f'{loss_rate:.4f}',
+            'loss_rate_period': f'{period_loss:.4f}',
+            'sender_restarts': restarts,
+            'receive_rate_hz': f'{new_received / dt:.1f}',
+            'publish_rate_hz': f'{new_published / dt:.1f}',
+            'receive_buffer_bytes': self.receive_buffer_bytes,
+        }
+        publish_diagnostics(self, self._diag_pub, [status(self, 'gaze stream', level, message, values)])
+
+    # --- shutdown -------------------------------------------------------------------------
+
+    def safe_shutdown(self) -> None:
+        """Stop the receiver thread and close the socket (idempotent)."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(5 * RECEIVE_TIMEOUT_S + 1.0)
+        self._sock.close()
+
+    def destroy_node(self):
+        if hasattr(self, '_thread'):
+            self.safe_shutdown()
+        return super().destroy_node()
+
+
+def main(args=None):
+    return run(lambda: GazeBridge(), args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
