@@ -15,6 +15,7 @@ import threading
 import time
 
 import numpy as np
+import yaml
 
 from .core import ChannelMap, condition as condition_of, ray_direction, target_direction
 from .core.geometry import DIRECTIONS
@@ -40,12 +41,13 @@ class TargetRecord:
 class SessionWatch:
     """What the demo reads off the graph: targets activated and found, gaze, commands."""
 
-    def __init__(self, probe: Probe, channel_map: ChannelMap, layout: str, say):
+    def __init__(self, probe: Probe, channel_map: ChannelMap, layout: str, sequence: list[str], say):
         from geometry_msgs.msg import PointStamped, PoseStamped
         from std_msgs.msg import Float64MultiArray, String
 
         from .nodes import common
         self.cmap, self.layout, self.say = channel_map, layout, say
+        self.sequence = sequence
         self.lock = threading.Lock()
         self.records: list[TargetRecord] = []
         self.gaze = self.origin = self.target = None
@@ -74,12 +76,9 @@ class SessionWatch:
 
     def on_active(self, msg) -> None:
         with self.lock:
-            if msg.data:
-                if not self.records or self.records[-1].name != msg.data:
-                    self.records.append(TargetRecord(msg.data, time.monotonic()))
-                    self.say(f'[{self.t():5.1f} s] target {msg.data} active')
-            elif self.records:
-                self.finished.set()
+            if msg.data and (not self.records or self.records[-1].name != msg.data):
+                self.records.append(TargetRecord(msg.data, time.monotonic()))
+                self.say(f'[{self.t():5.1f} s] target {msg.data} active')
 
     def on_found(self, msg) -> None:
         with self.lock:
@@ -90,6 +89,8 @@ class SessionWatch:
             if self.gaze is not None and self.target is not None:
                 rec.final_error_deg = angular_error_deg(self.gaze, target_direction(self.origin, self.target))
             self.say(f'[{self.t():5.1f} s] target {msg.data} found after {rec.found - rec.activated:.2f} s')
+            if [r.name for r in self.records if r.found is not None] == self.sequence:
+                self.finished.set()
 
     def on_command(self, msg) -> None:
         data = np.asarray(msg.data, dtype=float)
@@ -128,11 +129,17 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
     probe = None
     code = 1
     try:
-        for node in NODES:
+        for node in NODES[:-1]:
             graph.start(node, files, **overrides[node])
         probe = Probe(graph.domain_id, 'demo_watch')
-        watch = SessionWatch(probe, cmap, layout, say)
+        watch = SessionWatch(probe, cmap, layout, task_sequence(), say)
         deadline = time.monotonic() + timeout_s
+        # The wearer starts last, once the watch hears the selector and the controller: no
+        # target can be found before the watch is there to see it.
+        from .nodes import common
+        wait_until(lambda: watch.records and probe.messages.get(common.PRESSURE_COMMAND), timeout_s,
+                   what='the graph to come up')
+        graph.start(NODES[-1], files, **overrides[NODES[-1]])
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]
             if dead:
@@ -154,6 +161,12 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
             probe.close()
         graph.stop_all()
     return code
+
+
+def task_sequence() -> list[str]:
+    """The target order target_selector will run, from the same parameter file."""
+    params = yaml.safe_load(config_path('guidance.yaml').read_text())['target_selector']['ros__parameters']
+    return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 
 def report(watch: SessionWatch, cond, registers_after: np.ndarray, say) -> int:

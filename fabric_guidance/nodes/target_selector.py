@@ -47,6 +47,8 @@ REPUBLISH_HZ = 10.0
 DIAGNOSTICS_TICKS = 10
 #: Marker spheres: 0.1 m diameter, the active one red, the others magenta (the paper's scene).
 MARKER_DIAMETER_M = 0.1
+#: The wearer's front, where the speed protocol's wearer returns between targets: +x (REP 103).
+FRONT = (1.0, 0.0, 0.0)
 ACTIVE_RGBA = (1.0, 0.0, 0.0, 1.0)
 INACTIVE_RGBA = (1.0, 0.0, 1.0, 1.0)
 
@@ -81,6 +83,9 @@ class TargetSelector(Node):
                           0.0, 60.0)
         self.auto_advance = declare(self, 'auto_advance', True,
                                     'go on to the next target of the sequence when one is found')
+        self.return_to_front = declare(self, 'return_to_front', False,
+                                       "the paper's speed protocol: after a target is found no target is "
+                                       'active until the gaze is back at the front (+x), then the next one')
 
         # Start-up validation: a clear message naming the parameter, and no node.
         names = [] if names is None else list(names)
@@ -120,6 +125,8 @@ class TargetSelector(Node):
         if active and active not in self.positions:
             raise ValueError(f"parameter 'active_target': unknown target {active!r}; known: {list(self.positions)}")
         self.tracker = AcceptanceTracker(acceptance_deg, dwell_s)
+        self.front_tracker = AcceptanceTracker(acceptance_deg, dwell_s)
+        self.after_front: int | None = None   # sequence index to activate once the gaze is at the front
         # Dwell time on a steady clock (a system clock step must not find a target), simulated
         # time when the graph runs on it.
         sim_time = self.get_parameter('use_sim_time').value
@@ -166,6 +173,8 @@ class TargetSelector(Node):
         """Make `name` the active target ('' = none) and announce it: target, name, target."""
         # A target of the sequence chosen by name moves the cursor there (unless the cursor is on
         # it already: a sequence may repeat a name); '' or a target off the sequence leaves it.
+        if name:
+            self.after_front = None   # any target chosen ends a wait for the front
         if name in self.sequence and not (0 <= self.cursor < len(self.sequence) and self.sequence[self.cursor] == name):
             self.cursor = self.sequence.index(name)
         self.active = name
@@ -220,6 +229,13 @@ class TargetSelector(Node):
     def on_gaze(self, msg: PoseStamped) -> None:
         self.counts['gaze'] += 1
         try:
+            if self.after_front is not None:
+                o = msg.pose.orientation
+                now = self.dwell_clock.now().nanoseconds * 1e-9
+                if self.front_tracker.update(ray_direction((o.x, o.y, o.z, o.w)), FRONT, now):
+                    index, self.after_front = self.after_front, None
+                    self.activate_index(index)
+                return
             target = self.positions.get(self.active) if self.active else None
             if target is None or self.found_current:
                 return
@@ -243,7 +259,11 @@ class TargetSelector(Node):
         self.counts['found'] += 1
         self.found_pub.publish(String(data=name))
         self.get_logger().info(f'target found: {name!r}')
-        if self.auto_advance:
+        if self.auto_advance and self.return_to_front and self._next_index() < len(self.sequence):
+            self.after_front = self._next_index()
+            self.front_tracker.reset()
+            self.activate('')
+        elif self.auto_advance:
             self.activate_index(self._next_index())
 
     def on_live_target(self, name: str, msg: PoseStamped) -> None:
@@ -308,6 +328,8 @@ class TargetSelector(Node):
             elif param.name in ('acceptance_deg', 'dwell_s'):
                 self.tracker = AcceptanceTracker(self.get_parameter('acceptance_deg').value,
                                                  self.get_parameter('dwell_s').value)
+                self.front_tracker = AcceptanceTracker(self.get_parameter('acceptance_deg').value,
+                                                       self.get_parameter('dwell_s').value)
             elif param.name == 'auto_advance':
                 self.auto_advance = param.value
 

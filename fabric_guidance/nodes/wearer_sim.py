@@ -2,8 +2,8 @@
 
 It feels the regulators' measured pressures (measured_pressure, from the PLC), turns torso and
 gaze by fabric_guidance.sim.wearer.SimulatedWearer, and sends gaze datagrams (wire format v1,
-Unity frame) over UDP to gaze_bridge. With face_front_on_new_target it returns to the front
-when a new target becomes active, as the paper's wearers did between targets.
+Unity frame) over UDP to gaze_bridge. With return_to_front it turns back to the front while
+no target is active, as the paper's wearers did between targets.
 
 Subscribes  measured_pressure (Float64MultiArray, kPa), active_target (String)
 Sends       UDP gaze datagrams to bridge_host:bridge_port
@@ -40,8 +40,8 @@ class WearerSim(Node):
                        "the wearer's own power law a, b, c per direction (left, right, down, up)")
         self.eye_height = declare(self, 'eye_height_m', 1.2, 'gaze origin above the immersive origin', 'm',
                                   low=0.0, high=3.0)
-        self.face_front = declare(self, 'face_front_on_new_target', True,
-                                  'return to the front when a new target becomes active')
+        self.return_to_front = declare(self, 'return_to_front', True,
+                                       'turn back to the front while no target is active (the speed protocol)')
         channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
         if len(laws) != 12:
             raise ValueError(f'parameter laws needs 12 numbers (a, b, c for 4 directions), got {len(laws)}')
@@ -65,15 +65,16 @@ class WearerSim(Node):
         self.pressures_received = time.monotonic()
 
     def on_active_target(self, msg: String) -> None:
-        if msg.data != self.active and msg.data and self.face_front:
-            self.wearer.face_front()
         self.active = msg.data
 
     def step(self) -> None:
         now = time.monotonic()
         dt, self.last_step = now - self.last_step, now
-        felt = self.pressures if now - self.pressures_received <= PRESSURE_TIMEOUT_S else np.zeros(4)
-        gaze = self.wearer.step(felt, dt)
+        if self.return_to_front and not self.active:
+            gaze = self.wearer.return_to_front(dt)
+        else:
+            felt = self.pressures if now - self.pressures_received <= PRESSURE_TIMEOUT_S else np.zeros(4)
+            gaze = self.wearer.step(felt, dt)
         head = ros_to_unity_quaternion(ray_orientation(gaze))
         origin = (0.0, self.eye_height, 0.0)   # Unity: y up
         datagram = encode_datagram(self.seq, now, origin, ros_to_unity_point(gaze), origin, head, True)

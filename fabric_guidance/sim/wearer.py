@@ -3,8 +3,8 @@
 The wearer reads the suit's pressure per direction (left, right, down, up), interprets it
 through their own power law (their sensitivity, which the calibration has to discover) as an
 angle to turn, and turns torso and gaze toward it as a first-order lag. The turn is relative
-to the posture they held when the suit started pulling (the anchor); while the suit is vented
-they hold still. Gaze = torso (no separate eye or head movement in this model).
+to the posture they held when the suit started pulling (the anchor); while they feel nothing
+(every pressure below their threshold c) they hold still. Gaze = torso (no separate eye or head movement in this model).
 
 No noise and no delays here: the effects a scene calls for come in their own modules.
 """
@@ -42,9 +42,18 @@ class SimulatedWearer:
         return gaze_from_angles(self.yaw, self.pitch)
 
     def face_front(self) -> None:
-        """Return to the starting posture, as the paper's wearers did between targets."""
+        """Be back at the starting posture at once."""
         self.yaw = self.pitch = 0.0
         self._anchor = None
+
+    def return_to_front(self, dt: float) -> np.ndarray:
+        """Turn back toward the front on one's own, ignoring the suit, as the paper's wearers
+        did between targets; same dynamics as a guided turn."""
+        self._anchor = None
+        alpha = 1.0 - math.exp(-max(dt, 0.0) / self.tau_s)
+        self.yaw -= alpha * self.yaw
+        self.pitch -= alpha * self.pitch
+        return self.gaze
 
     def perceived_angles(self, pressures: Sequence[float]) -> np.ndarray:
         """The angle each direction's pressure means to this wearer, degrees."""
@@ -53,12 +62,15 @@ class SimulatedWearer:
     def step(self, pressures: Sequence[float], dt: float) -> np.ndarray:
         """Advance dt seconds under direction pressures (kPa); return the new gaze."""
         p = np.nan_to_num(np.asarray(pressures, dtype=float), nan=0.0)
-        if not np.any(p > 0):
+        perceived = self.perceived_angles(p)
+        if not np.any(perceived > 0):
+            # Nothing felt (every pressure below the wearer's threshold c): hold still, and the
+            # next pull counts from here.
             self._anchor = None
             return self.gaze
         if self._anchor is None:
             self._anchor = (self.yaw, self.pitch)
-        left, right, down, up = self.perceived_angles(p)
+        left, right, down, up = perceived
         goal_yaw = self._anchor[0] + left - right
         goal_pitch = float(np.clip(self._anchor[1] + up - down, -89.0, 89.0))
         alpha = 1.0 - math.exp(-max(dt, 0.0) / self.tau_s)
