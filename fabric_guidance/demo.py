@@ -32,7 +32,8 @@ NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_c
 @dataclass
 class TargetRecord:
     name: str
-    activated: float                       # time.monotonic()
+    activated: float                       # time.monotonic() of the first gaze while it was active
+    gaze_seen: bool = False
     found: float | None = None
     final_error_deg: float | None = None
     peak_kpa: np.ndarray = field(default_factory=lambda: np.zeros(len(DIRECTIONS)))
@@ -69,6 +70,10 @@ class SessionWatch:
         q, p = msg.pose.orientation, msg.pose.position
         with self.lock:
             self.gaze, self.origin = ray_direction([q.x, q.y, q.z, q.w]), np.array([p.x, p.y, p.z])
+            if self.records and not self.records[-1].gaze_seen:
+                # Guidance starts when there is a wearer to guide (the first target is active
+                # before the simulated wearer's process is up).
+                self.records[-1].activated, self.records[-1].gaze_seen = time.monotonic(), True
 
     def on_target(self, msg) -> None:
         with self.lock:
