@@ -25,15 +25,14 @@ from .plc import PlcClient, RegisterMap
 from .process_graph import Graph, Probe, free_port, wait_until
 
 SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
-#: Nodes in start order: the PLC side first so plc_output finds its PLC, the wearer last.
+#: Nodes in start order: the PLC side first so plc_output finds its PLC.
 NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'wearer_sim')
 
 
 @dataclass
 class TargetRecord:
     name: str
-    activated: float                       # time.monotonic() of the first gaze while it was active
-    gaze_seen: bool = False
+    activated: float                       # time.monotonic()
     found: float | None = None
     final_error_deg: float | None = None
     peak_kpa: np.ndarray = field(default_factory=lambda: np.zeros(len(DIRECTIONS)))
@@ -61,6 +60,7 @@ class SessionWatch:
         probe.subscribe(String, common.ACTIVE_TARGET, common.LATCHED_QOS, self.on_active)
         probe.subscribe(String, common.TARGET_FOUND, common.EVENT_QOS, self.on_found)
         probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS, self.on_command)
+        probe.subscribe(Float64MultiArray, common.MEASURED_PRESSURE, common.COMMAND_QOS)
         probe.subscribe(String, common.SPEECH, common.EVENT_QOS, lambda m: self.speech.append(m.data))
 
     def t(self) -> float:
@@ -70,10 +70,6 @@ class SessionWatch:
         q, p = msg.pose.orientation, msg.pose.position
         with self.lock:
             self.gaze, self.origin = ray_direction([q.x, q.y, q.z, q.w]), np.array([p.x, p.y, p.z])
-            if self.records and not self.records[-1].gaze_seen:
-                # Guidance starts when there is a wearer to guide (the first target is active
-                # before the simulated wearer's process is up).
-                self.records[-1].activated, self.records[-1].gaze_seen = time.monotonic(), True
 
     def on_target(self, msg) -> None:
         with self.lock:
@@ -126,7 +122,7 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
         'mock_plc': dict(port=plc_port),
         'plc_output': dict(plc_port=plc_port),
         'gaze_bridge': dict(port=gaze_port),
-        'target_selector': {},
+        'target_selector': dict(autostart=False),
         'pressure_controller': dict(condition=cond.number, calibration_file=SIM_CALIBRATION,
                                     calibration_dir=str(log_dir / 'calibrations')),
         'wearer_sim': dict(bridge_port=gaze_port, layout=layout),
@@ -134,17 +130,20 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
     probe = None
     code = 1
     try:
-        for node in NODES[:-1]:
+        for node in NODES:
             graph.start(node, files, **overrides[node])
         probe = Probe(graph.domain_id, 'demo_watch')
         watch = SessionWatch(probe, cmap, layout, task_sequence(), say)
         deadline = time.monotonic() + timeout_s
-        # The wearer starts last, once the watch hears the selector and the controller: no
-        # target can be found before the watch is there to see it.
+        # Start the task, as an operator would, once the whole graph (the watch included) is up:
+        # every target's time is then guidance time, not process start-up.
+        from std_srvs.srv import Trigger
+
         from .nodes import common
-        wait_until(lambda: watch.records and probe.messages.get(common.PRESSURE_COMMAND), timeout_s,
-                   what='the graph to come up')
-        graph.start(NODES[-1], files, **overrides[NODES[-1]])
+        wait_until(lambda: all(probe.messages.get(t) for t in (
+            common.PRESSURE_COMMAND, common.GAZE, common.MEASURED_PRESSURE, common.ACTIVE_TARGET)),
+            timeout_s, what='the graph to come up')
+        probe.call(Trigger, 'next_target', Trigger.Request())
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]
             if dead:

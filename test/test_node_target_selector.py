@@ -332,3 +332,29 @@ def test_bad_targets_end_the_start_up_with_a_message(tmp_path, overrides, needle
         assert 'cannot start' in log and needle in log, log
     finally:
         graph.stop_all()
+
+
+def test_without_autostart_waits_for_next_target_and_the_speed_protocol_returns_to_front(tmp_path):
+    """autostart false: nothing active until next_target. return_to_front (the paper's speed
+    protocol): after a find no target is active until the gaze is back at the front (+x)."""
+    s = Selector(tmp_path, autostart=False, return_to_front=True)
+    try:
+        wait_until(lambda: s.names and s.gaze_pub.get_subscription_count() > 0, STARTUP_DEADLINE_S,
+                   what='target_selector up and matched')
+        assert s.active() == ''
+        assert s.trigger('next_target').success
+        first, second = NAMES[0], NAMES[1]
+        s.wait_active(first, POSITIONS[first])
+        s.look(towards(POSITIONS[first]), lambda: s.found, FOUND_DEADLINE_S)
+        s.wait_active('')
+        # Still looking at the found target: the next one does not come.
+        held = time.monotonic()
+        while time.monotonic() - held < 3 * DWELL_S:
+            s.gaze_pub.publish(gaze_pose(towards(POSITIONS[first])))
+            time.sleep(1 / GAZE_RATE_HZ)
+        assert s.active() == ''
+        # Back at the front for the dwell: the next target of the sequence.
+        s.look((1.0, 0.0, 0.0), lambda: s.active() == second, FOUND_DEADLINE_S)
+        s.wait_active(second, POSITIONS[second])
+    finally:
+        s.close()

@@ -9,7 +9,8 @@ The task runs through `sequence` (empty: target_names in order). The active targ
 by the `active_target` parameter (any known name, '' for none), the services next_target and
 reset_sequence (std_srvs/Trigger) and, with auto_advance, when the wearer finds it: the gaze
 stays within acceptance_deg of the target for dwell_s (core.task.AcceptanceTracker). After the
-last target of the sequence no target is active (''). The parameter always shows the active
+last target of the sequence no target is active (''). With autostart false no target is active
+at start-up; with return_to_front the next target waits until the gaze is back at the front. The parameter always shows the active
 target.
 
 Published: target (geometry_msgs/PointStamped, latched; on every activation target, then
@@ -83,6 +84,9 @@ class TargetSelector(Node):
                           0.0, 60.0)
         self.auto_advance = declare(self, 'auto_advance', True,
                                     'go on to the next target of the sequence when one is found')
+        autostart = declare(self, 'autostart', True, 'activate the first target of the sequence at start-up; '
+                            'false: no target until next_target (or active_target) starts the task',
+                            read_only=True)
         self.return_to_front = declare(self, 'return_to_front', False,
                                        "the paper's speed protocol: after a target is found no target is "
                                        'active until the gaze is back at the front (+x), then the next one')
@@ -157,8 +161,10 @@ class TargetSelector(Node):
 
         if active:
             self.activate(active)
-        else:
+        elif autostart:
             self.activate_index(0)
+        else:
+            self.activate('')   # the operator starts the sequence with next_target
         self.get_logger().info(f'{len(names)} fixed and {len(live_names)} live targets, sequence {self.sequence}, '
                                f'active {self.active!r}')
 
