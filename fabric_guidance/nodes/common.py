@@ -76,22 +76,19 @@ def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStat
     publisher.publish(msg)
 
 
-class _Stop(Exception):
-    pass
-
-
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
 
-    rclpy's own signal handlers would shut the context down first; ours stop the spin instead.
+    rclpy's own signal handlers would shut the context down first; ours only set a flag that
+    the spin loop checks every 50 ms. Raising from the handler instead would interrupt whatever
+    runs at that instant (a callback, rclpy's C++ take path, a Modbus request) half-way.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
 
     def on_signal(signum, frame):
         stop.set()
-        raise _Stop()
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
@@ -103,7 +100,7 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
         executor.add_node(node)
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
-    except (_Stop, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     except Exception as exc:  # a start-up error (bad parameter or file) ends with its message
         if node is None:
