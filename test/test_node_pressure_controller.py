@@ -230,8 +230,11 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
     wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
     wearer.start()
     try:
-        reply = probe.call(Trigger, 'start_calibration', Trigger.Request())
-        assert reply.success, reply.message
+        # Refused, with the reason, until the controller has a fresh gaze.
+        replies = []
+        wait_until(lambda: replies.append(probe.call(Trigger, 'start_calibration', Trigger.Request()))
+                   or replies[-1].success, 15.0, what='start_calibration accepted')
+        assert all('no valid gaze' in r.message for r in replies[:-1]), [r.message for r in replies]
         wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 30.0, what='calibration end')
         assert status[-1].data.startswith('done'), [m.data for m in status]
         assert any('left step 3/5' in m.data for m in status)        # progress was reported
@@ -251,3 +254,12 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
     wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 30.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data
     assert path.read_bytes() == before
+
+
+def test_calibration_is_refused_without_gaze(controller):
+    graph, probe, upstream, _ = controller
+    upstream.sending.clear()
+    reply = wait_until(lambda: (r := probe.call(Trigger, 'start_calibration', Trigger.Request())) and not r.success
+                       and r, 5.0, what='a refusal')
+    assert 'no valid gaze' in reply.message
+    wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')

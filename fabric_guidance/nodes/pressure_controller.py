@@ -147,6 +147,10 @@ class PressureController(Node):
         if self.procedure is not None:
             response.success, response.message = False, 'a calibration is already running'
             return response
+        if time.monotonic() - self.gaze_received > self.gaze_timeout:
+            response.success = False
+            response.message = f'cannot calibrate: no valid gaze in the last {self.gaze_timeout} s'
+            return response
         try:
             self.procedure = CalibrationProcedure(
                 self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
