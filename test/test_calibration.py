@@ -187,3 +187,17 @@ def test_unreadable_file(tmp_path):
     (tmp_path / 'junk.yaml').write_text('{a: [1, 2')
     with pytest.raises(CalibrationFileError, match='cannot read'):
         Calibration.load(tmp_path / 'junk.yaml')
+
+
+def test_wearer_gain_round_trips_and_is_validated(tmp_path, calibration):
+    assert calibration.adjustment_gain is None
+    assert 'adjustment_gain' not in calibration.to_dict()
+    path = calibration.with_gain(0.12).save(tmp_path / 'g.yaml')
+    assert Calibration.load(path).adjustment_gain == 0.12
+    data = yaml.safe_load(path.read_text())
+    data['adjustment_gain'] = -1
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationFileError, match='field "adjustment_gain"'):
+        Calibration.load(path)
+    with pytest.raises(ValueError):
+        calibration.with_gain(float('nan'))

@@ -152,3 +152,22 @@ def test_per_direction_gain():
     assert ctl.update(yawed(-2.0), yawed(16.0), 1.0)[0] == 22.0
     with pytest.raises(ValueError, match='one gain per direction'):
         GuidanceController([LAW] * 4, gain=[0.1, 0.2])
+
+
+def test_paper_law_ignores_a_moving_target_after_the_start():
+    fb = law()
+    fb.step(16.0, 0.0, 0.0)
+    assert fb.step(9.0, 0.0, 1.0) == 18.0     # e = 9 shrinks: hold; theta_t only set the start
+
+
+def test_follow_target_shifts_the_feed_forward_and_keeps_the_adjustment():
+    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, follow_target=True)
+    assert fb.step(16.0, 0.0, 0.0) == 18.0
+    assert fb.step(16.0, -2.0, 1.0) == 22.0    # Eq. 5 adds 4
+    # The target moves from 16 to 9 deg while the wearer holds at -2: shift f(9) - f(16) = -2,
+    # then e = 11 shrank from 18: hold.
+    assert fb.step(9.0, -2.0, 2.0) == 20.0
+    # It moves on to 4 deg: shift f(4) - f(9) = -2 again; e = 6 shrinks.
+    assert fb.step(4.0, -2.0, 3.0) == 18.0
+    # Crossing to the other side resets this direction (the other one takes over).
+    assert fb.step(-1.0, -2.0, 4.0) == 0.0

@@ -85,8 +85,10 @@ class FakeUpstream:
 def controller(tmp_path, request):
     params = getattr(request, 'param', {})
     graph = Graph(tmp_path / 'logs')
-    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
-                calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S, **params)
+    settings = dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+                    calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S)
+    settings.update(params)
+    graph.start('pressure_controller', ('guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
     commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
     upstream = FakeUpstream(probe)
@@ -263,3 +265,27 @@ def test_calibration_is_refused_without_gaze(controller):
                        and r, 5.0, what='a refusal')
     assert 'no valid gaze' in reply.message
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')
+
+
+ZERO_GAIN_FILE = '/tmp/fabric-guidance-test-zero-gain.yaml'
+
+
+@pytest.fixture(scope='module', autouse=True)
+def zero_gain_calibration():
+    SIM_CAL.with_gain(0.0).save(ZERO_GAIN_FILE)
+
+
+@pytest.mark.parametrize('controller', [{'use_wearer_gain': True, 'calibration_file': ZERO_GAIN_FILE}],
+                         indirect=True)
+def test_the_wearers_own_gain_replaces_the_parameter(controller):
+    """This wearer's file says G = 0: turning away raises nothing, although the parameter says 0.05."""
+    graph, probe, upstream, commands = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    n = len(commands)
+    for step in range(40):
+        upstream.yaw = -0.5 * step
+        time.sleep(0.02)
+    wait_until(lambda: len(commands) > n + 20, 5.0, what='commands while the wearer turns away')
+    assert all(abs(m.data[CMAP.channels.index('L1')] - f40) < 1e-9 for m in commands[n:])

@@ -73,6 +73,15 @@ class Calibration:
     p_max: float
     directions: Mapping[str, DirectionCalibration]
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec='seconds'))
+    #: This wearer's own adjustment gain G (beyond the paper: its Discussion found the best G
+    #: differed between subjects); None: use the controller's.
+    adjustment_gain: float | None = None
+
+    def with_gain(self, gain: float | None) -> 'Calibration':
+        """The same calibration with this wearer's own adjustment gain."""
+        if gain is not None and not (math.isfinite(gain) and gain >= 0):
+            raise ValueError(f'adjustment gain must be finite and >= 0, got {gain}')
+        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain)
 
     @property
     def laws(self) -> list[PowerLaw]:
@@ -93,6 +102,7 @@ class Calibration:
             'wearer': self.wearer,
             'created': self.created,
             'p_max_kpa': float(self.p_max),
+            **({'adjustment_gain': float(self.adjustment_gain)} if self.adjustment_gain is not None else {}),
             'directions': {
                 d: {
                     'a': c.law.a, 'b': c.law.b, 'c': c.law.c,
@@ -163,7 +173,11 @@ class Calibration:
                 fail(f'directions.{d}.fit', 'must be a mapping')
             out[d] = DirectionCalibration(law, tuple(map(float, pressures)), tuple(map(float, angles)), dict(fit))
         created = data.get('created', '')
-        return cls(wearer, float(p_max), out, str(created))
+        gain = data.get('adjustment_gain')
+        if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
+                                 or not (math.isfinite(gain) and gain >= 0)):
+            fail('adjustment_gain', f'must be a finite number >= 0 when present, got {gain!r}')
+        return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain))
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
@@ -335,4 +349,5 @@ class CalibrationProcedure:
         missing = [d for d in DIRECTIONS if d not in dirs]
         if missing:
             raise CalibrationFitError(f'directions {missing} were neither calibrated nor given by a base calibration')
-        return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})
+        return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS},
+                           adjustment_gain=base.adjustment_gain if base is not None else None)

@@ -17,6 +17,12 @@ only: a repeated timestamp (dt = 0) holds; a clock that jumps back (a bag replay
 restarts the derivative from that sample and holds, so neither can produce a step.
 
 Mode "adjusted" is conditions 1 and 3; "fixed" (condition 2) keeps P = f(theta_t).
+
+Beyond the paper (its Discussion: "the proposed system cannot be directly applied to the
+directional guidance of moving targets"): with follow_target, a change of theta_t while guiding
+shifts the pressure by f(theta_t_new) - f(theta_t_old), so the feed-forward part follows the
+target and what Eq. 5 added on top is kept. Without it the law is the paper's: theta_t only
+sets the starting pressure.
 """
 from __future__ import annotations
 
@@ -56,6 +62,8 @@ class FeedbackLaw:
     mode: str = ADJUSTED
     #: de/dt must exceed this (deg/s) to count as "the error grows"; 0 is the paper's law.
     rate_deadband: float = 0.0
+    #: Shift the pressure with f(theta_t) when the target moves (beyond the paper).
+    follow_target: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -74,6 +82,7 @@ class FeedbackLaw:
         self.active = False
         self._last_error: float | None = None
         self._last_time: float | None = None
+        self._last_target: float | None = None
 
     def _clamp(self, p: float) -> float:
         # An increment can overflow to +inf with an absurd gain: that is "above P_MAX", not NaN.
@@ -96,8 +105,12 @@ class FeedbackLaw:
         if not self.active:
             self.active = True
             self.pressure = self._clamp(self.law.pressure(theta_target))
-            self._last_error, self._last_time = error, t
+            self._last_error, self._last_time, self._last_target = error, t, theta_target
             return self.pressure
+        if self.follow_target and theta_target != self._last_target:
+            shift = self.law.pressure(theta_target) - self.law.pressure(self._last_target)
+            self.pressure = self._clamp(self.pressure + shift)
+        self._last_target = theta_target
         if self._last_time is None or t < self._last_time:
             # Clock jumped back: restart the derivative here rather than read a jump.
             self._last_error, self._last_time = error, t
@@ -121,13 +134,14 @@ class GuidanceController:
     """
 
     def __init__(self, laws: Sequence[PowerLaw], p_max: float = PAPER_P_MAX, gain: float | Sequence[float] = PAPER_GAIN,
-                 mode: str = ADJUSTED, rate_deadband: float = 0.0):
+                 mode: str = ADJUSTED, rate_deadband: float = 0.0, follow_target: bool = False):
         if len(laws) != len(DIRECTIONS):
             raise ValueError(f'need one power law per direction {DIRECTIONS}, got {len(laws)}')
         gains = [gain] * len(DIRECTIONS) if np.ndim(gain) == 0 else list(gain)
         if len(gains) != len(DIRECTIONS):
             raise ValueError(f'need one gain per direction {DIRECTIONS}, got {len(gains)}')
-        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband) for law, g in zip(laws, gains)]
+        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target)
+                           for law, g in zip(laws, gains)]
         self.p_max = p_max
         self.initial_gaze: np.ndarray | None = None
 

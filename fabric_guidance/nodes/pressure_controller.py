@@ -61,6 +61,10 @@ class PressureController(Node):
                                   'the last part of a dwell', 's', low=0.01, high=60.0)
         channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
         self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
+        self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
+                                       'calibration file when it has one (beyond the paper)')
+        self.follow_target = declare(self, 'follow_moving_target', False, 'shift the pressure with f(theta_t) '
+                                     'when the target moves (beyond the paper)')
 
         self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
         self.layout = self.condition.layout or 'suit'
@@ -102,8 +106,12 @@ class PressureController(Node):
     def _make_controller(self) -> GuidanceController | None:
         if self.calibration is None or not self.condition.haptic:
             return None
+        gain = self.gain
+        if self.use_wearer_gain and self.calibration.adjustment_gain is not None:
+            gain = self.calibration.adjustment_gain
         return GuidanceController(self.calibration.laws, p_max=min(self.p_max, self.calibration.p_max),
-                                  gain=self.gain, mode=self.condition.mode, rate_deadband=self.deadband)
+                                  gain=gain, mode=self.condition.mode, rate_deadband=self.deadband,
+                                  follow_target=self.follow_target)
 
     # ---- inputs
     def on_gaze(self, msg: PoseStamped) -> None:
