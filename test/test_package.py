@@ -59,3 +59,10 @@ def test_example_prints_the_worked_example(tmp_path):
     assert out.returncode == 0, out.stderr
     assert '4 of 4 targets found' in out.stdout
     assert (tmp_path / 'demo-wearer.yaml').is_file()
+
+
+def test_analyze_is_a_subcommand_of_the_cli(capsys):
+    from fabric_guidance.cli import main
+    table = ROOT / 'test' / 'data' / 'table-identified-targets.csv'
+    assert main(['analyze', str(table)]) == 0
+    assert 'Friedman chi-square = 16.837' in capsys.readouterr().out
