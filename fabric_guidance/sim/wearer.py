@@ -1,12 +1,16 @@
-"""A small, deterministic simulated wearer.
+"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, headless.py) and SceneWearer (the
+scene simulator, engine.py).
 
-The wearer reads the suit's pressure per direction (left, right, down, up), interprets it
-through their own power law (their sensitivity, which the calibration has to discover) as an
-angle to turn, and turns torso and gaze toward it as a first-order lag. The turn is relative
-to the posture they held when the suit started pulling (the anchor); while they feel nothing
-(every pressure below their threshold c) they hold still. Gaze = torso (no separate eye or head movement in this model).
+SimulatedWearer reads the suit's pressure per direction (left, right, down, up), interprets
+it through their own power law (their sensitivity, which the calibration has to discover) as
+an angle to turn, and turns torso and gaze toward it as a first-order lag. The turn is
+relative to the posture they held when the suit started pulling (the anchor); while they feel
+nothing (every pressure below their threshold c) they hold still. Gaze = torso (no separate
+eye or head movement in this model). No noise and no delays.
 
-No noise and no delays here: the effects a scene calls for come in their own modules.
+SceneWearer is the same wearer without a built-in lag: the effects a scene calls for
+(effects.py: perception, reaction delay, body dynamics with visual capture) are composed
+around it by engine.py.
 """
 from __future__ import annotations
 
@@ -77,3 +81,158 @@ class SimulatedWearer:
         self.yaw += alpha * (goal_yaw - self.yaw)
         self.pitch += alpha * (goal_pitch - self.pitch)
         return self.gaze
+
+
+def haversine(yaw1: float, pitch1: float, yaw2: float, pitch2: float) -> float:
+    """hav of the angle between two gaze directions given as yaw/pitch (degrees): sin^2 of half
+    the angle. Monotonic in the angle, so comparing it with hav_limit(limit) is comparing the
+    angle with the limit, without the inverse trigonometry."""
+    s_p = math.sin(0.008726646259971648 * (pitch2 - pitch1))      # pi / 360
+    s_y = math.sin(0.008726646259971648 * (yaw2 - yaw1))
+    h = s_p * s_p + math.cos(0.017453292519943295 * pitch1) * math.cos(0.017453292519943295 * pitch2) * s_y * s_y
+    return 0.0 if h < 0.0 else (1.0 if h > 1.0 else h)
+
+
+def hav_limit(limit_deg: float) -> float:
+    """haversine() of an angle of limit_deg degrees."""
+    s = math.sin(math.radians(limit_deg) / 2.0)
+    return s * s
+
+
+def angle_between_deg(yaw1: float, pitch1: float, yaw2: float, pitch2: float) -> float:
+    """The full angle between two gaze directions given as yaw/pitch (degrees), in [0, 180]:
+    the haversine form, exact near 0 (core.task.angular_error_deg on the vectors gives the
+    same number; test_sim_engine checks it)."""
+    return math.degrees(2.0 * math.asin(math.sqrt(haversine(yaw1, pitch1, yaw2, pitch2))))
+
+
+#: The wearer cannot look beyond straight up or down (as SimulatedWearer).
+PITCH_LIMIT_DEG = 89.0
+#: Nor turn further than this to either side while seated: trunk rotation (about 40-50 deg)
+#: plus neck rotation (about 70-80 deg). An assumption of that order; it keeps a very
+#: sensitive wearer from turning round through 180 deg, where the angles wrap.
+YAW_LIMIT_DEG = 120.0
+
+
+def _clip(x: float, limit: float) -> float:
+    return limit if x > limit else (-limit if x < -limit else x)
+
+
+class SceneWearer:
+    """The wearer of the scene simulator (fabric_guidance.sim.engine): their own power law per
+    direction and per layout, goals from percepts, and the posture that follows.
+
+    Posture is torso yaw/pitch (degrees, yaw positive left, pitch positive up, REP 103) plus a
+    head offset; the gaze is their sum. The engine drives it:
+
+    - feel(percept): haptic conditions. Each direction's perceived pressure means an angle by the
+      wearer's own inverse law (0 below their threshold c); the goal is the posture the pull
+      began at (the anchor) plus those angles. Feeling nothing, they hold still and the next pull
+      counts from there (as SimulatedWearer).
+    - hear(h, v): condition 4. The goal is the gaze when the phrase is acted on plus the spoken
+      angles.
+    - go_front(): the speed protocol's return to the front (and Algorithm 1's rest), ignoring
+      the suit.
+    - move(dt, capture): without body dynamics the torso stands at the goal and the gaze is the
+      torso's. With them (effects.BodyDynamics) the torso follows the goal as a first-order lag,
+      and while a visible target (capture = its yaw, pitch) is inside the central visual field,
+      head and eyes turn the gaze to it in the world with the faster lag (compensating the
+      torso's own motion); otherwise they return to the torso's direction. Goals stay within
+      YAW_LIMIT_DEG and PITCH_LIMIT_DEG.
+
+    Scalar arithmetic throughout: it runs every simulation step.
+    """
+
+    def __init__(self, suit_laws: Sequence[PowerLaw], arm_laws: Sequence[PowerLaw] | None = None,
+                 p_max: float = PAPER_P_MAX, body=None):
+        if len(suit_laws) != len(DIRECTIONS) or (arm_laws is not None and len(arm_laws) != len(DIRECTIONS)):
+            raise ValueError(f'need one power law per direction {DIRECTIONS}')
+        self.p_max = float(p_max)
+        self._inverse = {'suit': self._prepare(suit_laws), 'arm': self._prepare(arm_laws or suit_laws)}
+        self.layout = 'suit'
+        self.body = body
+        self.face_front()
+
+    @staticmethod
+    def _prepare(laws):
+        return tuple((law.a, law.c, 1.0 / law.b) for law in laws)
+
+    def set_layout(self, layout: str) -> None:
+        if layout not in self._inverse:
+            raise ValueError(f'unknown layout {layout!r}; the wearer has {sorted(self._inverse)}')
+        self.layout = layout
+
+    def face_front(self) -> None:
+        self.torso_yaw = self.torso_pitch = 0.0
+        self.head_yaw = self.head_pitch = 0.0
+        self.goal_yaw = self.goal_pitch = 0.0
+        self.anchor = None
+        self.acting = False   # has acted on a guidance percept since the last reset_acting()
+
+    @property
+    def gaze_yaw(self) -> float:
+        return self.torso_yaw + self.head_yaw
+
+    @property
+    def gaze_pitch(self) -> float:
+        return self.torso_pitch + self.head_pitch
+
+    @property
+    def gaze(self) -> np.ndarray:
+        return gaze_from_angles(self.gaze_yaw, self.gaze_pitch)
+
+    def perceived_angles(self, pressures: Sequence[float]) -> list[float]:
+        """The angle each direction's (perceived) pressure means to this wearer, degrees."""
+        out = [0.0, 0.0, 0.0, 0.0]
+        p_max = self.p_max
+        for k, (a, c, inv_b) in enumerate(self._inverse[self.layout]):
+            p = pressures[k]
+            if p > c:
+                theta = ((p if p < p_max else p_max) - c) / a
+                theta = theta ** inv_b
+                out[k] = theta if theta < 180.0 else 180.0
+        return out
+
+    def feel(self, pressures: Sequence[float]) -> None:
+        left, right, down, up = self.perceived_angles(pressures)
+        if not (left > 0.0 or right > 0.0 or down > 0.0 or up > 0.0):
+            self.anchor = None
+            self.goal_yaw, self.goal_pitch = self.torso_yaw, self.torso_pitch
+            return
+        if self.anchor is None:
+            self.anchor = (self.torso_yaw, self.torso_pitch)
+        self.acting = True
+        self.goal_yaw = _clip(self.anchor[0] + left - right, YAW_LIMIT_DEG)
+        self.goal_pitch = _clip(self.anchor[1] + up - down, PITCH_LIMIT_DEG)
+
+    def hear(self, horizontal: float, vertical: float) -> None:
+        self.anchor = None
+        self.acting = True
+        self.goal_yaw = _clip(self.gaze_yaw + horizontal, YAW_LIMIT_DEG)
+        self.goal_pitch = _clip(self.gaze_pitch + vertical, PITCH_LIMIT_DEG)
+
+    def go_front(self) -> None:
+        self.anchor = None
+        self.goal_yaw = self.goal_pitch = 0.0
+
+    def move(self, capture: tuple[float, float] | None = None) -> None:
+        body = self.body
+        if body is None:
+            self.torso_yaw, self.torso_pitch = self.goal_yaw, self.goal_pitch
+            return
+        gy, gp = self.torso_yaw + self.head_yaw, self.torso_pitch + self.head_pitch
+        ta = body.torso_alpha
+        self.torso_yaw += (self.goal_yaw - self.torso_yaw) * ta
+        self.torso_pitch += (self.goal_pitch - self.torso_pitch) * ta
+        ha = body.head_alpha
+        if (capture is not None and body.central_field_deg > 0.0
+                and haversine(gy, gp, capture[0], capture[1]) <= body.central_field_hav):
+            # Visual capture: the gaze turns to the target in the world, whatever the torso does
+            # (head and eyes compensate the torso's motion, as the vestibulo-ocular reflex does).
+            gy += (capture[0] - gy) * ha
+            gp += (capture[1] - gp) * ha
+            self.head_yaw, self.head_pitch = gy - self.torso_yaw, gp - self.torso_pitch
+        else:
+            # Nothing to look at: head and eyes come back to the torso's direction.
+            self.head_yaw -= self.head_yaw * ha
+            self.head_pitch -= self.head_pitch * ha

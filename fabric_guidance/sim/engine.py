@@ -1,0 +1,378 @@
+"""The closed loop of a scene: controller -> channel map -> effects -> wearer -> gaze -> effects
+-> controller, at a fixed step, with the core's classes as the nodes use them.
+
+One ClosedLoop is one run: Algorithm 1 on a wearer (calibration), or a protocol's trial in one
+condition. It steps at the scene's sim_rate_hz; the controller (or the calibration procedure,
+or condition 4's speech) acts at control_rate_hz on the last gaze sample it received, as the
+pressure_controller node does:
+
+- no valid gaze for gaze_timeout_s: vent (the node's why_not_guide); guidance restarts from the
+  gaze at the next fresh sample (GuidanceController.update begins from it);
+- a new target: vent, and the next control step begins from the gaze at that moment; in
+  condition 4 the phrase (core.speech.phrase) is spoken once, from that gaze;
+- calibration: CalibrationProcedure.tick(t, last gaze if fresh), failing when the gaze went
+  stale, as the node does.
+
+The command per direction goes through core.channels.ChannelMap.to_channels (the command
+vector) and to_directions (the mean each direction's muscles exert, what the wearer feels),
+for the condition's layout; then the scene's effects (fabric_guidance.sim.effects) in their
+places. Only the listed effects are built; with none the wearer is ideal.
+
+A run is a pure function of (scene, wearer, run key): the same inputs give bit-identical
+outputs in any process, whatever ran before.
+
+Speed: the loop is plain float arithmetic. The feedback law is the core's (the FeedbackLaw
+objects of a GuidanceController, begun and vented through it) stepped with the angles from the
+initial gaze computed here from yaw/pitch instead of from vectors (test_sim_engine checks that
+this gives GuidanceController.update's pressures), and the fitted power laws are evaluated with
+scalar math (FastPowerLaw). The acceptance test is core.task.AcceptanceTracker's rule on the
+haversine form of the angle.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+import math
+import re
+from typing import Sequence
+
+from ..core.calibration import APPLY, Calibration, CalibrationProcedure, DONE, FAILED
+from ..core.channels import ChannelMap
+from ..core.conditions import condition as condition_of
+from ..core.feedback import GuidanceController
+from ..core.geometry import DIRECTIONS, wrap_deg
+from ..core.power_law import CalibrationFitError, PowerLaw
+from ..core.speech import phrase
+from ..paths import config_path
+from .effects import RunContext, by_stage
+from .wearer import SceneWearer, angle_between_deg, gaze_from_angles  # noqa: F401 (re-exported)
+
+#: Seconds of simulated time before a run starts: the gaze stream, its loss and latency state
+#: settle with the wearer at rest, facing front (the HoloLens streams before a trial begins).
+WARMUP_S = 1.0
+
+_FRONT = (0.0, 0.0)
+
+#: Run keys: what seeds a run's random streams besides the scene seed, wearer and effect name.
+CALIBRATION_RUN = (1,)
+
+
+def trial_run(condition: int, repetition: int) -> tuple[int, int, int]:
+    return (2, int(condition), int(repetition))
+
+
+@lru_cache(maxsize=4)
+def package_channel_map(path: str | None = None) -> ChannelMap:
+    """The package's channel map (config/channel_map.yaml), loaded once per process."""
+    return ChannelMap.load(path or config_path('channel_map.yaml'))
+
+
+class FastPowerLaw(PowerLaw):
+    """A PowerLaw whose pressure() of a Python float is scalar math (the same formula);
+    anything else goes to PowerLaw. Used for the controller's fitted laws."""
+
+    @classmethod
+    def of(cls, law: PowerLaw) -> 'FastPowerLaw':
+        return cls(law.a, law.b, law.c)
+
+    def pressure(self, theta):
+        if type(theta) is float:
+            t = 0.0 if theta < 0.0 else (180.0 if theta > 180.0 else theta)
+            if t == t:
+                return self.a * t ** self.b + self.c
+        return PowerLaw.pressure(self, theta)
+
+
+_PHRASE_H = re.compile(r'(\d+) to the (left|right)')
+_PHRASE_V = re.compile(r'(\d+) (upward|downward)')
+
+
+def parse_phrase(text: str) -> tuple[float, float]:
+    """What a listener takes from core.speech.phrase: (horizontal, vertical) degrees,
+    positive left / up."""
+    h = v = 0.0
+    m = _PHRASE_H.search(text)
+    if m:
+        h = float(m.group(1)) * (1.0 if m.group(2) == 'left' else -1.0)
+    m = _PHRASE_V.search(text)
+    if m:
+        v = float(m.group(1)) * (1.0 if m.group(2) == 'upward' else -1.0)
+    return h, v
+
+
+class ClosedLoop:
+    """One run of the scene's closed loop for one wearer.
+
+    wearer: anything with index, suit_laws and arm_laws (population.WearerSpec). condition:
+    1-4 for a trial (with `calibration`, the fitted laws the controller uses), None for
+    Algorithm 1 (run_calibration). run: the run key that seeds the effects' streams.
+
+    Drive it with present()/withdraw() and step(); read t, the wearer's true gaze
+    (wearer.gaze_yaw/gaze_pitch) and the controller's last sample (measured_yaw/pitch,
+    new_sample: one arrived this step, received_t).
+    """
+
+    def __init__(self, scene, wearer, run: Sequence[int], condition: int | None = None,
+                 calibration: Calibration | None = None, channel_map: ChannelMap | None = None):
+        self.scene = scene
+        self.dt = 1.0 / scene.sim_rate_hz
+        self.run_key = tuple(int(x) for x in run)
+        ctx = RunContext(self.dt, scene.seed, int(wearer.index), self.run_key)
+        self.effects = [spec.build() for spec in scene.effects]
+        for e in self.effects:
+            e.start(ctx)
+        stages = by_stage(self.effects)
+        self._pressure_fx = [e.pressure for e in stages['pressure']]
+        self._percept_fx = [e.percept for e in stages['percept']]
+        self._delay = stages['delay'][0] if stages['delay'] else None
+        self._gaze_fx = [e.gaze for e in stages['gaze']]
+        self._speech = stages['speech'][0] if stages['speech'] else None
+        body = stages['body'][0] if stages['body'] else None
+
+        ctl = scene.controller
+        self.cmap = channel_map or package_channel_map()
+        self.p_max = ctl.p_max_kpa
+        self.timeout = ctl.gaze_timeout_s
+        self.control_dt = 1.0 / ctl.control_rate_hz
+        self.cond = condition_of(condition) if condition is not None else None
+        self.layout = (self.cond.layout if self.cond is not None else 'suit') or 'suit'
+        self._haptic = self.cond is None or self.cond.haptic     # calibration drives the suit too
+        self.wearer = SceneWearer(wearer.suit_laws, wearer.arm_laws, self.p_max, body)
+        self.wearer.set_layout(self.layout)
+
+        self.controller: GuidanceController | None = None
+        if self.cond is not None and self.cond.haptic:
+            if calibration is None:
+                raise ValueError(f'condition {self.cond.number} needs a calibration')
+            self.controller = GuidanceController(
+                [FastPowerLaw.of(law) for law in calibration.laws], p_max=min(ctl.p_max_kpa, calibration.p_max),
+                gain=ctl.gain, mode=self.cond.mode, rate_deadband=ctl.rate_deadband_dps)
+        self.procedure: CalibrationProcedure | None = None
+
+        # Clock: t = step * dt (never accumulated); control steps at k * control_dt.
+        self.step_index = 0
+        self.t = 0.0
+        self._next_control = 0
+        # The command the wearer's muscles receive, per direction (mean of its channels).
+        self._cmd_key: tuple | None = None
+        self.command = [0.0, 0.0, 0.0, 0.0]
+        self.pressure = self.command          # what the suit exerts (after pressure effects)
+        self.vented = True
+        # Target state.
+        self.target: tuple[float, float] | None = None     # yaw, pitch of the active target
+        self.visible = False
+        self.front_visible = False
+        self.mode = 'front'                   # wearer: 'follow' the guidance, or 'front'
+        self._g0: tuple[float, float] | None = None
+        self._theta_t = (0.0, 0.0, 0.0, 0.0)
+        self.speech_due = False
+        self._speech_pending: tuple[float, int, str] | None = None
+        self.heard: tuple[int, float, float] | None = None
+        self._heard_count = 0
+        self._acted_on: int | None = None
+        self.spoken: list[str] = []
+        # Gaze stream: the controller's last sample (seq, t_emitted, yaw, pitch).
+        self._seq = 0
+        self.last_sample = (-1, 0.0, 0.0, 0.0)
+        self.received_t = 0.0
+        self.new_sample = False
+        if self._delay is not None:
+            self._delay.reset((0.0, 0.0, 0.0, 0.0) if self.cond is None or self.cond.haptic else None)
+
+    # ---- protocol interface -------------------------------------------------------------------
+    @property
+    def measured_yaw(self) -> float:
+        return self.last_sample[2]
+
+    @property
+    def measured_pitch(self) -> float:
+        return self.last_sample[3]
+
+    @property
+    def fresh(self) -> bool:
+        return self.t - self.received_t <= self.timeout
+
+    def warm_up(self, seconds: float = WARMUP_S) -> None:
+        """Let the gaze stream run with the wearer at rest, facing front, no target."""
+        end = self.step_index + int(round(seconds / self.dt))
+        while self.step_index < end:
+            self.step()
+
+    def present(self, yaw: float, pitch: float, visible: bool) -> None:
+        """A new active target at (yaw, pitch) from the front, degrees; the wearer follows the
+        guidance. visible: the wearer can see it once it is in their central field."""
+        self.target = (float(yaw), float(pitch))
+        self.visible = bool(visible)
+        self.mode = 'follow'
+        self.wearer.acting = False
+        self._vent()                           # the node vents on a new target
+        self.speech_due = bool(self.cond is not None and self.cond.speech)
+
+    def withdraw(self, front_visible: bool = True) -> None:
+        """No active target: the suit vents and the wearer returns to the front on their own."""
+        self.target = None
+        self.speech_due = False
+        self._speech_pending = None
+        self.mode = 'front'
+        self.front_visible = front_visible
+        self.wearer.go_front()
+        self._vent()
+
+    # ---- internals ----------------------------------------------------------------------------
+    def _vent(self) -> None:
+        if not self.vented:
+            if self.controller is not None:
+                self.controller.vent()
+            self.vented = True
+            self._g0 = None
+        self._set_command((0.0, 0.0, 0.0, 0.0))
+
+    def _set_command(self, direction_pressures: tuple) -> None:
+        if direction_pressures == self._cmd_key:
+            return
+        self._cmd_key = direction_pressures
+        cmap = self.cmap
+        felt = cmap.to_directions(cmap.to_channels(direction_pressures, self.layout), self.layout)
+        self.command = felt.tolist()
+
+    def _control(self, t: float) -> None:
+        fresh = t - self.received_t <= self.timeout
+        if self.procedure is not None:
+            self._calibration_control(t, fresh)
+            return
+        if self.speech_due and fresh and self.target is not None:
+            self._say(t)
+        ctrl = self.controller
+        if ctrl is None or self.target is None or not fresh:
+            self._vent()
+            return
+        _, _, gy, gp = self.last_sample
+        if self._g0 is None:
+            ctrl.begin(gaze_from_angles(gy, gp))      # validates; resets every direction
+            self._g0 = (gy, gp)
+            h = wrap_deg(self.target[0] - gy)
+            v = self.target[1] - gp
+            self._theta_t = (h, -h, -v, v)
+            self.vented = False
+        y0, p0 = self._g0
+        h = wrap_deg(gy - y0)
+        v = gp - p0
+        d0, d1, d2, d3 = ctrl.directions
+        t0, t1, t2, t3 = self._theta_t
+        # A direction whose target angle is <= 0 stays vented for the whole target (its step()
+        # would only reset it again): skipping the call changes nothing.
+        self._set_command((d0.step(t0, h, t) if t0 > 0.0 else 0.0, d1.step(t1, -h, t) if t1 > 0.0 else 0.0,
+                           d2.step(t2, -v, t) if t2 > 0.0 else 0.0, d3.step(t3, v, t) if t3 > 0.0 else 0.0))
+
+    def _say(self, t: float) -> None:
+        self.speech_due = False
+        _, _, gy, gp = self.last_sample
+        text = phrase(wrap_deg(self.target[0] - gy), self.target[1] - gp)
+        self.spoken.append(text)
+        latency = self._speech.latency(text) if self._speech is not None else 0.0
+        self._heard_count += 1
+        self._speech_pending = (t + latency, self._heard_count, text)
+
+    def _calibration_control(self, t: float, fresh: bool) -> None:
+        proc = self.procedure
+        if not fresh and proc.phase not in (DONE, FAILED):
+            proc.fail(f'the gaze stream stopped for more than {self.timeout} s')
+        _, _, gy, gp = self.last_sample
+        cmd = proc.tick(t, gaze_from_angles(gy, gp) if fresh else None)
+        p = [0.0, 0.0, 0.0, 0.0]
+        if cmd.direction is not None:
+            p[DIRECTIONS.index(cmd.direction)] = cmd.pressure
+        self._set_command(tuple(p))
+        if cmd.phase == APPLY:
+            if self.mode != 'follow':
+                self.mode = 'follow'
+        elif self.mode != 'front':
+            self.mode = 'front'
+            self.wearer.go_front()
+
+    def step(self) -> None:
+        """Advance one simulation step."""
+        i = self.step_index
+        t = i * self.dt
+        self.t = t
+        if t >= self._next_control * self.control_dt - 1e-9:
+            self._next_control += 1
+            self._control(t)
+        # Command -> pressure the suit exerts -> what the wearer perceives.
+        p = self.command
+        for fx in self._pressure_fx:
+            p = fx(p)
+        self.pressure = p
+        wearer = self.wearer
+        follow = self.mode == 'follow'
+        if self._haptic:
+            for fx in self._percept_fx:
+                p = fx(p)
+            if self._delay is not None:
+                p = self._delay.delay((p[0], p[1], p[2], p[3]))
+            if follow:
+                wearer.feel(p)
+        else:
+            pending = self._speech_pending
+            if pending is not None and t >= pending[0] - 1e-9:
+                self._speech_pending = None
+                self.heard = (pending[1],) + parse_phrase(pending[2])
+            heard = self.heard
+            if self._delay is not None:
+                heard = self._delay.delay(heard)
+            if heard is not None and heard[0] != self._acted_on and follow:
+                self._acted_on = heard[0]
+                wearer.hear(heard[1], heard[2])
+        # The body moves; the eyes catch a visible target (or the front when returning).
+        if follow:
+            wearer.move(self.target if self.visible else None)
+        else:
+            wearer.move(_FRONT if self.front_visible else None)
+        # The gaze sample of the end of this step, through the gaze effects.
+        i += 1
+        self.step_index = i
+        t = i * self.dt
+        self.t = t
+        self._seq = seq = self._seq + 1
+        sample = (seq, t, wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch)
+        for fx in self._gaze_fx:
+            sample = fx(t, sample)
+        if sample is not None and sample[0] > self.last_sample[0]:
+            self.last_sample = sample
+            self.received_t = t
+            self.new_sample = True
+        else:
+            self.new_sample = False
+
+    # ---- Algorithm 1 ----------------------------------------------------------------------------
+    def calibrate(self, name: str) -> Calibration:
+        """Run Algorithm 1 (core CalibrationProcedure) on this loop's wearer, with the scene's
+        effects; the result, or CalibrationFitError with the reason."""
+        cal = self.scene.calibration
+        self.procedure = CalibrationProcedure(name, p_max=self.p_max, steps=cal.steps, dwell_s=cal.dwell_s,
+                                              rest_s=cal.rest_s, record_window_s=cal.window_s, min_r2=cal.min_r2)
+        self.mode = 'front'
+        self.front_visible = False
+        limit = self.step_index + int(math.ceil((self.procedure.duration_s + 10.0) / self.dt))
+        while self.procedure.phase not in (DONE, FAILED) and self.step_index < limit:
+            self.step()
+        proc, self.procedure = self.procedure, None
+        self._set_command((0.0, 0.0, 0.0, 0.0))
+        if proc.phase == FAILED:
+            raise CalibrationFitError(proc.error)
+        return proc.result()
+
+
+def run_calibration(scene, wearer, name: str | None = None) -> Calibration:
+    """Algorithm 1 on a simulated wearer with the scene's effects (or the wearer's true suit
+    laws when the scene's calibration is `exact`). Raises CalibrationFitError with the reason
+    when it fails."""
+    name = name or getattr(wearer, 'name', f'wearer-{wearer.index}')
+    if scene.calibration.exact:
+        return Calibration.from_laws(name, wearer.suit_laws, scene.controller.p_max_kpa)
+    loop = ClosedLoop(scene, wearer, CALIBRATION_RUN)
+    loop.warm_up()
+    return loop.calibrate(name)
+
+
+__all__ = ['CALIBRATION_RUN', 'ClosedLoop', 'FastPowerLaw', 'WARMUP_S', 'angle_between_deg', 'package_channel_map',
+           'parse_phrase', 'run_calibration', 'trial_run']
