@@ -1,0 +1,35 @@
+"""`fabric-guidance experiment`: a protocol run end to end writes its CSV, statistics, plots
+and report, and refuses bad arguments with a clear message."""
+import pandas as pd
+
+from fabric_guidance.cli import main
+
+
+def test_speed_experiment_writes_everything(tmp_path, capsys):
+    assert main(['experiment', '--protocol', 'speed', '--subjects', '3', '--out', str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert '[ 3/3]' in out                                          # progress
+    trials = pd.read_csv(tmp_path / 'trials.csv')
+    assert len(trials) == 3 * 4 * 6                                 # wearers x conditions x repetitions
+    assert set(trials['condition']) == {'surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech'}
+    assert (trials['identified'] >= 0).all()
+    stats = (tmp_path / 'statistics.txt').read_text()
+    assert 'Friedman chi-square' in stats and 'Bonferroni' in stats
+    assert (tmp_path / 'identified.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    report = (tmp_path / 'report.md').read_text()
+    assert 'identified.png' in report and 'Friedman' in report
+
+
+def test_accuracy_experiment_analyses_both_errors(tmp_path):
+    assert main(['experiment', '--protocol', 'accuracy', '--subjects', '3', '--out', str(tmp_path)]) == 0
+    stats = (tmp_path / 'statistics.txt').read_text()
+    assert 'horizontal error' in stats and 'vertical error' in stats
+    assert (tmp_path / 'h_error_deg.png').exists() and (tmp_path / 'v_error_deg.png').exists()
+
+
+def test_bad_arguments_are_refused(tmp_path, capsys):
+    assert main(['experiment', '--out', str(tmp_path)]) == 2
+    assert 'exactly one of --protocol or --scene' in capsys.readouterr().err
+    assert main(['experiment', '--scene', 'no-such-scene', '--out', str(tmp_path)]) == 2
+    assert main(['experiment', '--protocol', 'speed', '--subjects', '99', '--out', str(tmp_path)]) == 2
+    assert "population" in capsys.readouterr().err
