@@ -75,8 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='fabric-guidance', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True)
     demo = sub.add_parser('demo', help='run the simulated ROS graph for a short guided session and report it')
-    demo.add_argument('--condition', type=int, default=1, choices=(1, 2, 3),
-                      help='guidance condition (1 surface adjusted, 2 surface fixed, 3 arm adjusted)')
+    demo.add_argument('--condition', type=int, default=None, choices=(1, 2, 3, 4),
+                      help='guidance condition (1 surface adjusted, 2 surface fixed, 3 arm adjusted; '
+                           '4 speech, with --scene only); default 1, or the scene\'s first')
+    demo.add_argument('--scene', default=None,
+                      help='run a scene of the simulator (config/scenes name or file) through the graph')
     demo.add_argument('--timeout', type=float, default=45.0, help='give up after this many seconds')
     demo.add_argument('--out', type=Path, default=None, help='folder for logs (default: a temporary folder)')
     from .experiments import analyze, beyond, experiment
@@ -89,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == 'demo':
         from .demo import run_demo  # imports rclpy: only for the graph
-        return run_demo(args.condition, args.timeout, args.out)
+        return run_demo(args.condition, args.timeout, args.out, scene=args.scene)
     if args.command == 'analyze':
         return analyze.run(args)
     if args.command == 'experiment':

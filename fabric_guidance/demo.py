@@ -2,6 +2,14 @@
 launch/sim.launch.py starts), a short guided session through the targets of
 config/guidance.yaml, and a report of what happened, read off the graph's own topics and the
 mock PLC's registers.
+
+`fabric-guidance demo --scene FILE` (run_demo(scene=...)) runs a scene of the headless simulator
+(config/scenes/*.yaml) through the same graph: the scene's wearer 0, calibrated by Algorithm 1
+headless with the scene's effects (as the paper calibrates before the trials), guided under the
+scene's first condition to four targets drawn from the scene's protocol ranges with its seed
+(the targets wearer 0 meets first in the headless protocol); the scene's controller
+settings go to pressure_controller, its acceptance rule to target_selector, regulator_lag to
+the mock PLC and every wearer-side effect to wearer_sim (nodes/wearer_sim.py SceneSide).
 """
 from __future__ import annotations
 
@@ -27,6 +35,13 @@ from .process_graph import Graph, Probe, free_port, wait_until
 SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
 #: Nodes in start order: the PLC side first so plc_output finds its PLC.
 NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'wearer_sim')
+#: With a scene: targets drawn from its protocol ranges, this many, this far from the eye [m].
+SCENE_TARGETS = 4
+SCENE_TARGET_DISTANCE_M = 2.0
+#: wearer_sim steps at the scene's sim_rate_hz, but not faster than this (real time) [Hz].
+MAX_SCENE_GAZE_RATE_HZ = 120.0
+#: mock_plc regulator_tau_s when the scene lists no regulator_lag: the mock's "no lag" [s].
+NO_REGULATOR_LAG_S = 0.0
 
 
 @dataclass
@@ -55,6 +70,8 @@ class SessionWatch:
         self.start = time.monotonic()
         self.max_command = 0.0
         self.speech: list[str] = []
+        self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
+        self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
         probe.subscribe(PoseStamped, common.GAZE, common.SENSOR_QOS, self.on_gaze)
         probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS, self.on_target)
         probe.subscribe(String, common.ACTIVE_TARGET, common.LATCHED_QOS, self.on_active)
@@ -62,6 +79,11 @@ class SessionWatch:
         probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS, self.on_command)
         probe.subscribe(Float64MultiArray, common.MEASURED_PRESSURE, common.COMMAND_QOS)
         probe.subscribe(String, common.SPEECH, common.EVENT_QOS, lambda m: self.speech.append(m.data))
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        from .nodes.mock_plc import MAX_WRITTEN
+        probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10, self.on_diagnostics)
+        probe.subscribe(Float64MultiArray, MAX_WRITTEN, common.COMMAND_QOS, self.on_max_written)
 
     def t(self) -> float:
         return time.monotonic() - self.start
@@ -93,6 +115,16 @@ class SessionWatch:
             if [r.name for r in self.records if r.found is not None] == self.sequence:
                 self.finished.set()
 
+    def on_diagnostics(self, msg) -> None:
+        for st in msg.status:
+            if st.name.startswith('gaze_bridge:'):
+                with self.lock:
+                    self.bridge = {kv.key: kv.value for kv in st.values}
+
+    def on_max_written(self, msg) -> None:
+        with self.lock:
+            self.max_written = list(msg.data)
+
     def on_command(self, msg) -> None:
         data = np.asarray(msg.data, dtype=float)
         if data.shape != (len(self.cmap.channels),):
@@ -104,15 +136,111 @@ class SessionWatch:
                 rec.peak_kpa = np.maximum(rec.peak_kpa, self.cmap.to_directions(data, self.layout))
 
 
-def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None = None, stream=sys.stdout) -> int:
+@dataclass
+class ScenePlan:
+    """What a scene changes in the demo: the wearer, their calibration, the node overrides and
+    the targets, and where each of the scene's effects is realised."""
+
+    scene: object                         # sim.scene.Scene
+    wearer: object                        # sim.population.WearerSpec
+    calibration_file: Path
+    condition: int
+    targets: list[tuple[str, float, float, np.ndarray]]   # name, yaw, pitch (deg), position (m)
+    regulator_tau_s: float
+    gaze_rate_hz: float
+    where: dict[str, list[str]]           # where -> the effects realised there (or unused)
+
+    def effects_line(self) -> str:
+        scene = self.scene
+        if not scene.effects:
+            return (f'scene {scene.name}: no effect listed (the ideal wearer); mock_plc regulator_tau_s '
+                    f'{self.regulator_tau_s:g} s (no lag)')
+        return (f'scene {scene.name}: effects realised in the graph: ' +
+                '; '.join(f'{w}: {", ".join(names)}' for w, names in self.where.items()))
+
+
+def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePlan:
+    """Load the scene, calibrate its wearer 0 headless by Algorithm 1 with the scene's effects
+    (population.calibrate_wearer), save the calibration into log_dir and draw the targets.
+    Raises ValueError (SceneError, a failed calibration) with the reason."""
+    from .nodes.wearer_sim import REALISED_ELSEWHERE, load_scene_file
+    from .sim.population import calibrate_wearer, sample_wearer
+    from .sim.wearer import gaze_from_angles
+    scene = load_scene_file(str(scene_ref))
+    cond = condition_of(condition if condition is not None else scene.conditions[0])
+    wearer = sample_wearer(scene, 0)
+    say(f'scene {scene.name} ({scene.source}): wearer {wearer.name} (index 0) of {scene.population.subjects}, '
+        f'condition {cond.number}; effects: {", ".join(scene.effect_names) or "none"}')
+    t0 = time.monotonic()
+    outcome = calibrate_wearer(scene, wearer)
+    if not outcome.ok:
+        raise ValueError(f'the calibration of wearer {wearer.name} failed: {outcome.error}')
+    cal_path = outcome.calibration.save(log_dir / f'{scene.name}-{wearer.name}.yaml')
+    worst = max(outcome.angle_error_deg.values())
+    say(f'Algorithm 1 on {wearer.name}, headless with the scene\'s effects ({time.monotonic() - t0:.1f} s): '
+        f'fitted laws within {worst:.1f} deg of the true ones over 0-60 deg; saved to {cal_path}')
+    lag = scene.effect('regulator_lag')
+    tau = float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S
+    # The targets wearer 0 meets first in the headless protocol: the speed trial's first draws
+    # of repetition 0, or the accuracy trials' targets of repetitions 0, 1, ... (the same streams).
+    from .sim.protocols import _draw_target, _targets
+    eye = np.array([0.0, 0.0, _eye_height()])
+    speed = scene.protocol.kind == 'speed'
+    rng = _targets(scene, 0, 0)
+    targets = []
+    for i in range(SCENE_TARGETS):
+        yaw, pitch = _draw_target(rng if speed else _targets(scene, 0, i), scene.protocol)
+        targets.append((f'{scene.name.replace("-", "_")}_{i + 1}', yaw, pitch,
+                        eye + SCENE_TARGET_DISTANCE_M * gaze_from_angles(yaw, pitch)))
+    where: dict[str, list[str]] = {}
+    for name in scene.effect_names:
+        e = scene.effect(name).build()
+        if name == 'regulator_lag':
+            where.setdefault('mock_plc', []).append(f'regulator_lag (regulator_tau_s {tau:g} s)')
+        elif name in REALISED_ELSEWHERE:
+            where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
+        elif (e.stage in ('pressure', 'percept') and not cond.haptic) or (e.stage == 'speech' and not cond.speech):
+            where.setdefault(f'unused in condition {cond.number}', []).append(name)
+        else:
+            where.setdefault('wearer_sim', []).append(name)
+    if 'mock_plc' not in where:
+        where = {'mock_plc': [f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'], **where}
+    rate = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
+    return ScenePlan(scene, wearer, cal_path, cond.number, targets, tau, rate, where)
+
+
+def _eye_height() -> float:
+    params = yaml.safe_load(config_path('sim.yaml').read_text())['wearer_sim']['ros__parameters']
+    return float(params.get('eye_height_m', 1.2))
+
+
+def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Path | None = None,
+             stream=sys.stdout, scene: str | Path | None = None) -> int:
+    """Run the demo; 0 when every target was found, nothing exceeded the limit and the suit
+    was vented at the end. condition: 1-3 (default 1); with `scene` (a scene file or the name
+    of one of config/scenes/) 1-4, default the scene's first condition."""
     def say(line: str = '') -> None:
         print(line, file=stream, flush=True)
 
+    log_dir = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='fabric-guidance-demo-'))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    plan = None
+    if scene is not None:
+        try:
+            plan = plan_scene(scene, condition, log_dir, say)
+        except ValueError as exc:     # SceneError, EffectError, a failed calibration
+            say(f'fabric_guidance demo: {exc}')
+            return 2
+        condition = plan.condition
+    elif condition is None:
+        condition = 1
     cond = condition_of(condition)
+    if cond.speech and plan is None:
+        say('fabric_guidance demo: condition 4 (speech) needs --scene: the simple wearer does not hear')
+        return 2
     layout = cond.layout or 'suit'
     cmap = ChannelMap.load(config_path('channel_map.yaml'))
     regmap = RegisterMap.load(config_path('plc_register_map.yaml'), expected_channels=cmap.channels)
-    log_dir = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='fabric-guidance-demo-'))
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
@@ -127,13 +255,31 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
                                     calibration_dir=str(log_dir / 'calibrations')),
         'wearer_sim': dict(bridge_port=gaze_port, layout=layout),
     }
+    sequence = task_sequence()
+    if plan is not None:
+        sc, ctl = plan.scene, plan.scene.controller
+        overrides['mock_plc'].update(regulator_tau_s=plan.regulator_tau_s)
+        overrides['pressure_controller'].update(
+            calibration_file=str(plan.calibration_file.resolve()), wearer=plan.wearer.name, gain=ctl.gain,
+            control_rate_hz=ctl.control_rate_hz, p_max_kpa=ctl.p_max_kpa, gaze_timeout_s=ctl.gaze_timeout_s,
+            rate_deadband_dps=ctl.rate_deadband_dps)
+        sequence = [name for name, *_ in plan.targets]
+        overrides['target_selector'].update(
+            target_names=sequence, target_positions=[float(x) for *_, pos in plan.targets for x in pos])
+        if sc.protocol.kind == 'speed':
+            overrides['target_selector'].update(acceptance_deg=sc.protocol.acceptance_deg,
+                                                dwell_s=sc.protocol.dwell_s)
+        overrides['wearer_sim'].update(scene_file=str(Path(sc.source).resolve()), wearer_index=plan.wearer.index,
+                                       condition=cond.number, gaze_rate_hz=plan.gaze_rate_hz)
+        say('targets (yaw, pitch from the front, deg): ' +
+            ', '.join(f'{name} ({yaw:+.1f}, {pitch:+.1f})' for name, yaw, pitch, _ in plan.targets))
     probe = None
     code = 1
     try:
         for node in NODES:
             graph.start(node, files, **overrides[node])
         probe = Probe(graph.domain_id, 'demo_watch')
-        watch = SessionWatch(probe, cmap, layout, task_sequence(), say)
+        watch = SessionWatch(probe, cmap, layout, sequence, say)
         deadline = time.monotonic() + timeout_s
         # Start the task, as an operator would, once the whole graph (the watch included) is up:
         # every target's time is then guidance time, not process start-up.
@@ -159,7 +305,9 @@ def run_demo(condition: int = 1, timeout_s: float = 45.0, out_dir: Path | None =
         with PlcClient(regmap, '127.0.0.1', plc_port, timeout_s=1.0) as client:
             after = client.read_commands_kpa()
         graph.stop('mock_plc')
-        code = report(watch, cond, after, say) if complete else 1
+        code = report(watch, cond, after, say, plan)
+        if not complete:
+            code = 1
     finally:
         if probe is not None:
             probe.close()
@@ -173,7 +321,7 @@ def task_sequence() -> list[str]:
     return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 
-def report(watch: SessionWatch, cond, registers_after: np.ndarray, say) -> int:
+def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: ScenePlan | None = None) -> int:
     say()
     say(f'{"target":<14} {"found":<5} {"time s":>6} {"error deg":>9}   peak kPa ' +
         ' '.join(f'{d:>5}' for d in DIRECTIONS))
@@ -188,9 +336,25 @@ def report(watch: SessionWatch, cond, registers_after: np.ndarray, say) -> int:
     if watch.speech:
         say(f'speech (condition 4): {"; ".join(watch.speech)}')
     say()
-    say(f'{found} of {len(watch.records)} targets found; highest command {watch.max_command:.1f} kPa '
+    total = max(len(watch.sequence), len(watch.records))
+    presented = f' ({len(watch.records)} presented)' if len(watch.records) < total else ''
+    say(f'{found} of {total} targets found{presented}; highest command {watch.max_command:.1f} kPa '
         f'(limit 375 kPa); after shutdown the PLC registers read {registers_after.max():.1f} kPa at most.')
+    if plan is not None:
+        with watch.lock:
+            written, bridge = list(watch.max_written), dict(watch.bridge)
+        if written:
+            say(f'mock PLC: largest value ever written {max(written):.1f} kPa (limit 375 kPa).')
+        if bridge:
+            why = [name for name in ('datagram_loss', 'datagram_latency') if name in plan.scene.effect_names]
+            because = (f' ({" and ".join(why)}; latency, like the engine, passes on only the newest of the samples '
+                       'arriving within one step)') if why else ''
+            say(f'gaze_bridge: {bridge.get("received", "?")} datagrams received, {bridge.get("lost", "?")} sequence '
+                f'gaps{because}.')
+        say(plan.effects_line())
+        say(f'(real time over DDS, UDP and Modbus: the same scene, wearer, effect parameters and random '
+            f'streams as the headless engine, not a bit-identical run)')
     vented = bool(np.all(registers_after == 0.0))
     if not vented:
         say('WARNING: the suit was not vented at shutdown')
-    return 0 if found == len(watch.records) and found > 0 and vented and math.isfinite(watch.max_command) else 1
+    return 0 if found == total and found > 0 and vented and math.isfinite(watch.max_command) else 1
