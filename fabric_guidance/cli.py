@@ -3,6 +3,7 @@
   demo      the simulated ROS graph, a guided session, what happened (`make demo`)
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
+  tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   example   the core alone on a worked example (no ROS)
 """
@@ -82,9 +83,10 @@ def main(argv: list[str] | None = None) -> int:
                       help='run a scene of the simulator (config/scenes name or file) through the graph')
     demo.add_argument('--timeout', type=float, default=45.0, help='give up after this many seconds')
     demo.add_argument('--out', type=Path, default=None, help='folder for logs (default: a temporary folder)')
-    from .experiments import analyze, beyond, experiment
+    from .experiments import analyze, beyond, experiment, tradeoff
     analyze.add_parser(sub)
     experiment.add_parser(sub)
+    tradeoff.add_parser(sub)
     beyond.add_parser(sub)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,
@@ -99,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         return experiment.run(args)
     if args.command == 'beyond':
         return beyond.run(args)
+    if args.command == 'tradeoff':
+        return tradeoff.run(args)
     if args.out is not None:
         return run_worked_example(args.out)
     with tempfile.TemporaryDirectory(prefix='fabric-guidance-example-') as tmp:

@@ -1,0 +1,225 @@
+"""`fabric-guidance tradeoff`: the sweep's files, its measurements against the simulator's own
+protocols, monotone properties on the ideal scene, and the rules that read the curves."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from matplotlib import image
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from fabric_guidance.experiments import tradeoff
+from fabric_guidance.experiments.tradeoff import (CSV_COLUMNS, KNOBS, Row, calibrate_measured, diff_se, pareto_front,
+                                                  quick_settings, read_curve, run_sweep, speed_trial_detail)
+from fabric_guidance.paths import config_path
+from fabric_guidance.sim.population import calibrate_wearer, sample_wearer
+from fabric_guidance.sim.protocols import speed_trial
+from fabric_guidance.sim.scene import load_scene
+
+PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+
+
+@pytest.fixture(scope='module')
+def quick_run(tmp_path_factory):
+    """One --quick sweep through the command line (every knob), shared by the file tests."""
+    out = tmp_path_factory.mktemp('tradeoff')
+    import contextlib
+    import io
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = tradeoff.main(['--quick', '--out', str(out), '--workers', '2'])
+    return out, code, stdout.getvalue(), stderr.getvalue()
+
+
+# ------------------------------------------------------------------------------ the --quick sweep
+
+def test_quick_sweep_writes_every_file(quick_run):
+    out, code, stdout, _ = quick_run
+    assert code == 0
+    for name in ['tradeoff.csv', 'tradeoff.md'] + [f'{k}.png' for k in KNOBS]:
+        assert (out / name).is_file(), name
+    assert '| knob | value | accuracy metric |' in stdout       # the markdown table is printed
+
+
+def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
+    out = quick_run[0]
+    frame = pd.read_csv(out / 'tradeoff.csv')
+    assert tuple(frame.columns) == CSV_COLUMNS
+    assert set(frame['knob']) == set(KNOBS)
+    numeric = [c for c in CSV_COLUMNS if c not in ('knob', 'accuracy_metric', 'time_metric', 'note')]
+    values = frame[numeric].to_numpy(float)
+    assert np.all(np.isfinite(values))
+    assert (frame['n'] > 0).all() and (frame['n_time'] > 0).all()
+    assert (frame['accuracy_p10'] <= frame['accuracy_p90']).all() and (frame['time_p10'] <= frame['time_p90']).all()
+    # every value of every quick grid is there, on each of the knob's curves
+    for knob, grid in tradeoff.QUICK_GRIDS.items():
+        for (_, _), part in frame[frame['knob'] == knob].groupby(['accuracy_metric', 'time_metric']):
+            assert sorted(part['value']) == pytest.approx(sorted(grid))
+    # calibration time is Algorithm 1's 4 x (rest + steps x dwell) of the scene, as simulated
+    cal = frame[(frame['knob'] == 'calibration_points')]
+    scene = load_scene('paper-accuracy')
+    expect = 4 * (scene.calibration.rest_s + cal['value'] * scene.calibration.dwell_s)
+    assert np.allclose(cal['time_mean'], expect, atol=4 / scene.sim_rate_hz + 1e-9)
+
+
+def test_plots_are_valid_pngs(quick_run):
+    out = quick_run[0]
+    for knob in KNOBS:
+        path = out / f'{knob}.png'
+        assert path.read_bytes()[:8] == PNG_SIGNATURE
+        pixels = image.imread(path)
+        assert pixels.shape[0] > 300 and pixels.shape[1] > 500 and pixels.std() > 0.05
+
+
+def test_report_has_the_table_a_reading_of_each_knob_and_the_plots(quick_run):
+    out, _, stdout, stderr = quick_run
+    md = (out / 'tradeoff.md').read_text()
+    reading = md.split('## Reading', 1)[1].split('## Plots', 1)[0]
+    for knob in KNOBS:
+        assert f'**{knob}**' in reading
+        assert f'![{knob}]({knob}.png)' in md
+        assert knob in stdout
+    assert '| knob | value |' in md
+    # one progress line per knob value
+    lines = [ln for ln in stderr.splitlines() if ln.startswith('[')]
+    assert len(lines) == sum(len(g) for g in tradeoff.QUICK_GRIDS.values())
+
+
+# ------------------------------------------------------------------ measurements, cross-checked
+
+def test_speed_trial_detail_is_the_protocols_speed_trial():
+    scene = load_scene('paper-speed').replace(conditions=(1,))
+    wearer = sample_wearer(scene, 1)
+    cal = calibrate_wearer(scene, wearer).calibration
+    for rep in (0, 1):
+        mine = speed_trial_detail(scene, wearer, cal, 1, rep)
+        ref = speed_trial(scene, wearer, cal, 1, rep)
+        assert (mine['identified'], mine['presented']) == (ref['identified'], ref['presented'])
+        times = [f[0] for f in mine['finds']]
+        assert np.mean(times) == pytest.approx(ref['mean_find_s'])
+        tol = scene.protocol.acceptance_deg
+        assert all(tracked <= tol + 1e-9 for _, _, tracked in mine['finds'])  # counted inside the tolerance
+
+
+def test_calibration_is_the_populations_with_its_duration():
+    scene = load_scene('paper-accuracy')
+    for subject in (0, 3):
+        outcome, took = calibrate_measured(scene, subject)
+        ref = calibrate_wearer(scene, sample_wearer(scene, subject))
+        assert outcome.calibration.laws == ref.calibration.laws
+        assert outcome.angle_error_deg == ref.angle_error_deg
+        planned = 4 * (scene.calibration.rest_s + scene.calibration.steps * scene.calibration.dwell_s)
+        assert planned <= took <= planned + 4 * 2 / scene.controller.control_rate_hz
+
+
+# --------------------------------------------------------------- properties on the ideal scene
+
+def _ideal(tmp_path: Path, effects: list) -> str:
+    data = yaml.safe_load(config_path('scenes/ideal.yaml').read_text())
+    data['effects'] = effects
+    path = tmp_path / 'ideal-variant.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+@pytest.mark.parametrize('effects', [None, ['body_dynamics']], ids=['ideal', 'ideal+body_dynamics'])
+def test_ideal_scene_more_tolerance_never_less_error_more_points_never_less_time(tmp_path, effects):
+    scene = 'ideal' if effects is None else _ideal(tmp_path, effects)
+    settings = quick_settings(accuracy_scene=scene, speed_scene=scene, workers=2,
+                              knobs=('acceptance_tolerance', 'calibration_points'),
+                              grids={'acceptance_tolerance': (1.0, 2.0, 3.0, 5.0, 8.0, 12.0),
+                                     'calibration_points': (3, 4, 7, 10, 20)})
+    frame = run_sweep(settings).frame()
+    tol = frame[frame['knob'] == 'acceptance_tolerance'].sort_values('value')
+    err = tol['accuracy_mean'].to_numpy()
+    assert np.all(np.diff(err) >= 0.0), err           # a larger tolerance never gives a smaller error
+    if effects:                                        # with a body that lags, it strictly costs accuracy
+        assert np.all(np.diff(err) > 0.0), err
+    else:                                              # the ideal wearer lands on the target at once
+        assert np.all(err < 1e-9)
+    for _, part in frame[frame['knob'] == 'calibration_points'].groupby('accuracy_metric'):
+        part = part.sort_values('value')
+        assert np.all(np.diff(part['time_mean'].to_numpy()) > 0.0)   # more points, longer calibration
+
+
+# ------------------------------------------------------------------------- reading the curves
+
+def _row(value, acc, tim, knob='gain', metric=('guidance_error_deg', 'time_to_key_press_s')):
+    index = pd.MultiIndex.from_tuples([(i,) for i in range(len(acc))], names=['trial'])
+    return Row(knob, value, metric[0], metric[1], pd.Series(acc, index=index, dtype=float),
+               pd.Series(tim, index=index[:len(tim)], dtype=float))
+
+
+def test_pareto_front():
+    assert pareto_front([1, 2, 3], [3, 2, 1]) == [0, 1, 2]
+    assert pareto_front([1, 2, 3], [1, 2, 3]) == [0]
+    assert pareto_front([1, 2, 2, 3], [3, 1, 2, 0.5]) == [0, 1, 3]
+    assert pareto_front([1, 1], [2, 2]) == [0, 1]   # equal points do not dominate each other
+
+
+def test_diff_se_pairs_samples_on_common_keys():
+    rng = np.random.default_rng(0)
+    base = rng.normal(10.0, 5.0, 50)
+    x = _row(0, base + 0.1, base).accuracy
+    y = _row(0, base, base).accuracy
+    assert diff_se(x, y) == pytest.approx(0.0, abs=1e-12)      # paired: the shared spread cancels
+    assert diff_se(x, y.rename(lambda k: k + 100)) > 0.5         # nothing pairs: independent SE
+
+
+def test_reading_of_a_flat_curve_says_so():
+    rng = np.random.default_rng(1)
+    rows = [_row(v, 5.0 + rng.normal(0, 2.0, 40), np.full(40, 3.0 + v)) for v in (0.0, 0.05, 0.5)]
+    text = read_curve(rows)
+    assert 'Accuracy is flat' in text and 'G = 0 (3 s' in text
+    assert 'Pareto front' not in text
+
+
+def test_reading_finds_the_front_and_where_time_stops_buying_accuracy():
+    rng = np.random.default_rng(2)
+    noise = rng.normal(0, 0.05, 60)
+    # error falls steeply, then levels off; time rises steadily
+    errors = {0.0: 10.0, 0.01: 5.0, 0.02: 2.0, 0.05: 1.05, 0.1: 1.0, 0.2: 3.0}
+    rows = [_row(v, e + noise, np.full(60, 1.0 + 10 * v)) for v, e in errors.items()]
+    text = read_curve(rows)
+    assert 'Pareto front' in text and 'dominated: 0.2' in text
+    assert 'More time stops buying accuracy at G = 0.05' in text
+    assert "The paper's value, G = 0.05, is on the front" in text
+
+
+def test_reading_flags_a_noisy_curve_and_a_non_monotone_one():
+    rng = np.random.default_rng(3)
+    values = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2)
+    # a real trend (1.5 deg over the grid) under neighbours 0.3 deg apart, within their noise
+    rows = [_row(v, 4.0 + 0.3 * i + rng.normal(0, 3.0, 200), np.full(200, 1.0 + v)) for i, v in enumerate(values)]
+    text = read_curve(rows)
+    assert 'Noisy: only' in text and 'flat' not in text
+    # clearly better and worse in turn
+    rows = [_row(v, (2.0 if i % 2 else 6.0) + rng.normal(0, 0.1, 50), np.full(50, 1.0 + v))
+            for i, v in enumerate(values)]
+    assert 'Not monotone' in read_curve(rows)
+
+
+# ------------------------------------------------------------------------------- command line
+
+def test_bad_arguments_exit_2(tmp_path, capsys):
+    assert tradeoff.main(['--out', str(tmp_path), '--knobs', 'gain,nonsense']) == 2
+    assert 'nonsense' in capsys.readouterr().err
+    assert tradeoff.main(['--out', str(tmp_path), '--subjects', '99']) == 2
+    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'control_rate': (90.0,)}, knobs=('control_rate',))
+    with pytest.raises(ValueError, match='sim_rate_hz'):
+        run_sweep(settings)
+
+
+def test_add_parser_wires_a_subcommand(tmp_path):
+    import argparse
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest='command')
+    tradeoff.add_parser(sub)
+    args = parser.parse_args(['tradeoff', '--out', str(tmp_path), '--quick', '--knobs', 'fit_tolerance'])
+    assert args.command == 'tradeoff' and args.quick
+    assert tradeoff.run(args) == 0
+    frame = pd.read_csv(tmp_path / 'tradeoff.csv')
+    assert set(frame['knob']) == {'fit_tolerance'} and math.isfinite(frame['time_mean'].min())
