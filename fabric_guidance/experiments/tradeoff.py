@@ -62,9 +62,8 @@ from ..core.geometry import DIRECTIONS
 from ..core.power_law import CalibrationFitError, fit_power_law
 from ..sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial_run
 from ..sim.population import CalibrationOutcome, law_angle_error_deg, law_error_kpa, sample_wearer
-from ..sim.protocols import _draw_target, _targets, accuracy_trial
+from ..sim.protocols import _targets, accuracy_trial, speed_loop
 from ..sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
-from ..sim.wearer import angle_between_deg, hav_limit, haversine
 from .report import _image_path, _md_table
 
 PROG = 'fabric-guidance tradeoff'
@@ -229,52 +228,13 @@ def calibrate_measured(scene: Scene, subject: int) -> tuple[CalibrationOutcome, 
 
 
 def speed_trial_detail(scene: Scene, wearer, calibration, cond: int, repetition: int) -> dict:
-    """sim.protocols.speed_trial, step for step, also recording for every target found the
-    time to find it and the true (and tracked) gaze error at the moment it counted, and how
-    long the last target had been waiting when the trial ended unfound (None: it was found).
-    identified / presented are speed_trial's (test_tradeoff checks they agree)."""
-    proto: SpeedProtocol = scene.protocol
-    rng = _targets(scene, wearer.index, repetition)
+    """sim.protocols.speed_trial with its detail: for every target found the time to find it
+    and the true and tracked gaze error when it counted, and how long the last target had
+    waited when the trial ended unfound (None: it was found)."""
     loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
     loop.warm_up()
-    w = loop.wearer
-    t0 = loop.t
-    end = t0 + proto.trial_s - 1e-9
-    acc_hav, dwell = hav_limit(proto.acceptance_deg), proto.dwell_s
-    target = _draw_target(rng, proto)
-    loop.present(*target, visible=True)
-    appeared, finds = t0, []
-    presented = 1
-    goal = target
-    inside_since = None
-    step = loop.step
-    while loop.t < end:
-        step()
-        if not loop.new_sample:
-            continue
-        s = loop.last_sample
-        if haversine(s[2], s[3], goal[0], goal[1]) > acc_hav:
-            inside_since = None
-            continue
-        t = loop.t
-        if inside_since is None:
-            inside_since = t
-        if t - inside_since < dwell:
-            continue
-        inside_since = None
-        if goal is target:
-            finds.append((t - appeared, angle_between_deg(w.gaze_yaw, w.gaze_pitch, target[0], target[1]),
-                          angle_between_deg(s[2], s[3], target[0], target[1])))
-            loop.withdraw(front_visible=True)
-            goal = (0.0, 0.0)
-        else:
-            target = _draw_target(rng, proto)
-            presented += 1
-            appeared = t
-            loop.present(*target, visible=True)
-            goal = target
-    return dict(identified=len(finds), presented=presented, finds=finds,
-                unfound_s=(loop.t - appeared) if goal is target else None)
+    detail = speed_loop(loop, _targets(scene, wearer.index, repetition), scene.protocol)
+    return dict(identified=len(detail['finds']), **detail)
 
 
 def _calibration_job(args):

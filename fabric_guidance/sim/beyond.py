@@ -68,7 +68,7 @@ from ..core.geometry import wrap_deg
 from .effects import generator
 from .engine import ClosedLoop, FastPowerLaw, gaze_from_angles, package_channel_map, trial_run
 from .population import calibrate_wearer, sample_wearer, subject_indices
-from .protocols import _draw_target, _targets
+from .protocols import _draw_target, _targets, speed_loop, speed_measures
 from .scene import Scene
 from .wearer import angle_between_deg, hav_limit, haversine
 
@@ -215,43 +215,8 @@ def speed_trial(scene: Scene, wearer, calibration: Calibration, key: TrialKey, g
         raise ValueError(f'the gain study needs a speed scene, got {proto.kind!r}')
     cal = calibration.with_gain(gain) if gain is not None else calibration
     loop = BeyondLoop(scene, wearer, key.run, CONDITION, cal, use_wearer_gain=gain is not None)
-    rng = key.targets(scene, wearer.index)
     loop.warm_up()
-    t0 = loop.t
-    end = t0 + proto.trial_s - 1e-9
-    acc_hav, dwell = hav_limit(proto.acceptance_deg), proto.dwell_s
-    target = _draw_target(rng, proto)
-    loop.present(*target, visible=True)
-    appeared, finds = t0, []
-    presented = 1
-    goal = target
-    inside_since = None
-    while loop.t < end:
-        loop.step()
-        if not loop.new_sample:
-            continue
-        s = loop.last_sample
-        if haversine(s[2], s[3], goal[0], goal[1]) > acc_hav:
-            inside_since = None
-            continue
-        t = loop.t
-        if inside_since is None:
-            inside_since = t
-        if t - inside_since < dwell:
-            continue
-        inside_since = None
-        if goal is target:
-            finds.append(t - appeared)
-            loop.withdraw(front_visible=True)
-            goal = (0.0, 0.0)
-        else:
-            target = _draw_target(rng, proto)
-            presented += 1
-            appeared = t
-            loop.present(*target, visible=True)
-            goal = target
-    return dict(identified=len(finds), presented=presented,
-                mean_find_s=float(np.mean(finds)) if finds else None)
+    return speed_measures(speed_loop(loop, key.targets(scene, wearer.index), proto))
 
 
 def gain_means(rows: Iterable[dict]) -> dict[float, tuple[float, float]]:

@@ -46,7 +46,7 @@ from .effects import generator
 from .engine import WARMUP_S, ClosedLoop, package_channel_map, trial_run
 from .population import CalibrationOutcome, WearerSpec, calibrate_wearer, sample_wearer, subject_indices
 from .scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
-from .wearer import hav_limit, haversine
+from .wearer import angle_between_deg, hav_limit, haversine
 
 
 @dataclass(frozen=True)
@@ -157,12 +157,15 @@ def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, rep
                 time_s=loop.t - t0, timed_out=timed_out)
 
 
-def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repetition: int) -> dict:
-    """One speed trial; the measures as a dict (TrialRecord's speed fields)."""
-    proto: SpeedProtocol = scene.protocol
-    rng = _targets(scene, wearer.index, repetition)
-    loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
-    loop.warm_up()
+def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol) -> dict:
+    """The speed task on a warmed-up loop: targets from `rng` for proto.trial_s; a target counts
+    when the tracked gaze stays within the acceptance angle for the dwell (core.task's
+    AcceptanceTracker rule, on each sample the selector receives); then back to the front.
+
+    Returns presented, finds (per target found: time to find [s], true and tracked gaze error
+    when it counted [deg]) and unfound_s (how long the last target had waited, None if found).
+    """
+    w = loop.wearer
     t0 = loop.t
     end = t0 + proto.trial_s - 1e-9
     acc_hav, dwell = hav_limit(proto.acceptance_deg), proto.dwell_s
@@ -177,7 +180,6 @@ def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repeti
         step()
         if not loop.new_sample:
             continue
-        # core.task.AcceptanceTracker's rule, on each sample the selector receives.
         s = loop.last_sample
         if haversine(s[2], s[3], goal[0], goal[1]) > acc_hav:
             inside_since = None
@@ -189,7 +191,8 @@ def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repeti
             continue
         inside_since = None
         if goal is target:
-            finds.append(t - appeared)
+            finds.append((t - appeared, angle_between_deg(w.gaze_yaw, w.gaze_pitch, target[0], target[1]),
+                          angle_between_deg(s[2], s[3], target[0], target[1])))
             loop.withdraw(front_visible=True)
             goal = (0.0, 0.0)
         else:
@@ -198,8 +201,21 @@ def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repeti
             appeared = t
             loop.present(*target, visible=True)
             goal = target
-    return dict(identified=len(finds), presented=presented,
-                mean_find_s=float(np.mean(finds)) if finds else None)
+    return dict(presented=presented, finds=finds, unfound_s=(loop.t - appeared) if goal is target else None)
+
+
+def speed_measures(detail: dict) -> dict:
+    """TrialRecord's speed fields from speed_loop's detail."""
+    times = [f[0] for f in detail['finds']]
+    return dict(identified=len(times), presented=detail['presented'],
+                mean_find_s=float(np.mean(times)) if times else None)
+
+
+def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repetition: int) -> dict:
+    """One speed trial; the measures as a dict (TrialRecord's speed fields)."""
+    loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
+    loop.warm_up()
+    return speed_measures(speed_loop(loop, _targets(scene, wearer.index, repetition), scene.protocol))
 
 
 TRIALS = {'speed': speed_trial, 'accuracy': accuracy_trial}
