@@ -92,7 +92,7 @@ class SceneSide:
         from ..sim.effects import RunContext, by_stage
         from ..sim.engine import trial_run
         from ..sim.population import sample_wearer
-        from ..sim.wearer import SceneWearer
+        from ..sim.wearer import SceneWearer, Senses
         n = scene.population.subjects
         if not 0 <= wearer_index < n:
             raise ValueError(f'parameter wearer_index: the scene {scene.name} has wearers 0..{n - 1}, '
@@ -109,27 +109,17 @@ class SceneSide:
         for e in self.effects:
             e.start(ctx)
         stages = by_stage(self.effects)
-        self.pressure_fx = [e.pressure for e in stages['pressure'] if e.name not in REALISED_ELSEWHERE]
-        self.percept_fx = [e.percept for e in stages['percept']]
-        self.delay = stages['delay'][0] if stages['delay'] else None
         self.gaze_fx = [e.gaze for e in stages['gaze']]
-        self.speech = stages['speech'][0] if stages['speech'] else None
         body = stages['body'][0] if stages['body'] else None
         self.wearer = SceneWearer(spec.suit_laws, spec.arm_laws, scene.controller.p_max_kpa, body)
         self.wearer.set_layout(self.layout)
         self.haptic = self.cond.haptic
+        self.senses = Senses(stages, self.haptic, skip=REALISED_ELSEWHERE)
         # The speed protocol's targets are objects the wearer can see (visual capture); the
         # accuracy protocol's are angles with nothing to see (engine: present(visible=False)).
         self.visible = scene.protocol.kind == 'speed'
-        if self.delay is not None:
-            self.delay.reset((0.0, 0.0, 0.0, 0.0) if self.haptic else None)
         self.step_index = 0
         self.seq = 0
-        self._speech_pending: tuple[float, int, str] | None = None
-        self._heard: tuple[int, float, float] | None = None
-        self._heard_count = 0
-        self._acted_on: int | None = None
-        self.heard_phrases: list[str] = []
         self._true: dict[int, tuple[float, float]] = {}   # seq -> true gaze, until sent or dropped
         self.sent_true_gaze = (0.0, 0.0)
 
@@ -156,41 +146,20 @@ class SceneSide:
 
     def withdraw(self) -> None:
         """No target: return to the front, forget a phrase not yet heard (engine.withdraw)."""
-        self._speech_pending = None
+        self.senses.forget()
         self.wearer.go_front()
 
     def hear_phrase(self, text: str) -> None:
         """Condition 4's phrase was spoken now; the wearer has heard it after speech_latency."""
-        latency = self.speech.latency(text) if self.speech is not None else 0.0
-        self._heard_count += 1
-        self._speech_pending = (self.t + latency, self._heard_count, text)
+        self.senses.say(self.t, text)
+
+    @property
+    def heard_phrases(self) -> list[str]:
+        return self.senses.heard_phrases
 
     def step(self, pressures, follow: bool, target: tuple[float, float] | None):
-        from ..sim.engine import parse_phrase
-        t = self.t
         wearer = self.wearer
-        p = [float(x) for x in pressures]
-        for fx in self.pressure_fx:
-            p = fx(p)
-        if self.haptic:
-            for fx in self.percept_fx:
-                p = fx(p)
-            if self.delay is not None:
-                p = self.delay.delay((p[0], p[1], p[2], p[3]))
-            if follow:
-                wearer.feel(p)
-        else:
-            pending = self._speech_pending
-            if pending is not None and t >= pending[0] - 1e-9:
-                self._speech_pending = None
-                self._heard = (pending[1],) + parse_phrase(pending[2])
-                self.heard_phrases.append(pending[2])
-            heard = self._heard
-            if self.delay is not None:
-                heard = self.delay.delay(heard)
-            if heard is not None and heard[0] != self._acted_on and follow:
-                self._acted_on = heard[0]
-                wearer.hear(heard[1], heard[2])
+        self.senses.step(self.t, [float(x) for x in pressures], wearer, follow)
         if follow:
             wearer.move(target if self.visible else None)
         else:

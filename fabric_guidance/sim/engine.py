@@ -44,7 +44,7 @@ from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
 from .effects import RunContext, by_stage
-from .wearer import SceneWearer, angle_between_deg, gaze_from_angles  # noqa: F401 (re-exported)
+from .wearer import SceneWearer, Senses, angle_between_deg, gaze_from_angles  # noqa: F401 (re-exported)
 
 #: Seconds of simulated time before a run starts: the gaze stream, its loss and latency state
 #: settle with the wearer at rest, facing front (the HoloLens streams before a trial begins).
@@ -121,11 +121,7 @@ class ClosedLoop:
         for e in self.effects:
             e.start(ctx)
         stages = by_stage(self.effects)
-        self._pressure_fx = [e.pressure for e in stages['pressure']]
-        self._percept_fx = [e.percept for e in stages['percept']]
-        self._delay = stages['delay'][0] if stages['delay'] else None
         self._gaze_fx = [e.gaze for e in stages['gaze']]
-        self._speech = stages['speech'][0] if stages['speech'] else None
         body = stages['body'][0] if stages['body'] else None
 
         ctl = scene.controller
@@ -136,6 +132,7 @@ class ClosedLoop:
         self.cond = condition_of(condition) if condition is not None else None
         self.layout = (self.cond.layout if self.cond is not None else 'suit') or 'suit'
         self._haptic = self.cond is None or self.cond.haptic     # calibration drives the suit too
+        self.senses = Senses(stages, self._haptic)
         self.wearer = SceneWearer(wearer.suit_laws, wearer.arm_laws, self.p_max, body)
         self.wearer.set_layout(self.layout)
 
@@ -165,18 +162,12 @@ class ClosedLoop:
         self._g0: tuple[float, float] | None = None
         self._theta_t = (0.0, 0.0, 0.0, 0.0)
         self.speech_due = False
-        self._speech_pending: tuple[float, int, str] | None = None
-        self.heard: tuple[int, float, float] | None = None
-        self._heard_count = 0
-        self._acted_on: int | None = None
         self.spoken: list[str] = []
         # Gaze stream: the controller's last sample (seq, t_emitted, yaw, pitch).
         self._seq = 0
         self.last_sample = (-1, 0.0, 0.0, 0.0)
         self.received_t = 0.0
         self.new_sample = False
-        if self._delay is not None:
-            self._delay.reset((0.0, 0.0, 0.0, 0.0) if self.cond is None or self.cond.haptic else None)
 
     # ---- protocol interface -------------------------------------------------------------------
     @property
@@ -211,7 +202,7 @@ class ClosedLoop:
         """No active target: the suit vents and the wearer returns to the front on their own."""
         self.target = None
         self.speech_due = False
-        self._speech_pending = None
+        self.senses.forget()
         self.mode = 'front'
         self.front_visible = front_visible
         self.wearer.go_front()
@@ -268,9 +259,7 @@ class ClosedLoop:
         _, _, gy, gp = self.last_sample
         text = phrase(wrap_deg(self.target[0] - gy), self.target[1] - gp)
         self.spoken.append(text)
-        latency = self._speech.latency(text) if self._speech is not None else 0.0
-        self._heard_count += 1
-        self._speech_pending = (t + latency, self._heard_count, text)
+        self.senses.say(t, text)
 
     def _calibration_control(self, t: float, fresh: bool) -> None:
         proc = self.procedure
@@ -297,31 +286,10 @@ class ClosedLoop:
         if t >= self._next_control * self.control_dt - 1e-9:
             self._next_control += 1
             self._control(t)
-        # Command -> pressure the suit exerts -> what the wearer perceives.
-        p = self.command
-        for fx in self._pressure_fx:
-            p = fx(p)
-        self.pressure = p
+        # Command -> pressure the suit exerts -> what the wearer perceives (or hears).
         wearer = self.wearer
         follow = self.mode == 'follow'
-        if self._haptic:
-            for fx in self._percept_fx:
-                p = fx(p)
-            if self._delay is not None:
-                p = self._delay.delay((p[0], p[1], p[2], p[3]))
-            if follow:
-                wearer.feel(p)
-        else:
-            pending = self._speech_pending
-            if pending is not None and t >= pending[0] - 1e-9:
-                self._speech_pending = None
-                self.heard = (pending[1],) + parse_phrase(pending[2])
-            heard = self.heard
-            if self._delay is not None:
-                heard = self._delay.delay(heard)
-            if heard is not None and heard[0] != self._acted_on and follow:
-                self._acted_on = heard[0]
-                wearer.hear(heard[1], heard[2])
+        self.pressure = self.senses.step(t, self.command, wearer, follow)
         # The body moves; the eyes catch a visible target (or the front when returning).
         if follow:
             wearer.move(self.target if self.visible else None)

@@ -236,3 +236,69 @@ class SceneWearer:
             # Nothing to look at: head and eyes come back to the torso's direction.
             self.head_yaw -= self.head_yaw * ha
             self.head_pitch -= self.head_pitch * ha
+
+
+class Senses:
+    """What reaches a SceneWearer from the suit and from the speaker, one step at a time, in
+    the order of sim.effects: the command through the pressure effects (what the suit exerts),
+    then in the haptic conditions the percept effects and the reaction delay before the wearer
+    feels it; in condition 4 the phrase after speech_latency, then the reaction delay, before
+    the wearer hears it. The headless engine and the wearer_sim node both use it, so the two
+    cannot drift apart.
+
+    stages: effects.by_stage() of the run's started effects; skip: names of pressure effects
+    realised elsewhere (the graph's mock PLC is the regulator).
+    """
+
+    def __init__(self, stages, haptic: bool, skip=()):
+        self.pressure_fx = [e.pressure for e in stages['pressure'] if e.name not in skip]
+        self.percept_fx = [e.percept for e in stages['percept']]
+        self.delay = stages['delay'][0] if stages['delay'] else None
+        self.speech = stages['speech'][0] if stages['speech'] else None
+        self.haptic = haptic
+        self.pending: tuple[float, int, str] | None = None   # (time heard, number, text)
+        self.heard: tuple[int, float, float] | None = None    # (number, h, v) of the last phrase heard
+        self.heard_phrases: list[str] = []
+        self._count = 0
+        self._acted_on: int | None = None
+        if self.delay is not None:
+            self.delay.reset((0.0, 0.0, 0.0, 0.0) if haptic else None)
+
+    def say(self, t: float, text: str) -> None:
+        """Condition 4's phrase is spoken at t; the wearer hears it after speech_latency."""
+        latency = self.speech.latency(text) if self.speech is not None else 0.0
+        self._count += 1
+        self.pending = (t + latency, self._count, text)
+
+    def forget(self) -> None:
+        """The target is gone: a phrase not yet heard is never heard."""
+        self.pending = None
+
+    def step(self, t: float, command, wearer: 'SceneWearer', follow: bool):
+        """One step at time t under `command` (kPa per direction); the wearer feels or hears
+        what reaches them when `follow`. Returns the pressure the suit exerts."""
+        p = command
+        for fx in self.pressure_fx:
+            p = fx(p)
+        exerted = p
+        if self.haptic:
+            for fx in self.percept_fx:
+                p = fx(p)
+            if self.delay is not None:
+                p = self.delay.delay((p[0], p[1], p[2], p[3]))
+            if follow:
+                wearer.feel(p)
+            return exerted
+        pending = self.pending
+        if pending is not None and t >= pending[0] - 1e-9:
+            from .engine import parse_phrase
+            self.pending = None
+            self.heard = (pending[1],) + parse_phrase(pending[2])
+            self.heard_phrases.append(pending[2])
+        heard = self.heard
+        if self.delay is not None:
+            heard = self.delay.delay(heard)
+        if heard is not None and heard[0] != self._acted_on and follow:
+            self._acted_on = heard[0]
+            wearer.hear(heard[1], heard[2])
+        return exerted
