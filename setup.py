@@ -39,6 +39,8 @@ setup(
             'plc_output = fabric_guidance.nodes.plc_output:main',
             'mock_plc = fabric_guidance.nodes.mock_plc:main',
             'wearer_sim = fabric_guidance.nodes.wearer_sim:main',
+            'micromanipulator_sim = fabric_guidance.nodes.micromanipulator_sim:main',
+            'bag_recorder = fabric_guidance.nodes.bag_recorder:main',
         ],
     },
 )

@@ -1,6 +1,8 @@
 """fabric-guidance: the package's command line.
 
   demo      the simulated ROS graph, a guided session, what happened (`make demo`)
+  replay    a recorded session: through the graph with /clock, or --offline against the controller
+  calibration-report  a calibration file's fit per direction, as text and a PNG
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
@@ -73,7 +75,8 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='fabric-guidance', description=__doc__)
+    parser = argparse.ArgumentParser(prog='fabric-guidance', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest='command', required=True)
     demo = sub.add_parser('demo', help='run the simulated ROS graph for a short guided session and report it')
     demo.add_argument('--condition', type=int, default=None, choices=(1, 2, 3, 4),
@@ -83,7 +86,12 @@ def main(argv: list[str] | None = None) -> int:
                       help='run a scene of the simulator (config/scenes name or file) through the graph')
     demo.add_argument('--timeout', type=float, default=45.0, help='give up after this many seconds')
     demo.add_argument('--out', type=Path, default=None, help='folder for logs (default: a temporary folder)')
+    demo.add_argument('--record', type=Path, default=None, metavar='DIR',
+                      help='record the session as a ROS 2 bag (MCAP) in DIR')
+    from . import calibration_report, replay
     from .experiments import analyze, beyond, experiment, tradeoff
+    replay.add_parser(sub)
+    calibration_report.add_parser(sub)
     analyze.add_parser(sub)
     experiment.add_parser(sub)
     tradeoff.add_parser(sub)
@@ -94,7 +102,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == 'demo':
         from .demo import run_demo  # imports rclpy: only for the graph
-        return run_demo(args.condition, args.timeout, args.out, scene=args.scene)
+        return run_demo(args.condition, args.timeout, args.out, scene=args.scene, record_dir=args.record)
+    if args.command == 'replay':
+        return replay.run(args)
+    if args.command == 'calibration-report':
+        return calibration_report.run(args)
     if args.command == 'analyze':
         return analyze.run(args)
     if args.command == 'experiment':

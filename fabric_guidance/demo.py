@@ -215,10 +215,12 @@ def _eye_height() -> float:
 
 
 def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Path | None = None,
-             stream=sys.stdout, scene: str | Path | None = None) -> int:
+             stream=sys.stdout, scene: str | Path | None = None, record_dir: str | Path | None = None) -> int:
     """Run the demo; 0 when every target was found, nothing exceeded the limit and the suit
     was vented at the end. condition: 1-3 (default 1); with `scene` (a scene file or the name
-    of one of config/scenes/) 1-4, default the scene's first condition."""
+    of one of config/scenes/) 1-4, default the scene's first condition. With `record_dir`, the
+    session is recorded by nodes/bag_recorder.py as a bag <record_dir>/session_<UTC time>_c<n>
+    (rosbag2, MCAP) for `fabric-guidance replay`."""
     def say(line: str = '') -> None:
         print(line, file=stream, flush=True)
 
@@ -275,7 +277,18 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             ', '.join(f'{name} ({yaw:+.1f}, {pitch:+.1f})' for name, yaw, pitch, _ in plan.targets))
     probe = None
     code = 1
+    bag = None
+    if record_dir is not None:
+        from datetime import datetime, timezone
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')
+        bag = Path(record_dir).expanduser().resolve() / f'session_{stamp}_c{cond.number}'
+        n = 1
+        while bag.exists():
+            n += 1
+            bag = bag.with_name(f'session_{stamp}_c{cond.number}_{n}')
     try:
+        if bag is not None:    # first, so that it hears the session from its start
+            graph.start('bag_recorder', (), output=str(bag))
         for node in NODES:
             graph.start(node, files, **overrides[node])
         probe = Probe(graph.domain_id, 'demo_watch')
@@ -289,6 +302,10 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         wait_until(lambda: all(probe.messages.get(t) for t in (
             common.PRESSURE_COMMAND, common.GAZE, common.MEASURED_PRESSURE, common.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')
+        if bag is not None:
+            from .bag.controller_io import CONTROLLER_INPUT
+            wait_until(lambda: probe.node.count_publishers(CONTROLLER_INPUT) and
+                       probe.node.count_subscribers(CONTROLLER_INPUT), timeout_s, what='the recorder')
         probe.call(Trigger, 'next_target', Trigger.Request())
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]
@@ -302,6 +319,10 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         # Shut the lab side down first; the registers must read vented while the mock still runs.
         for node in ('wearer_sim', 'pressure_controller', 'target_selector', 'gaze_bridge', 'plc_output'):
             graph.stop(node)
+        if bag is not None:
+            graph.stop('bag_recorder')
+            say(f'session recorded: {bag}' if (bag / 'metadata.yaml').is_file()
+                else f'the recording failed; see {log_dir}/bag_recorder.log')
         with PlcClient(regmap, '127.0.0.1', plc_port, timeout_s=1.0) as client:
             after = client.read_commands_kpa()
         graph.stop('mock_plc')
@@ -352,8 +373,8 @@ def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: Sc
             say(f'gaze_bridge: {bridge.get("received", "?")} datagrams received, {bridge.get("lost", "?")} sequence '
                 f'gaps{because}.')
         say(plan.effects_line())
-        say(f'(real time over DDS, UDP and Modbus: the same scene, wearer, effect parameters and random '
-            f'streams as the headless engine, not a bit-identical run)')
+        say('(real time over DDS, UDP and Modbus: the same scene, wearer, effect parameters and random '
+            'streams as the headless engine, not a bit-identical run)')
     vented = bool(np.all(registers_after == 0.0))
     if not vented:
         say('WARNING: the suit was not vented at shutdown')

@@ -3,11 +3,19 @@ and Algorithm 1 run live with the wearer.
 
 Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String)
 Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `channels` parameter),
+            controller_input (Float64MultiArray, every step right before its command: the exact
+            inputs the step used, layout in bag/controller_io.py), controller_parameters (String,
+            YAML, latched: parameters, calibration and channel map; again after a live calibration),
             speech (String, condition 4), calibration_status (String), /diagnostics
 Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
 
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
+
+Time: the control timer and the t of Eq. 5 use the node clock, so with use_sim_time:=true the
+node runs on /clock (a bag replay); gaze staleness is then judged on that clock too (on the
+wall clock otherwise). A clock that jumps back (a looping replay) restarts Eq. 5's derivative
+in the core and counts the last gaze as received at the jump.
 """
 from __future__ import annotations
 
@@ -18,6 +26,7 @@ import sys
 import time
 
 import numpy as np
+import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.node import Node
@@ -28,6 +37,8 @@ from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError
                     angles_between, condition, phrase, ray_direction, target_direction)
 from ..core.calibration import DONE, FAILED
 from ..core.geometry import DIRECTIONS
+from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
+                                 guidance_step, safe_command)
 from ..paths import resolve
 from .common import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, GAZE, LATCHED_QOS,
                      PRESSURE_COMMAND, SENSOR_QOS, SPEECH, TARGET, declare, publish_diagnostics, run, status)
@@ -72,11 +83,18 @@ class PressureController(Node):
                 'order of pressure_command (as ros2_controllers joints)', read_only=True)
         self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'
         self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
+        self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        self.setup = ControllerSetup(self.condition.number, float(self.gain), float(self.p_max), float(rate),
+                                     float(self.gaze_timeout), float(self.deadband), bool(self.use_wearer_gain),
+                                     bool(self.follow_target), self.calibration, self.channel_map)
         self.controller = self._make_controller()
 
         self.enabled = True
         self.gaze_origin = self.gaze_direction = None
-        self.gaze_received = -float('inf')   # time.monotonic(): staleness is judged on the wall clock
+        self.gaze_received = -float('inf')   # self.now_s(): wall clock, or sim time under use_sim_time
+        self.step_count = 0
+        self.command_count = 0
+        self.reset_pending = False            # vented between steps (recorded in controller_input)
         self.target = None
         self.target_name = ''
         self.awaiting_target = False          # a new name came; wait for a position published after it
@@ -87,6 +105,9 @@ class PressureController(Node):
         self.invalid_inputs = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
+        self.input_pub = self.create_publisher(Float64MultiArray, CONTROLLER_INPUT, COMMAND_QOS)
+        self.parameters_pub = self.create_publisher(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
+        self.publish_parameters(0)
         self.speech_pub = self.create_publisher(String, SPEECH, EVENT_QOS)
         self.status_pub = self.create_publisher(String, CALIBRATION_STATUS, EVENT_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -104,14 +125,25 @@ class PressureController(Node):
             f'calibration: {cal_file or "none"}')
 
     def _make_controller(self) -> GuidanceController | None:
-        if self.calibration is None or not self.condition.haptic:
-            return None
-        gain = self.gain
-        if self.use_wearer_gain and self.calibration.adjustment_gain is not None:
-            gain = self.calibration.adjustment_gain
-        return GuidanceController(self.calibration.laws, p_max=min(self.p_max, self.calibration.p_max),
-                                  gain=gain, mode=self.condition.mode, rate_deadband=self.deadband,
-                                  follow_target=self.follow_target)
+        return self.setup.make_controller()
+
+    def publish_parameters(self, from_step: int) -> None:
+        """The controller's parameters (YAML), valid from control step `from_step` on."""
+        d = self.setup.to_dict()
+        d['from_step'] = int(from_step)
+        self.parameters_pub.publish(String(data=yaml.safe_dump(d, sort_keys=False)))
+
+    def now_s(self) -> float:
+        """The clock gaze staleness is judged on: sim time under use_sim_time, else the wall clock."""
+        if self.sim_time:
+            return self.get_clock().now().nanoseconds * 1e-9
+        return time.monotonic()
+
+    def vent_controller(self) -> None:
+        """Vent between steps (recorded as `reset` in the next controller_input)."""
+        self.reset_pending = True
+        if self.controller is not None:
+            self.controller.vent()
 
     # ---- inputs
     def on_gaze(self, msg: PoseStamped) -> None:
@@ -125,7 +157,7 @@ class PressureController(Node):
             self.invalid_inputs += 1
             return
         self.gaze_origin, self.gaze_direction = origin, direction
-        self.gaze_received = time.monotonic()
+        self.gaze_received = self.now_s()
 
     def on_active_target(self, msg: String) -> None:
         if msg.data == self.target_name:
@@ -133,8 +165,7 @@ class PressureController(Node):
         self.target_name = msg.data
         self.target = None
         self.awaiting_target = bool(msg.data)
-        if self.controller is not None:
-            self.controller.vent()
+        self.vent_controller()
 
     def on_target(self, msg: PointStamped) -> None:
         point = np.array([msg.point.x, msg.point.y, msg.point.z])
@@ -147,15 +178,14 @@ class PressureController(Node):
         if self.awaiting_target:
             self.awaiting_target = False
             self.speech_due = self.condition.speech
-            if self.controller is not None:
-                self.controller.vent()   # the next step begins from the gaze at that moment
+            self.vent_controller()   # the next step begins from the gaze at that moment
 
     # ---- services
     def on_start_calibration(self, request, response):
         if self.procedure is not None:
             response.success, response.message = False, 'a calibration is already running'
             return response
-        if time.monotonic() - self.gaze_received > self.gaze_timeout:
+        if self.now_s() - self.gaze_received > self.gaze_timeout:
             response.success = False
             response.message = f'cannot calibrate: no valid gaze in the last {self.gaze_timeout} s'
             return response
@@ -174,15 +204,14 @@ class PressureController(Node):
 
     def on_enable(self, request, response):
         self.enabled = bool(request.data)
-        if not self.enabled and self.controller is not None:
-            self.controller.vent()
+        if not self.enabled:
+            self.vent_controller()
         response.success, response.message = True, 'guidance enabled' if self.enabled else 'guidance disabled (vented)'
         return response
 
     def on_vent(self, request, response):
         self.enabled = False
-        if self.controller is not None:
-            self.controller.vent()
+        self.vent_controller()
         if self.procedure is not None:
             self.procedure.fail('vented by request')
         self.publish(self.zeros)
@@ -192,48 +221,32 @@ class PressureController(Node):
     # ---- the control step
     def publish(self, channels: np.ndarray) -> None:
         # Last line of defence: nothing above P_MAX and nothing non-finite leaves this node.
-        safe = np.clip(np.nan_to_num(channels, nan=0.0, posinf=0.0, neginf=0.0), 0.0, self.p_max)
+        safe = safe_command(channels, self.p_max)
         self.command_pub.publish(Float64MultiArray(data=safe.tolist()))
+        self.command_count += 1
 
     def step(self) -> None:
         t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
-        fresh = time.monotonic() - self.gaze_received <= self.gaze_timeout
+        now = self.now_s()
+        if now < self.gaze_received:                    # the clock jumped back (a looping replay)
+            self.gaze_received = now
+        fresh = now - self.gaze_received <= self.gaze_timeout
+        inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.enabled,
+                        bool(self.target_name) and self.target is not None, self.reset_pending,
+                        self.procedure is not None, self.condition.number, self.step_count, self.command_count)
+        self.reset_pending = False
+        self.step_count += 1
+        # The exact inputs of this step, right before its command (offline replay reruns them).
+        self.input_pub.publish(Float64MultiArray(data=inp.encode()))
         if self.procedure is not None:
             self.publish(self.calibration_step(t, fresh))
             return
         if self.speech_due and fresh and self.target is not None:
             self.say()
-        reason = self.why_not_guide(fresh)
-        if reason:
-            self.vent_reason = reason
-            if self.controller is not None:
-                self.controller.vent()
-            self.publish(self.zeros)
-            return
-        try:
-            direction_pressures = self.controller.update(
-                self.gaze_direction, target_direction(self.gaze_origin, self.target), t)
-        except ValueError as exc:
-            self.invalid_inputs += 1
-            self.vent_reason = f'invalid input: {exc}'
-            self.controller.vent()
-            self.publish(self.zeros)
-            return
-        self.vent_reason = ''
-        self.publish(self.channel_map.to_channels(direction_pressures, self.layout))
-
-    def why_not_guide(self, fresh: bool) -> str:
-        if not self.enabled:
-            return 'disabled'
-        if not self.condition.haptic:
-            return 'condition 4 (speech) drives no muscle'
-        if self.controller is None:
-            return 'no calibration: call start_calibration or set calibration_file'
-        if not self.target_name or self.target is None:
-            return 'no active target'
-        if not fresh:
-            return f'no valid gaze for {self.gaze_timeout} s'
-        return ''
+        channels, reason, invalid = guidance_step(self.setup, self.controller, inp)
+        self.vent_reason = reason
+        self.invalid_inputs += invalid
+        self.publish(channels)
 
     def say(self) -> None:
         self.speech_due = False
@@ -277,10 +290,27 @@ class PressureController(Node):
             self.get_logger().error(f'calibration not saved: {exc}')
             return f'failed: {exc}; the previous calibration is kept'
         self.calibration = cal
+        self.setup.calibration = cal
         self.controller = self._make_controller()
+        self.publish_parameters(self.step_count)   # the next step uses the new calibration
         fits = ', '.join(f'{d} R^2 {cal.directions[d].fit.get("r2", float("nan")):.3f}' for d in DIRECTIONS)
         self.get_logger().info(f'calibration written to {path} ({fits})')
-        return f'done: {path}'
+        # The fit report (text and PNG) next to the file. Drawing takes about a second, so it
+        # runs off the control loop; the calibration is saved already whatever happens to it.
+        import threading
+        from ..calibration_report import report_paths, write_fit_report
+        txt, png = report_paths(cal, path.parent)
+        logger = self.get_logger()
+
+        def write_report():
+            try:
+                write_fit_report(cal, path.parent, source=str(path))
+                logger.info(f'fit report written: {txt}, {png}')
+            except Exception as exc:  # noqa: BLE001 - a report failure must not touch the calibration
+                logger.error(f'fit report not written: {exc!r}')
+        self.report_thread = threading.Thread(target=write_report, name='fit_report')
+        self.report_thread.start()
+        return f'done: {path}; fit report {txt}, {png}'
 
     def publish_diagnostics(self) -> None:
         if self.procedure is not None:

@@ -1,0 +1,198 @@
+"""Offline replay: pressure_controller's control steps rerun from a bag without DDS.
+
+Every control step the node published its exact inputs (controller_input, layout in
+controller_io.py) right before its command, and its parameters, calibration and channel map at
+start-up and after a live calibration (controller_parameters). The replay feeds those inputs, in
+step order, to the same code the node runs (controller_io.guidance_step on a GuidanceController
+built by ControllerSetup.make_controller) and compares each step's command with the
+pressure_command the node published for it, channel by channel.
+
+Pairing a step with its command does not rely on the order messages of two topics were
+received in: controller_input carries the index of its command among all the node's commands;
+the offset between that index and the recorded commands (commands published before the
+recorder heard the node were not recorded) is the one most steps agree on in bag order.
+Steps of a live calibration (Algorithm 1's commands, not Eq. 5's) are not compared.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+import time
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput, guidance_step,
+                            safe_command)
+from .reader import raw_messages
+from .topics import bag_topic
+from .writer import typestore
+
+PRESSURE_COMMAND = 'pressure_command'
+
+
+@dataclass
+class Recording:
+    """What the offline replay needs from a bag, decoded."""
+    setups: list[tuple[int, dict]]        # (from_step, parameters dict), in step order
+    inputs: list[StepInput]               # in step order
+    commands: list[np.ndarray]            # recorded pressure_command data, in bag order
+    offset: int                           # command index - position in `commands`
+    read_s: float                         # wall time spent reading and decoding
+
+
+@dataclass
+class ReplayResult:
+    channels: tuple[str, ...]
+    steps: int = 0                        # control steps rerun
+    compared: int = 0                     # steps compared with a recorded command
+    calibrating: int = 0                  # Algorithm 1 steps (not compared)
+    unmatched: int = 0                    # steps whose command is not in the bag
+    step_gaps: int = 0                    # control steps missing from the bag
+    max_diff: np.ndarray = field(default_factory=lambda: np.zeros(0))   # kPa per channel
+    worst: dict[str, Any] = field(default_factory=dict)
+    bag_duration_s: float = 0.0           # ROS time the steps span
+    read_s: float = 0.0
+    run_s: float = 0.0
+
+    @property
+    def largest(self) -> float:
+        return float(self.max_diff.max()) if self.max_diff.size else 0.0
+
+    @property
+    def exact(self) -> bool:
+        return self.compared > 0 and self.largest == 0.0
+
+    @property
+    def speedup(self) -> float:
+        """Bag duration over the replay's wall time, reading and decoding included."""
+        total = self.read_s + self.run_s
+        return self.bag_duration_s / total if total > 0 else float('inf')
+
+
+_CDR_LE = b'\x00\x01\x00\x00'
+
+
+def float64_array(data: bytes) -> np.ndarray | None:
+    """The data of a CDR (little endian) std_msgs/Float64MultiArray whose layout is empty, as
+    the package publishes it, read straight from the bytes; None for anything else (the
+    caller then decodes it in full). After the 4-byte header: dim count, data_offset, data
+    length (uint32 each), padding to 8, then the float64s."""
+    if len(data) < 20 or data[:4] != _CDR_LE or data[4:8] != b'\x00\x00\x00\x00':
+        return None
+    n = int.from_bytes(data[12:16], 'little')
+    if len(data) < 20 + 8 * n:
+        return None
+    return np.frombuffer(data, dtype='<f8', count=n, offset=20)
+
+
+def load(path, namespace: str = '/') -> Recording:
+    """Read a bag's control steps. read_s counts opening, reading and decoding the bag, not
+    building rosbags' message types (a one-time start-up cost, like importing the library)."""
+    store = typestore()
+    t0 = time.perf_counter()
+    topics = {bag_topic(CONTROLLER_INPUT, namespace): 'in', bag_topic(CONTROLLER_PARAMETERS, namespace): 'par',
+              bag_topic(PRESSURE_COMMAND, namespace): 'cmd'}
+    setups, inputs, commands, order = [], [], [], []
+    for topic, msgtype, _, data in raw_messages(path, topics):
+        kind = topics[topic]
+        if kind == 'par':
+            d = yaml.safe_load(store.deserialize_cdr(data, msgtype).data)
+            setups.append((int(d.pop('from_step', 0)), d))
+            continue
+        # The two Float64MultiArray topics are most of the bag: read them without the generic decoder.
+        values = float64_array(data)
+        if values is None:
+            values = np.asarray(store.deserialize_cdr(data, msgtype).data, dtype=float)
+        if kind == 'in':
+            inputs.append(StepInput.decode(values))
+            order.append((inputs[-1].command, len(commands)))   # the next command received, in bag order
+        else:
+            commands.append(np.array(values, dtype=float))
+    if not setups:
+        raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller published it?)')
+    if not inputs:
+        raise ValueError(f'{path}: no {CONTROLLER_INPUT}: nothing to replay')
+    votes = Counter(index - position for index, position in order if position < len(commands))
+    offset = votes.most_common(1)[0][0] if votes else 0
+    inputs.sort(key=lambda i: i.step)
+    setups.sort(key=lambda s: s[0])
+    return Recording(setups, inputs, commands, offset, time.perf_counter() - t0)
+
+
+def parse_overrides(items) -> dict[str, Any]:
+    """['gain=0.1', 'follow_moving_target=true'] -> {'gain': 0.1, ...} (values read as YAML)."""
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition('=')
+        if not sep or not key.strip():
+            raise ValueError(f'--set needs NAME=VALUE, got {item!r}')
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> ReplayResult:
+    """Rerun every recorded control step; compare with the recorded commands."""
+    t0 = time.perf_counter()
+    first = ControllerSetup.from_dict(rec.setups[0][1])
+    result = ReplayResult(first.channel_map.channels, max_diff=np.zeros(len(first.channel_map.channels)),
+                          read_s=rec.read_s)
+    setups = [(s, ControllerSetup.from_dict(d).with_overrides(overrides or {})) for s, d in rec.setups]
+    k = -1
+    setup = controller = None
+    previous_step = None
+    for inp in rec.inputs:
+        while k + 1 < len(setups) and setups[k + 1][0] <= inp.step:
+            k += 1
+            setup = setups[k][1]
+            controller = setup.make_controller()     # as the node builds it (start-up, new calibration)
+        if setup is None:                            # steps before the first parameters: none expected
+            continue
+        if previous_step is not None and inp.step != previous_step + 1:
+            result.step_gaps += inp.step - previous_step - 1
+        previous_step = inp.step
+        result.steps += 1
+        if inp.reset and controller is not None:
+            controller.vent()
+        if inp.calibrating:
+            result.calibrating += 1
+            continue
+        channels, _, _ = guidance_step(setup, controller, inp)
+        command = safe_command(channels, setup.p_max_kpa)
+        position = inp.command - rec.offset
+        if not 0 <= position < len(rec.commands) or len(rec.commands[position]) != len(command):
+            result.unmatched += 1
+            continue
+        result.compared += 1
+        diff = np.abs(command - rec.commands[position])
+        worst = int(np.argmax(diff))
+        if diff[worst] > result.max_diff.max() or not result.worst:
+            result.worst = dict(step=inp.step, t=inp.t, channel=result.channels[worst],
+                                recorded=float(rec.commands[position][worst]), replayed=float(command[worst]),
+                                diff=float(diff[worst]))
+        result.max_diff = np.maximum(result.max_diff, diff)
+    result.run_s = time.perf_counter() - t0
+    ts = [i.t for i in rec.inputs]
+    result.bag_duration_s = (max(ts) - min(ts)) if ts else 0.0
+    return result
+
+
+def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> None:
+    changed = ', '.join(f'{k}={v}' for k, v in (overrides or {}).items()) or 'none (the recorded parameters)'
+    say(f'offline replay: {result.steps} control steps rerun, {result.compared} compared with the recorded '
+        f'pressure_command; parameters changed: {changed}')
+    if result.calibrating or result.unmatched or result.step_gaps:
+        say(f'  not compared: {result.calibrating} calibration steps, {result.unmatched} steps whose command is not '
+            f'in the bag; {result.step_gaps} control steps missing from the bag')
+    say(f'  {"channel":<8} {"max |diff| kPa":>14}')
+    for name, d in zip(result.channels, result.max_diff):
+        say(f'  {name:<8} {d:14.6g}')
+    if result.largest == 0.0:
+        say('  largest difference: 0 kPa: every compared command reproduced exactly (bit for bit)')
+    else:
+        w = result.worst
+        say(f"  largest difference: {w['diff']:.6g} kPa on {w['channel']} at step {w['step']} (t = {w['t']:.3f} s): "
+            f"recorded {w['recorded']:.6g}, replayed {w['replayed']:.6g}")
+    say(f'  {result.bag_duration_s:.2f} s of session in {result.read_s + result.run_s:.3f} s '
+        f'(reading {result.read_s:.3f} s, controller {result.run_s:.3f} s): {result.speedup:.0f}x real time')

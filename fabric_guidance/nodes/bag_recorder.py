@@ -1,0 +1,80 @@
+"""bag_recorder: records a guided session as a ROS 2 bag (rosbag2, MCAP storage) with the
+message definitions and the QoS profiles `ros2 bag play` and Foxglove need. Runs beside the
+lab launch or the demo graph (`fabric-guidance demo --record DIR`); no rosbag2 install needed.
+
+Subscribes  every topic of fabric_guidance/bag/topics.py TOPICS (or the `topics` parameter):
+            gaze, head_pose, target, active_target, target_found, pressure_command,
+            measured_pressure, speech, calibration_status, /diagnostics, controller_input,
+            controller_parameters; each with its publishers' QoS (latched ones transient local)
+Writes      <output> (or <output_dir>/session_<UTC time>), closed with its metadata.yaml on
+            SIGINT/SIGTERM
+
+Messages are stored as received (serialized CDR, no decoding), stamped with the receive time
+on the node clock (sim time under use_sim_time), as `ros2 bag record` does.
+"""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+import sys
+
+from rclpy.node import Node
+
+from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
+from ..bag.writer import BagWriter
+from .common import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, run
+
+RCLPY_QOS = {SENSOR: SENSOR_QOS, COMMAND: COMMAND_QOS, LATCHED: LATCHED_QOS, EVENT: EVENT_QOS, DEFAULT: 10}
+
+
+def _message_class(ros_type: str):
+    import importlib
+    package, _, name = ros_type.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+class BagRecorder(Node):
+    def __init__(self):
+        super().__init__('bag_recorder')
+        output = declare(self, 'output', '', "the bag folder to create (must not exist); '' = "
+                         '<output_dir>/session_<UTC time>')
+        output_dir = declare(self, 'output_dir', '~/.fabric_guidance/bags', 'where unnamed bags go')
+        topics = declare(self, 'topics', list(TOPICS), 'topics to record (of the package\'s, see bag/topics.py)')
+        unknown = [t for t in topics if t not in TOPICS]
+        if unknown:
+            raise ValueError(f'cannot record {unknown}: not topics of the package ({list(TOPICS)})')
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')
+        path = Path(output).expanduser() if output else Path(output_dir).expanduser() / f'session_{stamp}'
+        self.bag = BagWriter(path, custom_data={'fabric_guidance.recorder': 'bag_recorder'})
+        self.path = path
+        self.closed = False
+        for name in topics:
+            ros_type, kind = TOPICS[name]
+            self.bag.add_package_topic(name, self.get_namespace())
+            self.create_subscription(_message_class(ros_type), name, self._writer_for(name), RCLPY_QOS[kind],
+                                     raw=True)
+        self.get_logger().info(f'recording {len(topics)} topics to {path}')
+
+    def _writer_for(self, name: str):
+        topic = bag_topic(name, self.get_namespace())
+
+        def write(data: bytes) -> None:
+            if not self.closed:
+                self.bag.write(topic, self.get_clock().now().nanoseconds, data)
+        return write
+
+    def safe_shutdown(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.bag.close()
+        counts = ', '.join(f'{t} {n}' for t, n in self.bag.counts.items())
+        self.get_logger().info(f'bag written: {self.path} ({counts})')
+
+
+def main(args=None) -> int:
+    return run(BagRecorder, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

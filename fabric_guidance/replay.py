@@ -1,0 +1,84 @@
+"""`fabric-guidance replay BAG`: a recorded session again.
+
+  replay BAG --offline [--set gain=0.1 ...]
+      reruns pressure_controller's control steps over the inputs it recorded (controller_input,
+      controller_parameters), without DDS, with the same core classes, and compares each step's
+      command with the recorded pressure_command channel by channel: the largest difference,
+      where it happens, and how much faster than real time the replay ran. Exit 0 when every
+      compared command is reproduced exactly, 1 when some differ (expected with --set).
+  replay BAG [--rate R] [--loop] [--topics ...]
+      republishes the recorded inputs (gaze, head_pose, target, active_target) with /clock
+      for nodes started with use_sim_time:=true (pressure_controller reruns live on the bag's
+      time); --loop plays again from the start, the clock jumping back.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser('replay', help='replay a recorded session: offline through the controller, or '
+                              'republished with /clock for the graph', description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('bag', help='the bag folder (or its .mcap file), e.g. written by demo --record')
+    p.add_argument('--offline', action='store_true',
+                   help='rerun the controller over the recorded inputs without DDS and compare its commands')
+    p.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                   help='offline: change a controller parameter (gain, p_max_kpa, rate_deadband_dps, '
+                        'follow_moving_target, use_wearer_gain, condition, gaze_timeout_s); repeatable')
+    p.add_argument('--rate', type=float, default=1.0, help='graph replay: speed factor (default 1)')
+    p.add_argument('--loop', action='store_true', help='graph replay: play again from the start, until Ctrl-C')
+    p.add_argument('--loops', type=int, default=0, help='graph replay with --loop: stop after this many passes')
+    p.add_argument('--topics', nargs='+', default=None, help='graph replay: topics to republish '
+                   '(default gaze head_pose target active_target)')
+    p.add_argument('--wait', type=float, default=2.0,
+                   help='graph replay: wait up to this long for subscribers before starting [s]')
+    return p
+
+
+def run(args, stream=sys.stdout) -> int:
+    def say(line: str = '') -> None:
+        print(line, file=stream, flush=True)
+
+    from .bag.reader import bag_dir
+    try:
+        bag_dir(args.bag)
+    except FileNotFoundError as exc:
+        say(f'fabric-guidance replay: {exc}')
+        return 2
+    if args.offline:
+        from .bag import offline
+        try:
+            overrides = offline.parse_overrides(args.set)
+            rec = offline.load(args.bag)
+            result = offline.replay(rec, overrides)
+        except ValueError as exc:
+            say(f'fabric-guidance replay: {exc}')
+            return 2
+        offline.report(result, overrides, say)
+        return 0 if result.exact else 1
+    if args.set:
+        say('fabric-guidance replay: --set applies to --offline; set parameters of the live nodes instead')
+        return 2
+    from .bag.player import play
+    from .bag.topics import REPLAYED_INPUTS
+    try:
+        n = play(args.bag, args.topics or REPLAYED_INPUTS, args.rate, args.loop, args.loops, args.wait, say)
+    except KeyboardInterrupt:
+        return 0
+    except ValueError as exc:
+        say(f'fabric-guidance replay: {exc}')
+        return 2
+    say(f'{n} messages republished')
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='fabric-guidance')
+    add_parser(parser.add_subparsers(dest='command', required=True))
+    return run(parser.parse_args(['replay', *(argv if argv is not None else sys.argv[1:])]))
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""Recording a guided session: `fabric-guidance demo --record DIR` (run_demo(record_dir=...))
+writes a rosbag2 bag in MCAP that an independent reader (mcap + mcap_ros2) decodes completely,
+with the QoS profiles in its metadata; the offline replay reproduces its commands exactly."""
+import functools
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+
+import yaml
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from fabric_guidance.bag import offline
+from fabric_guidance.bag.controller_io import INPUT_SIZE, ControllerSetup
+from fabric_guidance.bag.topics import TOPICS
+
+#: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
+EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/pressure_command',
+            '/measured_pressure', '/diagnostics', '/controller_input', '/controller_parameters'}
+
+
+@functools.lru_cache(maxsize=None)
+def recorded_demo_bag() -> Path:
+    """One demo session recorded (shared with test_replay.py: run once per test process)."""
+    from fabric_guidance.demo import run_demo
+    out = Path(tempfile.mkdtemp(prefix='fabric-guidance-test-record-'))
+    with open(out / 'demo.out', 'w') as stream:
+        code = run_demo(1, timeout_s=45.0, out_dir=out / 'logs', stream=stream, record_dir=out / 'bags')
+    assert code == 0, (out / 'demo.out').read_text()
+    bags = list((out / 'bags').iterdir())
+    assert len(bags) == 1, bags
+    return bags[0]
+
+
+def test_demo_record_decodes_with_an_independent_reader():
+    bag = recorded_demo_bag()
+    files = list(bag.glob('*.mcap'))
+    assert len(files) == 1
+    counts, schemas = {}, {}
+    with open(files[0], 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary.statistics.message_count > 0
+        for schema, channel, message, decoded in reader.iter_decoded_messages():   # every message of every topic
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            schemas[channel.topic] = (schema.name, schema.encoding)
+            assert channel.message_encoding == 'cdr'
+            if channel.topic == '/pressure_command':
+                assert len(decoded.data) == 18 and max(decoded.data) <= 375.0
+            elif channel.topic == '/controller_input':
+                assert len(decoded.data) == INPUT_SIZE
+            elif channel.topic == '/controller_parameters':
+                assert ControllerSetup.from_yaml(decoded.data).condition == 1
+            elif channel.topic == '/gaze':
+                assert decoded.header.frame_id == 'immersive'
+            elif channel.topic == '/diagnostics':
+                assert decoded.status
+    assert EXPECTED <= set(counts), set(counts)
+    assert sum(counts.values()) == summary.statistics.message_count
+    for topic in EXPECTED:
+        assert schemas[topic] == (TOPICS.get(topic, TOPICS.get(topic.lstrip('/')))[0], 'ros2msg')
+    assert counts['/pressure_command'] > 100 and counts['/controller_parameters'] == 1
+
+
+def test_metadata_lists_the_offered_qos_profiles():
+    meta = yaml.safe_load((recorded_demo_bag() / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['storage_identifier'] == 'mcap' and meta['version'] == 9
+    topics = {t['topic_metadata']['name']: t['topic_metadata'] for t in meta['topics_with_message_count']}
+    assert set(topics) == {'/' + t.lstrip('/') for t in TOPICS}
+    for name, md in topics.items():
+        assert md['type_description_hash'].startswith('RIHS01_'), name
+        assert len(md['offered_qos_profiles']) == 1, name
+    qos = {name: md['offered_qos_profiles'][0] for name, md in topics.items()}
+    assert qos['/gaze']['reliability'] == 'best_effort' and qos['/gaze']['depth'] == 5
+    assert qos['/active_target']['durability'] == 'transient_local'
+    assert qos['/target']['durability'] == 'transient_local'
+    assert qos['/controller_parameters']['durability'] == 'transient_local'
+    assert qos['/pressure_command']['reliability'] == 'reliable' and qos['/pressure_command']['depth'] == 10
+    assert qos['/pressure_command']['durability'] == 'volatile'
+    assert qos['/speech']['depth'] == 50
+
+
+def test_offline_replay_reproduces_the_demo_exactly_and_fast():
+    bag = recorded_demo_bag()
+    # Best of three: the measure of the replay, not of whatever else the machine runs meanwhile.
+    result = max((offline.replay(offline.load(bag)) for _ in range(3)), key=lambda r: r.speedup)
+    assert result.compared > 100 and result.unmatched == 0 and result.step_gaps == 0
+    assert result.exact, result.worst
+    print(f'offline replay: {result.compared} steps, {result.bag_duration_s:.2f} s of session in '
+          f'{result.read_s + result.run_s:.3f} s: {result.speedup:.0f}x real time')
+    assert result.speedup >= 100.0
+    # The CLI as the user runs it.
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.replay', str(bag), '--offline'],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert 'reproduced exactly' in out.stdout and 'x real time' in out.stdout
