@@ -53,7 +53,10 @@ def play(path, topics: Sequence[str] = REPLAYED_INPUTS, rate: float = 1.0, loop:
                 pubs[topic] = node.create_publisher(cls, topic, _rclpy_qos(kind))
         clock_pub = node.create_publisher(Clock, CLOCK, QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         deadline = time.monotonic() + wait_s
-        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
+        # Every publisher matched, /clock included: a node that hears the clock late would miss
+        # the start of the bag (and, with a short bag, a whole loop).
+        while time.monotonic() < deadline and not all(p.get_subscription_count()
+                                                      for p in [*pubs.values(), clock_pub]):
             time.sleep(0.02)
         t0, t_end = msgs[0][0], msgs[-1][0]
         say(f'replaying {len(msgs)} messages on {sorted(pubs)} with /clock, {(t_end - t0) * 1e-9:.2f} s of bag'

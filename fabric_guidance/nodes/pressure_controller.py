@@ -12,10 +12,11 @@ Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
 
-Time: the control timer and the t of Eq. 5 use the node clock, so with use_sim_time:=true the
-node runs on /clock (a bag replay); gaze staleness is then judged on that clock too (on the
-wall clock otherwise). A clock that jumps back (a looping replay) restarts Eq. 5's derivative
-in the core and counts the last gaze as received at the jump.
+Time: the t of Eq. 5 is the node clock, so with use_sim_time:=true it is the bag's /clock (a
+replay), and a clock that jumps back (a looping replay) restarts Eq. 5's derivative in the core.
+The control timer and gaze staleness run on the steady clock, whatever the ROS clock does: a
+ROS-time timer can stay silent after /clock jumps back, and a gaze judged fresh on a stopped
+sim clock would keep the suit pressurised after a replay ends. Safety never waits on /clock.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ import numpy as np
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, PoseStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -83,7 +85,6 @@ class PressureController(Node):
                 'order of pressure_command (as ros2_controllers joints)', read_only=True)
         self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'
         self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
-        self.sim_time = bool(self.get_parameter('use_sim_time').value)
         self.setup = ControllerSetup(self.condition.number, float(self.gain), float(self.p_max), float(rate),
                                      float(self.gaze_timeout), float(self.deadband), bool(self.use_wearer_gain),
                                      bool(self.follow_target), self.calibration, self.channel_map)
@@ -91,7 +92,7 @@ class PressureController(Node):
 
         self.enabled = True
         self.gaze_origin = self.gaze_direction = None
-        self.gaze_received = -float('inf')   # self.now_s(): wall clock, or sim time under use_sim_time
+        self.gaze_received = -float('inf')   # self.now_s(): the steady clock
         self.step_count = 0
         self.command_count = 0
         self.reset_pending = False            # vented between steps (recorded in controller_input)
@@ -117,8 +118,9 @@ class PressureController(Node):
         self.create_service(Trigger, 'start_calibration', self.on_start_calibration)
         self.create_service(SetBool, 'enable', self.on_enable)
         self.create_service(Trigger, 'vent', self.on_vent)
-        self.create_timer(1.0 / rate, self.step)
-        self.create_timer(1.0, self.publish_diagnostics)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0 / rate, self.step, clock=steady)
+        self.create_timer(1.0, self.publish_diagnostics, clock=steady)
         self.zeros = np.zeros(len(self.channel_map.channels))
         self.get_logger().info(
             f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
@@ -134,9 +136,7 @@ class PressureController(Node):
         self.parameters_pub.publish(String(data=yaml.safe_dump(d, sort_keys=False)))
 
     def now_s(self) -> float:
-        """The clock gaze staleness is judged on: sim time under use_sim_time, else the wall clock."""
-        if self.sim_time:
-            return self.get_clock().now().nanoseconds * 1e-9
+        """The clock gaze staleness is judged on: always the steady clock (see the module doc)."""
         return time.monotonic()
 
     def vent_controller(self) -> None:
@@ -227,10 +227,7 @@ class PressureController(Node):
 
     def step(self) -> None:
         t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
-        now = self.now_s()
-        if now < self.gaze_received:                    # the clock jumped back (a looping replay)
-            self.gaze_received = now
-        fresh = now - self.gaze_received <= self.gaze_timeout
+        fresh = self.now_s() - self.gaze_received <= self.gaze_timeout
         inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.enabled,
                         bool(self.target_name) and self.target is not None, self.reset_pending,
                         self.procedure is not None, self.condition.number, self.step_count, self.command_count)
