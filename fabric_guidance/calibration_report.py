@@ -23,14 +23,12 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 import math
-import os
 from pathlib import Path
 import sys
-import tempfile
 
 import numpy as np
 
-from .core.calibration import Calibration, CalibrationFileError
+from .core.calibration import Calibration, CalibrationFileError, atomic_write
 from .core.geometry import DIRECTIONS
 from .core.power_law import THETA_MAX
 
@@ -169,22 +167,6 @@ def draw_fit_figure(calibration: Calibration):
     return fig
 
 
-def _atomic_write(path: Path, write) -> Path:
-    """write(file object) into a temporary file next to `path`, then rename it over `path`."""
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 def report_paths(calibration: Calibration, folder: str | Path) -> tuple[Path, Path]:
     """Where write_fit_report writes: <folder>/<wearer>-fit.txt and <folder>/<wearer>-fit.png."""
     folder = Path(folder)
@@ -203,8 +185,8 @@ def write_fit_report(calibration: Calibration, folder: str | Path, source: str |
     text = format_fit_report(calibration, source)
     fig = draw_fit_figure(calibration)
     FigureCanvasAgg(fig)
-    _atomic_write(png_path, lambda f: fig.savefig(f, format='png', dpi=100))
-    _atomic_write(txt_path, lambda f: f.write(text.encode()))
+    atomic_write(png_path, lambda f: fig.savefig(f, format='png', dpi=100))
+    atomic_write(txt_path, lambda f: f.write(text.encode()))
     return txt_path, png_path
 
 

@@ -38,6 +38,25 @@ SCHEMA_VERSION = 1
 PAPER_STEPS = 10
 
 
+def atomic_write(path: str | Path, write) -> Path:
+    """write(binary file object) into a temporary file beside `path`, fsync it, then rename it
+    over `path`: a reader sees the old file or the new one, never a partial one; on any error
+    the old file stays and the temporary one is removed."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+    try:
+        with os.fdopen(fd, 'wb') as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
 class CalibrationFileError(ValueError):
     """A calibration file that cannot be used, naming the file, the field and the reason."""
 
@@ -118,18 +137,7 @@ class Calibration:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         text = yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-        try:
-            with os.fdopen(fd, 'w') as f:
-                f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return atomic_write(path, lambda f: f.write(text.encode('utf-8')))
 
     @classmethod
     def from_dict(cls, data, source: str = 'calibration') -> 'Calibration':
@@ -250,7 +258,6 @@ class CalibrationProcedure:
         return len(self.directions) * (self.rest_s + len(self.schedule) * self.dwell_s)
 
     def _command(self, t: float) -> CalibrationCommand:
-        n = len(self.schedule)
         if self._phase in (DONE, FAILED):
             return CalibrationCommand(self._phase, None, 0.0, 0, 1.0 if self._phase == DONE else self._progress(t))
         direction = self.directions[self._dir_index]
