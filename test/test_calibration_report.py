@@ -196,7 +196,7 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     try:
         wait_until(lambda: probe.call(Trigger, 'start_calibration', Trigger.Request()).success, 15.0,
                    what='start_calibration accepted')
-        wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 30.0, what='calibration end')
+        wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
     finally:
         stop.set()
         wearer.join(2)
@@ -217,6 +217,6 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     upstream.yaw = upstream.pitch = 0.0
     n = len(status)
     assert probe.call(Trigger, 'start_calibration', Trigger.Request()).success
-    wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 30.0, what='the refused calibration')
+    wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 60.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data and 'previous calibration is kept' in status[-1].data
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == report_before
