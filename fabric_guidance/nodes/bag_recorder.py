@@ -19,12 +19,25 @@ from pathlib import Path
 import sys
 
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
 from ..bag.writer import BagWriter
 from .common import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, run
 
-RCLPY_QOS = {SENSOR: SENSOR_QOS, COMMAND: COMMAND_QOS, LATCHED: LATCHED_QOS, EVENT: EVENT_QOS, DEFAULT: 10}
+#: A recorder must not lose what it could have buffered: the publishers' reliability and
+#: durability, but a deep history, so a stall of this process (writing, load) costs no message
+#: (offline replay pairs every step's inputs with its command).
+RECORDER_DEPTH = 1000
+
+
+def _deep(profile: QoSProfile) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORDER_DEPTH, reliability=profile.reliability,
+                      durability=profile.durability)
+
+
+RCLPY_QOS = {SENSOR: _deep(SENSOR_QOS), COMMAND: _deep(COMMAND_QOS), LATCHED: _deep(LATCHED_QOS),
+             EVENT: _deep(EVENT_QOS), DEFAULT: _deep(COMMAND_QOS)}
 
 
 def _message_class(ros_type: str):
