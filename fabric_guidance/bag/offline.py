@@ -30,6 +30,8 @@ from .topics import bag_topic
 from .writer import typestore
 
 PRESSURE_COMMAND = 'pressure_command'
+# libyaml's loader where PyYAML has it: the parameters hold the calibration and channel map.
+_YamlLoader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
 @dataclass
@@ -98,7 +100,7 @@ def load(path, namespace: str = '/') -> Recording:
     for topic, msgtype, _, data in raw_messages(path, topics):
         kind = topics[topic]
         if kind == 'par':
-            d = yaml.safe_load(store.deserialize_cdr(data, msgtype).data)
+            d = yaml.load(store.deserialize_cdr(data, msgtype).data, Loader=_YamlLoader)
             setups.append((int(d.pop('from_step', 0)), d))
             continue
         # The two Float64MultiArray topics are most of the bag: read them without the generic decoder.
