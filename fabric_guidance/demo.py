@@ -71,6 +71,7 @@ class SessionWatch:
         self.max_command = 0.0
         self.speech: list[str] = []
         self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
+        self.recorder: dict[str, str] = {}        # bag_recorder's last diagnostics values
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
         probe.subscribe(PoseStamped, common.GAZE, common.SENSOR_QOS, self.on_gaze)
         probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS, self.on_target)
@@ -120,6 +121,14 @@ class SessionWatch:
             if st.name.startswith('gaze_bridge:'):
                 with self.lock:
                     self.bridge = {kv.key: kv.value for kv in st.values}
+            elif st.name.startswith('bag_recorder:'):
+                with self.lock:
+                    self.recorder = {kv.key: kv.value for kv in st.values}
+
+    def recorder_hears(self, *topics: str) -> bool:
+        """bag_recorder has written messages of every one of `topics` (from its /diagnostics)."""
+        with self.lock:
+            return all(int(self.recorder.get(f'messages {t}', 0)) > 0 for t in topics)
 
     def on_max_written(self, msg) -> None:
         with self.lock:
@@ -303,9 +312,10 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             common.PRESSURE_COMMAND, common.GAZE, common.MEASURED_PRESSURE, common.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')
         if bag is not None:
-            from .bag.controller_io import CONTROLLER_INPUT
-            wait_until(lambda: probe.node.count_publishers(CONTROLLER_INPUT) and
-                       probe.node.count_subscribers(CONTROLLER_INPUT), timeout_s, what='the recorder')
+            # Discovery is pairwise: the recorder and the controller both being on the graph does
+            # not mean the recorder hears the controller yet. Its /diagnostics say what it has written.
+            wait_until(lambda: watch.recorder_hears('controller_input', 'pressure_command', 'gaze'),
+                       timeout_s, what='the recorder to hear the controller')
         probe.call(Trigger, 'next_target', Trigger.Request())
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]

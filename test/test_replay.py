@@ -48,7 +48,8 @@ def recorder_ready(probe):
 @pytest.fixture(scope='module')
 def turning_session(tmp_path_factory):
     """pressure_controller (G = 0.05) and bag_recorder; the wearer looks ahead, a target 40 deg
-    left appears, the wearer turns 20 deg right (the error grows), then holds."""
+    left appears, the wearer turns 20 deg right (the error grows), then holds; a second target
+    (same place) follows, which vents the controller once."""
     tmp = tmp_path_factory.mktemp('turning')
     bag = tmp / 'bag'
     graph = Graph(tmp / 'logs')
@@ -62,13 +63,13 @@ def turning_session(tmp_path_factory):
         name = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
         wait_until(lambda: recorder_ready(probe) and node.count_publishers('controller_input'), 15.0,
                    what='controller and recorder')
-        yaws = [0.0] * 15 + [-0.5 * k for k in range(40)] + [-20.0] * 25
+        yaws = [0.0] * 15 + [-0.5 * k for k in range(40)] + [-20.0] * 40
         point = PointStamped()
         point.header.frame_id = common.IMMERSIVE_FRAME
         point.point.x, point.point.y, point.point.z = EYE + 2.0 * direction(40.0)
         for k, yaw in enumerate(yaws):
-            if k == 10:
-                name.publish(String(data='t1'))
+            if k in (10, 80):
+                name.publish(String(data='t1' if k == 10 else 't2'))
             if k >= 10 and k % 5 == 0:    # as target_selector: the position again after the name
                 target.publish(point)
             gaze.publish(gaze_msg(yaw))
@@ -146,3 +147,29 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
     assert np.abs(increments[k - 1: k + 5]).max() <= normal + 1e-9, 'a spike after the clock jumped back'
     # ... and the looped session, clock jump included, reproduces offline exactly.
     assert offline.replay(rec).exact
+
+
+def test_offline_replay_of_a_bag_cut_mid_guidance_compares_from_the_first_vent(turning_session):
+    """A recorder started mid-session misses the steps that built Eq. 5's state. The replay must
+    not report the difference that makes as the controller's: it compares from the first step
+    whose state is known (a vent), and a step missing in the middle unsyncs it again."""
+    from dataclasses import replace
+
+    from fabric_guidance.bag.controller_io import ControllerSetup, guidance_step, safe_command
+    rec = offline.load(turning_session)
+    setup = ControllerSetup.from_dict(rec.setups[0][1])
+
+    def naive_diff(i):           # the step rerun from a fresh controller, as a naive replay would
+        inp = rec.inputs[i]
+        channels, reason, _ = guidance_step(setup, setup.make_controller(), inp)
+        recorded = rec.commands[inp.command - rec.offset]
+        return 0.0 if reason else float(np.abs(safe_command(channels, setup.p_max_kpa) - recorded).max())
+
+    cuts = [i for i in range(1, len(rec.inputs) - 5)
+            if not rec.inputs[i].reset and naive_diff(i) > 1.0]
+    assert cuts, 'the session has no step whose Eq. 5 state matters'
+    cut = cuts[0]
+    late = offline.replay(replace(rec, inputs=rec.inputs[cut:]))
+    assert late.unsynced >= 1 and late.compared > 5 and late.exact, late.worst
+    gap = offline.replay(replace(rec, inputs=rec.inputs[:cut] + rec.inputs[cut + 1:]))
+    assert gap.step_gaps == 1 and gap.unsynced >= 1 and gap.exact, gap.worst

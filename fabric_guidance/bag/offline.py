@@ -51,6 +51,7 @@ class ReplayResult:
     compared: int = 0                     # steps compared with a recorded command
     calibrating: int = 0                  # Algorithm 1 steps (not compared)
     unmatched: int = 0                    # steps whose command is not in the bag
+    unsynced: int = 0                     # steps before the controller's state is known (see replay)
     step_gaps: int = 0                    # control steps missing from the bag
     max_diff: np.ndarray = field(default_factory=lambda: np.zeros(0))   # kPa per channel
     worst: dict[str, Any] = field(default_factory=dict)
@@ -144,24 +145,37 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
     k = -1
     setup = controller = None
     previous_step = None
+    # Eq. 5 has state. A bag that starts after the node did (a recorder started mid-session, or
+    # discovery still under way) holds steps whose controller state is unknown: the replay
+    # compares from the first step where the node's state is known, that is where the node built
+    # its controller (start-up, new calibration) or vented it (new target, no gaze, service).
+    synced = False
     for inp in rec.inputs:
         while k + 1 < len(setups) and setups[k + 1][0] <= inp.step:
             k += 1
             setup = setups[k][1]
             controller = setup.make_controller()     # as the node builds it (start-up, new calibration)
+            synced = synced or setups[k][0] == inp.step
         if setup is None:                            # steps before the first parameters: none expected
             continue
         if previous_step is not None and inp.step != previous_step + 1:
             result.step_gaps += inp.step - previous_step - 1
+            synced = False                           # the missing steps changed the state
         previous_step = inp.step
         result.steps += 1
-        if inp.reset and controller is not None:
-            controller.vent()
+        if inp.reset:
+            synced = True
+            if controller is not None:
+                controller.vent()
         if inp.calibrating:
             result.calibrating += 1
             continue
-        channels, _, _ = guidance_step(setup, controller, inp)
+        channels, reason, _ = guidance_step(setup, controller, inp)
         command = safe_command(channels, setup.p_max_kpa)
+        if not synced and not reason:
+            result.unsynced += 1
+            continue
+        synced = True                                # a vented step is known; so is every one after it
         position = inp.command - rec.offset
         if not 0 <= position < len(rec.commands) or len(rec.commands[position]) != len(command):
             result.unmatched += 1
@@ -184,9 +198,10 @@ def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> No
     changed = ', '.join(f'{k}={v}' for k, v in (overrides or {}).items()) or 'none (the recorded parameters)'
     say(f'offline replay: {result.steps} control steps rerun, {result.compared} compared with the recorded '
         f'pressure_command; parameters changed: {changed}')
-    if result.calibrating or result.unmatched or result.step_gaps:
+    if result.calibrating or result.unmatched or result.step_gaps or result.unsynced:
         say(f'  not compared: {result.calibrating} calibration steps, {result.unmatched} steps whose command is not '
-            f'in the bag; {result.step_gaps} control steps missing from the bag')
+            f'in the bag, {result.unsynced} steps before the controller\'s state is known (the bag starts '
+            f'mid-guidance; compared from the first vent); {result.step_gaps} control steps missing from the bag')
     say(f'  {"channel":<8} {"max |diff| kPa":>14}')
     for name, d in zip(result.channels, result.max_diff):
         say(f'  {name:<8} {d:14.6g}')

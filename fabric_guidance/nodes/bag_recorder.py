@@ -6,6 +6,9 @@ Subscribes  every topic of fabric_guidance/bag/topics.py TOPICS (or the `topics`
             gaze, head_pose, target, active_target, target_found, pressure_command,
             measured_pressure, speech, calibration_status, /diagnostics, controller_input,
             controller_parameters; each with its publishers' QoS (latched ones transient local)
+Publishes   /diagnostics (diagnostic_msgs/DiagnosticArray) every diagnostics_period_s:
+            'bag_recorder: recording' with the bag path and the messages written per topic
+            (a session script waits on it to know the recorder hears the controller)
 Writes      <output> (or <output_dir>/session_<UTC time>), closed with its metadata.yaml on
             SIGINT/SIGTERM
 
@@ -18,12 +21,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 import sys
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
 from ..bag.writer import BagWriter
-from .common import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, run
+from .common import COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, publish_diagnostics, run, status
 
 #: A recorder must not lose what it could have buffered: the publishers' reliability and
 #: durability, but a deep history, so a stall of this process (writing, load) costs no message
@@ -53,6 +58,7 @@ class BagRecorder(Node):
                          '<output_dir>/session_<UTC time>')
         output_dir = declare(self, 'output_dir', '~/.fabric_guidance/bags', 'where unnamed bags go')
         topics = declare(self, 'topics', list(TOPICS), 'topics to record (of the package\'s, see bag/topics.py)')
+        period = declare(self, 'diagnostics_period_s', 0.5, 'period of the recorder\'s /diagnostics', 's', 0.05, 60.0)
         unknown = [t for t in topics if t not in TOPICS]
         if unknown:
             raise ValueError(f'cannot record {unknown}: not topics of the package ({list(TOPICS)})')
@@ -66,7 +72,20 @@ class BagRecorder(Node):
             self.bag.add_package_topic(name, self.get_namespace())
             self.create_subscription(_message_class(ros_type), name, self._writer_for(name), RCLPY_QOS[kind],
                                      raw=True)
+        self.topics = list(topics)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        # Steady clock: a recorder under use_sim_time reports before the first /clock too.
+        self.create_timer(period, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'recording {len(topics)} topics to {path}')
+
+    def publish_diagnostics(self) -> None:
+        if self.closed:
+            return
+        counts = {name: self.bag.counts.get(bag_topic(name, self.get_namespace()), 0) for name in self.topics}
+        total = sum(counts.values())
+        publish_diagnostics(self, self.diag_pub, [status(
+            self, 'recording', DiagnosticStatus.OK, f'{total} messages to {self.path}',
+            {'bag': str(self.path), **{f'messages {name}': n for name, n in counts.items()}})])
 
     def _writer_for(self, name: str):
         topic = bag_topic(name, self.get_namespace())
