@@ -242,6 +242,8 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
         wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
         assert status[-1].data.startswith('done'), [m.data for m in status]
         assert any('left step 3/5' in m.data for m in status)        # progress was reported
+        rests = list(dict.fromkeys(m.data.split(' step')[0] for m in status if m.data.startswith('rest')))
+        assert rests == [f'rest before {d}' for d in ('left', 'right', 'down', 'up')], rests
         path = tmp_path / 'calibrations' / 'alice.yaml'
         cal = Calibration.load(path)
         for fitted, true in zip(cal.laws, ALICE):

@@ -253,6 +253,11 @@ class CalibrationProcedure:
         return self._phase
 
     @property
+    def direction(self) -> str | None:
+        """The direction being calibrated, or rested for before its first step; None once ended."""
+        return None if self._phase in (DONE, FAILED) else self.directions[self._dir_index]
+
+    @property
     def duration_s(self) -> float:
         """Planned length of the whole procedure."""
         return len(self.directions) * (self.rest_s + len(self.schedule) * self.dwell_s)

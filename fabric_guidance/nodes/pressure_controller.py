@@ -265,7 +265,9 @@ class PressureController(Node):
         direction_pressures = np.zeros(len(DIRECTIONS))
         if cmd.direction is not None:
             direction_pressures[DIRECTIONS.index(cmd.direction)] = cmd.pressure
-        text = (f'{cmd.phase} {cmd.direction or ""} step {cmd.step}/{self.cal_steps} '
+        # While resting (vented, facing front) the wearer is told which direction comes next.
+        where = cmd.direction or (f'before {proc.direction}' if proc.direction else '')
+        text = (f'{cmd.phase} {where} step {cmd.step}/{self.cal_steps} '
                 f'{cmd.pressure:.0f} kPa {100 * cmd.progress:.0f}%')
         if cmd.phase == DONE:
             text = self.finish_calibration()
