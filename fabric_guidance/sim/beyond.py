@@ -66,7 +66,7 @@ from ..core.calibration import Calibration
 from ..core.feedback import PAPER_GAIN, GuidanceController
 from ..core.geometry import wrap_deg
 from .effects import generator
-from .engine import ClosedLoop, FastPowerLaw, gaze_from_angles, package_channel_map, trial_run
+from .engine import ClosedLoop, FastPowerLaw, package_channel_map, trial_run
 from .population import calibrate_wearer, sample_wearer, subject_indices
 from .protocols import _draw_target, _targets, speed_loop, speed_measures
 from .scene import Scene
@@ -130,18 +130,10 @@ class BeyondLoop(ClosedLoop):
         if not self.live_target or self.procedure is not None:
             super()._control(t)
             return
-        fresh = t - self.received_t <= self.timeout
-        if self.speech_due and fresh and self.target is not None:
-            self._say(t)
-        ctrl = self.controller
-        if ctrl is None or self.target is None or not fresh:
-            self._vent()
+        gaze = self._guidance_gaze(t)
+        if gaze is None:
             return
-        _, _, gy, gp = self.last_sample
-        if self._g0 is None:
-            ctrl.begin(gaze_from_angles(gy, gp))
-            self._g0 = (gy, gp)
-            self.vented = False
+        gy, gp, _ = gaze
         y0, p0 = self._g0
         # GuidanceController.update's angles, from g0, with the target of this moment; every
         # direction is stepped (a direction whose theta_t is <= 0 resets, as in update()).
@@ -150,7 +142,7 @@ class BeyondLoop(ClosedLoop):
         self._theta_t = (ht, -ht, -vt, vt)
         h = wrap_deg(gy - y0)
         v = gp - p0
-        d0, d1, d2, d3 = ctrl.directions
+        d0, d1, d2, d3 = self.controller.directions
         self._set_command((d0.step(ht, h, t), d1.step(-ht, -h, t), d2.step(-vt, -v, t), d3.step(vt, v, t)))
 
 

@@ -225,25 +225,38 @@ class ClosedLoop:
         felt = cmap.to_directions(cmap.to_channels(direction_pressures, self.layout), self.layout)
         self.command = felt.tolist()
 
-    def _control(self, t: float) -> None:
+    def _guidance_gaze(self, t: float) -> tuple[float, float, bool] | None:
+        """The part of a control step every guidance mode shares: speech when due, a vent when
+        there is nothing to guide (None), else the gaze (yaw, pitch) and whether guidance to this
+        target began now (g0 taken, every direction reset)."""
         fresh = t - self.received_t <= self.timeout
-        if self.procedure is not None:
-            self._calibration_control(t, fresh)
-            return
         if self.speech_due and fresh and self.target is not None:
             self._say(t)
         ctrl = self.controller
         if ctrl is None or self.target is None or not fresh:
             self._vent()
-            return
+            return None
         _, _, gy, gp = self.last_sample
-        if self._g0 is None:
+        began = self._g0 is None
+        if began:
             ctrl.begin(gaze_from_angles(gy, gp))      # validates; resets every direction
             self._g0 = (gy, gp)
+            self.vented = False
+        return gy, gp, began
+
+    def _control(self, t: float) -> None:
+        if self.procedure is not None:
+            self._calibration_control(t, t - self.received_t <= self.timeout)
+            return
+        gaze = self._guidance_gaze(t)
+        if gaze is None:
+            return
+        gy, gp, began = gaze
+        ctrl = self.controller
+        if began:
             h = wrap_deg(self.target[0] - gy)
             v = self.target[1] - gp
             self._theta_t = (h, -h, -v, v)
-            self.vented = False
         y0, p0 = self._g0
         h = wrap_deg(gy - y0)
         v = gp - p0
