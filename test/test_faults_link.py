@@ -148,3 +148,157 @@ def test_a_restarted_client_is_not_taken_for_a_stale_one():
         finally:
             second.close()
         assert plc.stale_writes == []
+
+
+# ------------------------------------------- plc_output and mock_plc with the proxy between
+class LinkRig:
+    """test_node_plc's Rig (mock_plc, plc_output, a probe playing the controller, a read-only
+    client on the mock), with plc_output talking to the mock through a FaultProxy."""
+
+    def __init__(self, log_dir):
+        from test_node_plc import Rig
+        port = free_port()
+        self.proxy = FaultProxy('127.0.0.1', port)
+        self.rig = Rig(log_dir, output={'plc_port': self.proxy.port}, port=port)
+
+    def status_since(self, n):
+        return self.rig.statuses(OUTPUT_STATUS, n)
+
+    def output_values(self):
+        return {kv.key: kv.value for kv in self.rig.latest_status(OUTPUT_STATUS).values}
+
+    def mock_records(self):
+        from fabric_guidance.plc.records import load_records
+        return load_records(self.rig.graph.records_files[-1])
+
+    def close(self):
+        self.proxy.heal()
+        try:
+            self.rig.close()
+        finally:
+            self.proxy.close()
+
+
+@pytest.fixture(scope='module')
+def link(tmp_path_factory):
+    rig = LinkRig(tmp_path_factory.mktemp('link'))
+    yield rig
+    rig.close()
+
+
+def _wait_status(link, n, level, deadline_s, what):
+    return wait_until(lambda: any(s.level == level for s in link.status_since(n)), deadline_s, what=what)
+
+
+@pytest.mark.parametrize('fault', ['drop', 'disconnect'])
+def test_an_outage_shows_at_error_vents_and_heals_with_the_latest_command(link, fault):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(10 + len(TIMES.get('outage vented by the PLC watchdog', ()))), command(40)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers before the fault')
+    before = link.output_values() if rig.latest_status(OUTPUT_STATUS) else {'link failures': '0', 'reconnects': '0'}
+    n = len(rig.diagnostics)
+    t0 = time.monotonic()
+    getattr(proxy, fault)()
+    seconds = rig.time_to_vent(t0, OUTAGE_VENT_DEADLINE_S, f'{fault}: the PLC watchdog venting during the outage')
+    record('outage vented by the PLC watchdog', seconds, OUTAGE_VENT_DEADLINE_S)
+    _wait_status(link, n, DiagnosticStatus.ERROR, OUTAGE_ERROR_DEADLINE_S, f'plc_output ERROR on /diagnostics ({fault})')
+    record('outage -> ERROR on /diagnostics', time.monotonic() - t0, OUTAGE_ERROR_DEADLINE_S)
+    error = next(s for s in link.status_since(n) if s.level == DiagnosticStatus.ERROR)
+    assert 'PLC link down' in error.message, error
+    rig.command(b)                       # the controller goes on; its latest command changes
+    rig.assert_stays_vented(0.5, f'{fault}: no command may reach the PLC while the link is down')
+    assert proxy.get('dropped_chunks' if fault == 'drop' else 'refused') > 0, proxy.counts
+
+    t_heal = time.monotonic()
+    proxy.heal()
+    rig.wait_registers(b, HEAL_DEADLINE_S, f'{fault} healed: the latest command B in the registers', hold_s=0.2)
+    record('link healed -> latest command in the registers', time.monotonic() - t_heal - 0.2, HEAL_DEADLINE_S)
+    n = len(rig.diagnostics)
+    _wait_status(link, n, DiagnosticStatus.OK, DIAGNOSTICS_PERIOD_S + 2.0, 'plc_output OK again')
+    after = link.output_values()
+    assert int(after['link failures']) > int(before['link failures']), (before, after)
+    assert int(after['reconnects']) > int(before['reconnects']), (before, after)
+
+
+def test_a_half_open_link_is_noticed_by_the_timeout_and_reconnected(link):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(50), command(51)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers')
+    wait_until(lambda: rig.latest_status(OUTPUT_STATUS), 5.0, what='a plc_output status')
+    before = link.output_values()
+    accepted = proxy.get('accepted')
+    t0 = time.monotonic()
+    proxy.half_open()
+    rig.command(b)
+    rig.wait_registers(b, HALF_OPEN_RESUME_DEADLINE_S, 'command B through a new connection after the half-open one')
+    record('half-open link -> command flowing on a new connection', time.monotonic() - t0,
+           HALF_OPEN_RESUME_DEADLINE_S)
+    assert proxy.get('half_opened') >= 1 and proxy.get('accepted') > accepted, proxy.counts
+    n = len(rig.diagnostics)
+    wait_until(lambda: link.status_since(n), DIAGNOSTICS_PERIOD_S + 2.0, what='a plc_output status')
+    after = link.output_values()
+    assert int(after['link failures']) > int(before['link failures']), (before, after)
+
+
+def test_a_delayed_link_never_lets_an_old_command_overwrite_a_newer_one(link):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(60), command(61)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers')
+    stale_before = link.mock_records()['stale_count']
+    proxy.hold(HOLD_S, when=is_modbus_write_multiple)
+    wait_until(lambda: proxy.get('held_chunks'), 2.0, what='a write of A held on the current connection')
+    held_at = time.monotonic()
+    rig.command(b)
+    rig.wait_registers(b, MODBUS_TIMEOUT_S + RECONNECT_MAX_S + 1.0, 'B written on a new connection')
+    assert time.monotonic() - held_at < HOLD_S, 'B must be in before the held write of A lands, or nothing is shown'
+    # From here the registers must hold B, through the moment the old write of A arrives.
+    seen = []
+    done = threading.Event()
+
+    def watch():
+        while not done.is_set():
+            r = rig.registers()
+            if r is not None:
+                seen.append(r)
+            time.sleep(0.002)
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        wait_until(lambda: proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
+                   what='the held write of A delivered after plc_output dropped that connection')
+        wait_until(lambda: link.mock_records()['stale_count'] > stale_before, 2.0,
+                   what='the mock PLC refusing the late write of A as stale')
+        time.sleep(0.05)   # a few more reads after the refusal
+    finally:
+        done.set()
+        watcher.join(2)
+    wrong = [r for r in seen if np.max(np.abs(r - b)) > TOLERANCE_KPA]
+    assert not wrong, f'{len(wrong)} of {len(seen)} reads were not B, e.g. {wrong[0]}'
+    records = link.mock_records()
+    print(f'\n[link] stale writes refused by the mock PLC: {records["stale_writes"]}; {len(seen)} reads all B')
+    proxy.heal()
+
+
+def test_a_slow_link_below_the_timeout_keeps_commands_flowing(link):
+    """delay mode: 80 ms each way, under modbus_timeout_s: slower round trips, no link failure."""
+    rig, proxy = link.rig, link.proxy
+    delay_s = 0.08
+    assert 2 * delay_s < MODBUS_TIMEOUT_S
+    rig.command(command(70))
+    rig.wait_registers(command(70), COMMAND_DEADLINE_S, 'command in the registers')
+    wait_until(lambda: rig.latest_status(OUTPUT_STATUS), 5.0, what='a plc_output status')
+    failures = int(link.output_values()['link failures'])
+    proxy.delay(delay_s)
+    try:
+        rig.command(command(71))
+        rig.wait_registers(command(71), COMMAND_DEADLINE_S + 4 * delay_s, 'the command through the slow link')
+        n = len(rig.diagnostics)
+        wait_until(lambda: [s for s in link.status_since(n)
+                            if float(dict((kv.key, kv.value) for kv in s.values)['last round trip ms']) >= 2e3 * delay_s],
+                   DIAGNOSTICS_PERIOD_S + 2.0, what=f'a round trip of at least {2e3 * delay_s:.0f} ms on /diagnostics')
+    finally:
+        proxy.heal()
+    assert int(link.output_values()['link failures']) == failures

@@ -114,11 +114,11 @@ def vent_report():
 class Rig:
     """A mock_plc and a plc_output process, a probe playing the controller, a read-only client."""
 
-    def __init__(self, log_dir, mock=None, output=None):
-        self.port = free_port()
+    def __init__(self, log_dir, mock=None, output=None, port=None):
+        self.port = port or free_port()   # the mock's; plc_output's may be overridden (a proxy)
         self.graph = Graph(log_dir)
-        self.mock_overrides = dict(port=self.port, **(mock or {}))
-        self.output_overrides = dict(plc_port=self.port, **(output or {}))
+        self.mock_overrides = {'port': self.port, **(mock or {})}
+        self.output_overrides = {'plc_port': self.port, **(output or {})}
         self.start_mock()
         self.graph.start('plc_output', PARAMS_FILES, **self.output_overrides)
         print(f'graph logs: {self.graph.log_dir}')
