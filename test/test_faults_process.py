@@ -207,3 +207,11 @@ def _listening(port):
     with socket.socket() as s:
         s.settimeout(0.2)
         return s.connect_ex(('127.0.0.1', port)) == 0
+
+
+def test_every_node_of_the_graph_keeps_dds_discovery_on_localhost(lab):
+    for node, proc in lab.graph.processes.items():
+        environ = dict(item.split('=', 1) for item in
+                       open(f'/proc/{proc.pid}/environ').read().split('\0') if '=' in item)
+        assert environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST', node
+        assert environ.get('ROS_DOMAIN_ID') == str(lab.graph.domain_id), node

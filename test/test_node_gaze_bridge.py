@@ -340,3 +340,9 @@ def test_bad_start_up_parameters_end_with_a_message(tmp_path, overrides, needle)
         if holder is not None:
             holder.close()
         graph.stop_all()
+
+
+def test_the_running_bridge_is_bound_to_loopback_only(bridge):
+    """guidance.yaml's bind_address: the socket's local address in the kernel is 127.0.0.1."""
+    local = udp_socket(bridge.port)[1].split(':')[0]
+    assert local == '0100007F', f'bound to {local} (hex, little-endian), not 127.0.0.1'
