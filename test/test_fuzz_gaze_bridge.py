@@ -1,6 +1,8 @@
 """Fuzzing a running gaze_bridge: more than 10,000 malformed datagrams mixed with valid ones.
 
-Hypothesis draws the datagrams (derandomized: the same ones on every run): random bytes,
+Hypothesis draws the datagrams with a fixed seed (the same ones whenever this module runs
+alone; the draw shifts a little after other hypothesis tests in the session, so the minimum
+is asserted): random bytes,
 truncated and oversized JSON, wrong versions, missing fields, wrong types, NaN and Infinity,
 huge and negative numbers, zero-length vectors, and well-formed samples whose sequence number
 goes back. They are sent over UDP to one gaze_bridge process, in batches. The expected fate of
@@ -14,7 +16,7 @@ import json
 import math
 import time
 
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 import pytest
 
@@ -22,6 +24,8 @@ from fabric_guidance.core.gaze_wire import FIELDS, REASONS, SequenceTracker, Wir
     parse_datagram
 from test_node_gaze_bridge import (DIRECTION_U, HEAD_Q_U, HEAD_U, MAX_BYTES, _running_bridge, dropped, udp_drops)
 
+#: Hypothesis' seed: the same datagrams on every run.
+SEED = 20250601
 #: Malformed datagrams the run must have sent, at least.
 MIN_MALFORMED = 10_000
 BATCH = 100
@@ -153,7 +157,8 @@ def test_the_bridge_survives_malformed_datagrams_and_publishes_only_valid_sample
         if sent[0] % PAUSE_EVERY == 0:
             time.sleep(PAUSE_S)
 
-    @settings(max_examples=BATCHES, derandomize=True, database=None, phases=[Phase.generate], deadline=None,
+    @seed(SEED)
+    @settings(max_examples=BATCHES, database=None, phases=[Phase.generate], deadline=None,
               suppress_health_check=list(HealthCheck))
     @given(st.lists(ITEMS, min_size=BATCH, max_size=BATCH))
     def batch(items):
