@@ -4,6 +4,10 @@ files, the way launch/sim.launch.py starts them, plus a probe node to watch them
 Used by `fabric-guidance demo` and by the tests (launch and launch_ros do not install from the
 package index). Every graph gets its own ROS_DOMAIN_ID and discovery stays on localhost, so
 concurrent runs and other machines are never heard.
+
+Every mock_plc a graph starts keeps its write records in a file in the log folder, and
+`stop_all()` fails (PlcInvariantError) if any of them shows a write above p_max or outside
+the register map (plc/records.py): every test that runs a graph is held to that.
 """
 from __future__ import annotations
 
@@ -49,6 +53,10 @@ def wait_until(predicate: Callable[[], Any], timeout: float, interval: float = 0
         time.sleep(interval)
 
 
+class PlcInvariantError(AssertionError):
+    """A mock PLC of the graph received a write above p_max or outside the register map."""
+
+
 class Graph:
     """Nodes of the package as separate processes, the way a launch file starts them."""
 
@@ -57,13 +65,21 @@ class Graph:
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: dict[str, subprocess.Popen] = {}
+        self.records_files: list[Path] = []   # one per mock_plc started, restarts included
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                         PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
+
+    def command_prefix(self, node: str) -> list[str]:
+        """Words put before a node's command (e.g. `ip netns exec NAME`); none here."""
+        return []
 
     def start(self, node: str, params_files=('guidance.yaml',), **overrides) -> subprocess.Popen:
         """Start fabric_guidance.nodes.<node> with the package's parameter files (in order) and
         `-p name:=value` overrides."""
-        cmd = [sys.executable, '-m', f'fabric_guidance.nodes.{node}', '--ros-args']
+        if node == 'mock_plc' and 'records_file' not in overrides:
+            overrides['records_file'] = str(self.log_dir / f'mock_plc-{len(self.records_files)}.records.json')
+            self.records_files.append(Path(overrides['records_file']))
+        cmd = self.command_prefix(node) + [sys.executable, '-m', f'fabric_guidance.nodes.{node}', '--ros-args']
         for f in params_files:
             cmd += ['--params-file', str(CONFIG / f)]
         for key, value in overrides.items():
@@ -88,7 +104,9 @@ class Graph:
                 raise AssertionError(f'{node} did not exit within {timeout} s of signal {sig}')
         return proc.returncode
 
-    def stop_all(self) -> None:
+    def stop_all(self, check: bool = True) -> None:
+        """SIGINT every node, wait for them, then (with `check`) hold the mock PLCs' records to
+        the invariants."""
         for name, proc in list(self.processes.items()):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -98,6 +116,20 @@ class Graph:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+        if check:
+            found = self.plc_violations()
+            if found:
+                raise PlcInvariantError('\n'.join(found))
+
+    def plc_violations(self) -> list[str]:
+        """Broken invariants in the records of every mock_plc started so far (a mock that never
+        listened, e.g. refused at start-up, has no records)."""
+        from .plc.records import load_records, violations
+        found = []
+        for path in self.records_files:
+            if path.exists():
+                found += violations(load_records(path), source=str(path))
+        return found
 
     def __enter__(self):
         return self

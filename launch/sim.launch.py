@@ -7,7 +7,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, SetEnvironmentVariable
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -24,6 +24,8 @@ def generate_launch_description():
             'plc_host': '127.0.0.1',
         }.items())
     return LaunchDescription([
+        # The simulated graph talks to nobody else: DDS discovery stays on this machine.
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, 4 speech'),
         Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', output='screen',

@@ -102,11 +102,11 @@ def lab_graph(tmp_path):
         watch.client.close()
 
 
-def test_target_40_left_reaches_the_plc_and_every_fault_vents(lab_graph):
-    graph, hololens, watch, probe = lab_graph
-    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', common.COMMAND_QOS)
+def end_to_end(graph, hololens, watch) -> tuple[float, float]:
+    """Guidance reaches the PLC; the gaze stopping vents; SIGKILL of plc_output lets the PLC's
+    watchdog vent. Returns the two vent times. Also run with the graph split over two network
+    namespaces (test_netns.py)."""
     guided = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
-
     wait_until(lambda: watch.matches(guided), 30.0,
                what=f'L1, L2 at the calibrated f_left(40) = {F_LEFT_40:.1f} kPa and every other register at 0')
 
@@ -126,6 +126,13 @@ def test_target_40_left_reaches_the_plc_and_every_fault_vents(lab_graph):
     print(f'\ngaze stopped -> vented in {stale_vent:.3f} s (deadline {GAZE_STALE_VENT_S:.2f} s); '
           f'plc_output killed -> watchdog vented in {watchdog_vent:.3f} s (deadline {WATCHDOG_VENT_S:.2f} s)')
     assert watch.highest <= P_MAX
+    return stale_vent, watchdog_vent
+
+
+def test_target_40_left_reaches_the_plc_and_every_fault_vents(lab_graph):
+    graph, hololens, watch, probe = lab_graph
+    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', common.COMMAND_QOS)
+    end_to_end(graph, hololens, watch)
     wait_until(lambda: max_written, 5.0, what='the mock PLC reporting its largest writes')
     assert max(max_written[-1].data) <= P_MAX
     assert max(max_written[-1].data) == pytest.approx(F_LEFT_40, abs=RESOLUTION_KPA)

@@ -196,3 +196,23 @@ def test_command_block_and_mapped_holding():
     for ch in shifted['channels']:
         ch['command_register'] += 200
     assert RegisterMap.from_dict(shifted).command_block() == (200, 18)
+
+
+def test_sequence_register_is_optional_and_must_follow_the_command_block():
+    assert RegisterMap.from_dict(valid_dict()).sequence_register is None
+    assert RegisterMap.from_dict(valid_dict()).sequenced_block() is None
+    m = RegisterMap.from_dict(dict(valid_dict(), sequence_register=18))
+    assert m.sequenced_block() == (0, 19) and m.is_mapped_holding(18) and not m.is_mapped_holding(19)
+    shipped = RegisterMap.load(config_path('plc_register_map.yaml'))
+    assert shipped.sequence_register == 18 and shipped.sequenced_block() == (0, 19)
+    for value, reason in [(19, 'right after'), (5, 'right after'), ('18', 'integer'), (70000, '0..65535')]:
+        with pytest.raises(RegisterMapError) as err:
+            RegisterMap.from_dict(dict(valid_dict(), sequence_register=value), source='m.yaml')
+        assert '"sequence_register"' in str(err.value) and reason in str(err.value), str(err.value)
+    gappy = valid_dict()
+    gappy['channels'][5]['command_register'] = 40
+    with pytest.raises(RegisterMapError, match='"sequence_register".*contiguous'):
+        RegisterMap.from_dict(dict(gappy, sequence_register=18))
+    on_heartbeat = dict(valid_dict(), sequence_register=18, heartbeat_register=18)
+    with pytest.raises(RegisterMapError, match='"sequence_register".*heartbeat'):
+        RegisterMap.from_dict(on_heartbeat)

@@ -38,13 +38,15 @@ class MockPlc(Node):
                              's', 0.01, 3600.0, read_only=True)
         update_hz = declare(self, 'update_hz', 100.0, 'regulator simulation rate', 'Hz', 1.0, 1000.0,
                             read_only=True)
+        records_file = declare(self, 'records_file', '',
+                               "keep the write records here as JSON (plc/records.py); '' = none", read_only=True)
         status_rate_hz = declare(self, 'status_rate_hz', 10.0,
                                  'mock_plc/max_written_kpa and /diagnostics publication rate', 'Hz', 0.1, 100.0,
                                  read_only=True)
 
         self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'))
         self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
-                                    update_hz=update_hz).start()
+                                    update_hz=update_hz, records_path=records_file or None).start()
         self.address = f'{host}:{self.server.port}'
         self._max_pub = self.create_publisher(Float64MultiArray, MAX_WRITTEN, COMMAND_QOS)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -64,6 +66,7 @@ class MockPlc(Node):
             level, message = DiagnosticStatus.OK, 'every write within the register map and p_max'
         values = {'over-limit writes': over, 'out-of-map writes': outside,
                   'watchdog trips': self.server.watchdog_trips, 'watchdog armed': self.server.watchdog_armed,
+                  'stale writes refused': len(self.server.stale_writes),
                   'max written kPa': f'{max(written.values()):g}', 'address': self.address}
         publish_diagnostics(self, self._diagnostics_pub, [status(self, 'mock PLC', level, message, values)])
 

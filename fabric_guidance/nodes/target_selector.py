@@ -28,6 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
@@ -356,6 +357,15 @@ class TargetSelector(Node):
         position = f'{self.cursor + 1} of {len(self.sequence)}' if 0 <= self.cursor < len(self.sequence) else '-'
         values = {'active_target': self.active, 'sequence_position': position, **self.counts}
         publish_diagnostics(self, self.diag_pub, [status(self, 'task', level, message, values)])
+
+
+    def safe_shutdown(self) -> None:
+        """On SIGINT/SIGTERM: announce no target, so that the controller stops guiding and vents
+        instead of guiding on to a target nobody supervises."""
+        self.active_pub.publish(String(data=''))
+        # Reliable: wait (briefly) until the subscribers have it, the process ends right after.
+        self.active_pub.wait_for_all_acked(Duration(seconds=1.0))
+        self.get_logger().info('no active target on shutdown (the controller vents)')
 
 
 def _valid_topic_token(name: str) -> bool:

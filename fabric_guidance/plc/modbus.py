@@ -4,17 +4,20 @@ This is the only module of the package that imports pymodbus (pinned to 3.9.2: c
 datastore API, ``slave=`` keyword). Everything else talks kPa and a :class:`RegisterMap`.
 
 - :class:`PlcClient` writes only registers of the map, always through
-  :meth:`RegisterMap.encode` (clamp to [0, p_max], non-finite -> vent), and turns every failure
-  into :class:`PlcLinkError`.
+  :meth:`RegisterMap.encode` (clamp to [0, p_max], non-finite -> vent), numbers every command
+  write when the map has a sequence register (sequence.py), and turns every failure into
+  :class:`PlcLinkError`.
 - :class:`MockPlcServer` is a pymodbus TCP server in a background thread that behaves like the
-  PLC (regulator lag, heartbeat watchdog; see regulator.py) and records every write it gets,
-  so tests can assert what left the package.
+  PLC (regulator lag, heartbeat watchdog, write sequence gate; see regulator.py, sequence.py)
+  and records every write it gets, optionally to a file (records.py), so tests can assert
+  what left the package.
 """
 from __future__ import annotations
 
 import asyncio
 import threading
 import time
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -22,8 +25,10 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext
 from pymodbus.server import ModbusTcpServer
 
+from .records import MAX_LISTED, write_records
 from .register_map import REGISTER_MAX, RegisterMap
 from .regulator import RegulatorSim
+from .sequence import SEQ_MODULUS, SequenceGate, resync
 
 
 class PlcLinkError(RuntimeError):
@@ -46,12 +51,15 @@ class PlcClient:
         # retries=0: a command retried after a timeout would arrive late and out of order;
         # the caller's next cycle sends a fresh one instead.
         self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+        self._seq: int | None = None  # last sequence number sent (kept across reconnects)
+        self._synced = False          # the PLC's last applied number read on this connection
 
     def connect(self) -> bool:
         """Open the TCP connection; False if the PLC is not reachable."""
         return bool(self._client.connect())
 
     def close(self) -> None:
+        self._synced = False
         self._client.close()
 
     @property
@@ -90,6 +98,18 @@ class PlcClient:
                    int(value) & REGISTER_MAX)
 
     def _write_commands(self, counts: list[int]) -> None:
+        sequenced = self.map.sequenced_block()
+        if sequenced is not None:
+            if not self._synced:
+                # A fresh connection: start ahead of whatever may still be in flight.
+                last = self._call('read sequence', 'read_holding_registers', self.map.sequence_register,
+                                  count=1).registers[0]
+                self._seq = resync(self._seq, last)
+                self._synced = True
+            # Used up even if the write fails: it may still arrive, and must then be the older one.
+            self._seq = (self._seq + 1) % SEQ_MODULUS
+            self._call('write pressures', 'write_registers', sequenced[0], counts + [self._seq])
+            return
         block = self.map.command_block()
         if block is not None:
             self._call('write pressures', 'write_registers', block[0], counts)
@@ -126,13 +146,13 @@ class PlcClient:
             # errors through on a garbled frame; the control loop must see one error type.
             # Drop the socket: a late answer to this request must not be taken as the answer
             # to the next one (the sync client does not match transaction ids).
-            self._client.close()
+            self.close()
             raise PlcLinkError(f'{what} to PLC {self.host}:{self.port} failed: {exc}') from exc
         if response is None or response.isError():
-            self._client.close()
+            self.close()
             raise PlcLinkError(f'{what} to PLC {self.host}:{self.port}: error response {response}')
         if count is not None and len(getattr(response, 'registers', ())) != count:
-            self._client.close()
+            self.close()
             raise PlcLinkError(f'{what} to PLC {self.host}:{self.port}: asked for {count} registers, '
                                f'got {len(getattr(response, "registers", ()))}')
         return response
@@ -143,6 +163,8 @@ class PlcClient:
 # block, so a block starting at 1 puts protocol address a at index a.
 _BLOCK_START = 1
 _N_ADDRESSES = REGISTER_MAX + 1
+#: The records file lags the records by at most this [s] (plus one scan).
+RECORDS_PERIOD_S = 0.1
 
 
 class _RecordingHoldingBlock(ModbusSequentialDataBlock):
@@ -160,6 +182,10 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         self.max_written_counts: dict[str, int] = {}
         self.out_of_map_writes: list[tuple[int, int]] = []
         self.over_limit_writes: list[tuple[int, int]] = []
+        self.gate = SequenceGate()
+        self.stale_writes: list[tuple[int, int]] = []  # (sequence number, last applied) of refused writes
+        self.writes = 0    # client write requests to holding registers
+        self.version = 0   # bumped on every change of the records
 
     def _check(self, address: int, count: int) -> int:
         start = address - _BLOCK_START
@@ -177,14 +203,25 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         values = list(values) if isinstance(values, (list, tuple)) else [values]
         with self._lock:
             start = self._check(address, len(values))
+            self.writes += 1
+            self.version += 1
+            # Recorded before the sequence check: the records are about what was sent.
             for a, v in enumerate(values, start):
                 name = self._channel_of.get(a)
                 if name is not None:
                     self.max_written_counts[name] = max(v, self.max_written_counts.get(name, 0))
                     if v > self._map.p_max_counts:
                         self.over_limit_writes.append((a, v))
-                elif a != self._map.heartbeat_register:
+                elif a != self._map.heartbeat_register and a != self._map.sequence_register:
                     self.out_of_map_writes.append((a, v))
+            seq_at = self._map.sequence_register
+            if seq_at is not None and start <= seq_at < start + len(values):
+                seq, last = values[seq_at - start], self.gate.last
+                if not self.gate.accept(seq):
+                    self.stale_writes.append((seq, last))
+                    # Refused whole, with an exception response (the registers keep the newer
+                    # command); its sender is normally gone already.
+                    raise ValueError(f'stale write: sequence {seq} is not newer than {last}')
             super().setValues(address, values)
 
     def read(self, address: int) -> int:
@@ -199,6 +236,7 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         """Registers to 0 (PLC power-up); the write records are kept across restarts."""
         with self._lock:
             self.values = [0] * _N_ADDRESSES
+            self.gate.reset()
 
 
 class MockPlcServer:
@@ -212,10 +250,15 @@ class MockPlcServer:
     """
 
     def __init__(self, register_map: RegisterMap, host: str = '127.0.0.1', port: int = 0,
-                 regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0):
+                 regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0,
+                 records_path: str | Path | None = None):
         if not update_hz > 0:
             raise ValueError(f'update_hz must be > 0, got {update_hz!r}')
         self.map = register_map
+        # Where the write records go (JSON, records.py), for checks after the process is gone:
+        # rewritten within RECORDS_PERIOD_S of a change and on stop().
+        self.records_path = Path(records_path) if records_path else None
+        self._records_written: tuple[int, int] | None = None
         self.host = host
         self._port = port
         self.update_hz = float(update_hz)
@@ -277,6 +320,7 @@ class MockPlcServer:
         if thread.is_alive():
             raise RuntimeError(f'mock PLC thread did not stop within {timeout_s} s')
         self._thread = None
+        self.save_records()
 
     def __enter__(self) -> 'MockPlcServer':
         return self.start()
@@ -328,8 +372,12 @@ class MockPlcServer:
     async def _scan_loop(self) -> None:
         period = 1.0 / self.update_hz
         next_s = time.monotonic()
+        next_records_s = next_s
         while True:
             self._scan(time.monotonic())
+            if time.monotonic() >= next_records_s:
+                next_records_s = time.monotonic() + RECORDS_PERIOD_S
+                self.save_records()
             next_s += period
             delay = next_s - time.monotonic()
             if delay < 0:  # fell behind (e.g. a busy test machine): resume the grid from now
@@ -348,6 +396,39 @@ class MockPlcServer:
                         h.force(a, 0)
             for a, p in zip(m.measured_registers, result.measured_kpa):
                 self._input.values[a] = min(max(int(round(p * m.counts_per_kpa)), 0), REGISTER_MAX)
+
+    # ---- records
+    def records(self) -> dict:
+        """What clients wrote, as records.py describes it (lists cut at MAX_LISTED entries)."""
+        with self._lock:
+            h = self._holding
+            return {
+                'p_max_kpa': self.map.p_max_kpa, 'p_max_counts': self.map.p_max_counts,
+                'counts_per_kpa': self.map.counts_per_kpa, 'writes': h.writes,
+                'max_written_counts': {name: int(h.max_written_counts.get(name, 0)) for name in self.map.names},
+                'over_limit_count': len(h.over_limit_writes), 'over_limit_writes': h.over_limit_writes[:MAX_LISTED],
+                'out_of_map_count': len(h.out_of_map_writes), 'out_of_map_writes': h.out_of_map_writes[:MAX_LISTED],
+                'stale_count': len(h.stale_writes), 'stale_writes': h.stale_writes[:MAX_LISTED],
+                'watchdog_trips': self._sim.watchdog.trips,
+            }
+
+    def save_records(self) -> None:
+        """Write the records file if there is one and something changed since the last time."""
+        if self.records_path is None:
+            return
+        with self._lock:
+            version = (self._holding.version, self._sim.watchdog.trips)
+            if version == self._records_written:
+                return
+            records = self.records()
+        write_records(self.records_path, records)
+        self._records_written = version
+
+    @property
+    def stale_writes(self) -> list[tuple[int, int]]:
+        """(sequence number, last applied) of every write refused as older than the last applied."""
+        with self._lock:
+            return list(self._holding.stale_writes)
 
     # ---- observation (thread-safe; kPa in channel order unless said otherwise)
     def commands_kpa(self) -> np.ndarray:

@@ -32,6 +32,8 @@ MAX_CHANNELS = 123
 UNIT_ID_RANGE = (1, 247)
 
 _TOP_FIELDS = ('unit_id', 'p_max_kpa', 'counts_per_kpa', 'heartbeat_register', 'channels')
+#: Fields a map may leave out (a PLC program without write sequencing).
+_OPTIONAL_FIELDS = ('sequence_register',)
 _CHANNEL_FIELDS = ('name', 'command_register', 'measured_register')
 
 
@@ -56,6 +58,9 @@ class RegisterMap:
     heartbeat_register: int
     channels: tuple[ChannelRegisters, ...]
     source: str = 'register map'
+    #: Holding register right after the command block that carries each write's sequence
+    #: number (plc/sequence.py); None: the PLC does not check write order.
+    sequence_register: int | None = None
 
     # ------------------------------------------------------------------ views
     @property
@@ -96,9 +101,19 @@ class RegisterMap:
         """(start_address, count) if the measured input registers are contiguous, else None."""
         return _block(self.measured_registers)
 
+    def sequenced_block(self) -> tuple[int, int] | None:
+        """(start_address, count) of the command block plus the sequence register after it, when
+        the map has one: what a sequenced command write covers. None otherwise."""
+        block = self.command_block()
+        if block is None or self.sequence_register is None or self.sequence_register != block[0] + block[1]:
+            return None
+        return block[0], block[1] + 1
+
     def is_mapped_holding(self, address: int) -> bool:
-        """True for the holding registers the package may write: the commands and the heartbeat."""
-        return address == self.heartbeat_register or address in self.command_registers
+        """True for the holding registers the package may write: the commands, the heartbeat and
+        the sequence register."""
+        return (address == self.heartbeat_register or address == self.sequence_register
+                or address in self.command_registers)
 
     # ------------------------------------------------------------- conversion
     def encode(self, pressures_kpa: Sequence[float]) -> list[int]:
@@ -154,8 +169,8 @@ class RegisterMap:
         # Unknown fields are rejected: a misspelt field in a safety configuration should not
         # be silently ignored.
         for field in data:
-            if field not in _TOP_FIELDS:
-                raise fail(field, f'is not a known field (known: {list(_TOP_FIELDS)})')
+            if field not in _TOP_FIELDS + _OPTIONAL_FIELDS:
+                raise fail(field, f'is not a known field (known: {list(_TOP_FIELDS + _OPTIONAL_FIELDS)})')
 
         unit_id = _integer(data['unit_id'], *UNIT_ID_RANGE, fail, 'unit_id')
         heartbeat = _integer(data['heartbeat_register'], 0, REGISTER_MAX, fail, 'heartbeat_register')
@@ -195,12 +210,24 @@ class RegisterMap:
             if c.command_register == heartbeat:
                 raise fail('heartbeat_register', f'{heartbeat} is also the command register of channel '
                                                  f'{c.name!r} (channels[{i}])')
+        sequence = None
+        if data.get('sequence_register') is not None:
+            sequence = _integer(data['sequence_register'], 0, REGISTER_MAX, fail, 'sequence_register')
+            block = _block([c.command_register for c in channels])
+            if block is None or sequence != block[0] + block[1]:
+                # One write must carry the commands and their number, or the PLC could apply
+                # commands under another write's number.
+                raise fail('sequence_register', f'{sequence} must be the register right after a contiguous, '
+                                                'ascending block of command registers'
+                                                + (f' ({block[0] + block[1]})' if block else ''))
+            if sequence == heartbeat:
+                raise fail('sequence_register', f'{sequence} is also the heartbeat_register')
         if expected_channels is not None:
             names = [c.name for c in channels]
             if names != list(expected_channels):
                 raise fail('channels', f'names {names} do not match the expected channels, in order, '
                                        f'{list(expected_channels)}')
-        return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source)
+        return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source, sequence_register=sequence)
 
 
 # ------------------------------------------------------------------- helpers

@@ -1,0 +1,304 @@
+"""Faults on the Modbus TCP link, injected by a proxy (faultproxy.py) between the client and
+the mock PLC: drop, disconnect, half-open, and a delay that lets an old command arrive late.
+
+First the PLC layer alone (PlcClient against MockPlcServer, no ROS): a write held on a dead
+connection and delivered after a newer one is refused by the write sequence number, and
+without the sequence register it would overwrite the newer command (the hazard is real).
+Then plc_output and mock_plc as processes with the proxy between them, one graph for every
+link fault: the outage shows at ERROR on /diagnostics, the PLC's watchdog vents meanwhile,
+and once the link heals the latest command is back in the registers. Deadlines are asserted,
+the worst times printed (run with -s or -rP).
+"""
+import dataclasses
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+import pytest
+from std_msgs.msg import Float64MultiArray
+import yaml
+
+from faultproxy import FaultProxy, is_modbus_write_multiple
+from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
+from fabric_guidance.plc.modbus import MockPlcServer
+from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
+
+PARAMS_FILES = ('guidance.yaml', 'sim.yaml')
+
+
+def _parameters(node):
+    merged = {}
+    for name in PARAMS_FILES:
+        merged.update(yaml.safe_load((CONFIG / name).read_text()).get(node, {}).get('ros__parameters', {}))
+    return merged
+
+
+OUTPUT, MOCK = _parameters('plc_output'), _parameters('mock_plc')
+REGISTER_MAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+N = len(REGISTER_MAP)
+TOLERANCE_KPA = 0.1
+MODBUS_TIMEOUT_S = OUTPUT['modbus_timeout_s']
+WATCHDOG_S = MOCK['watchdog_s']
+DIAGNOSTICS_PERIOD_S = OUTPUT['diagnostics_period_s']
+RECONNECT_MIN_S, RECONNECT_MAX_S = OUTPUT['reconnect_min_s'], OUTPUT['reconnect_max_s']
+COMMAND_RATE_HZ = 20.0
+POLL_S = 0.01
+
+# ---- deadlines
+STARTUP_DEADLINE_S = 20.0
+COMMAND_DEADLINE_S = 2.0
+#: Outage -> plc_output ERROR on /diagnostics: a request times out, then at most one period.
+OUTAGE_ERROR_DEADLINE_S = MODBUS_TIMEOUT_S + DIAGNOSTICS_PERIOD_S + 1.0
+#: Outage -> the PLC's watchdog vented (heartbeats stop with the link; scan, poll, slack).
+OUTAGE_VENT_DEADLINE_S = WATCHDOG_S + 0.5
+#: Link healed -> the latest command back in the registers: the longest backoff, a write
+#: cycle, the watchdog re-arming on the second heartbeat, and slack.
+HEAL_DEADLINE_S = RECONNECT_MAX_S + 1.5
+#: Half-open -> the command flows again: one request timeout, the shortest backoff, slack
+#: (the PLC's watchdog need not even trip).
+HALF_OPEN_RESUME_DEADLINE_S = MODBUS_TIMEOUT_S + RECONNECT_MIN_S + 1.5
+#: How long a write is held on its dead connection: well past the client's timeout, so that
+#: the client has reconnected and written a newer command before it lands.
+HOLD_S = 0.8
+
+OUTPUT_STATUS = 'plc_output: PLC output'
+TIMES: dict[str, list[tuple[float, float]]] = {}
+
+
+def record(kind, seconds, deadline_s):
+    TIMES.setdefault(kind, []).append((seconds, deadline_s))
+    print(f'\n[link] {kind}: {seconds:.3f} s (deadline {deadline_s:.3f} s)')
+
+
+@pytest.fixture(scope='module', autouse=True)
+def report():
+    yield
+    if TIMES:
+        print('\nworst times, link faults:')
+        for kind, times in TIMES.items():
+            worst, deadline = max(times)
+            print(f'  {kind:<60} worst {worst:.3f} s of {len(times)}, deadline {deadline:.3f} s')
+
+
+def command(k):
+    """A distinct, non-round command vector per k, below p_max."""
+    return np.round(10.0 + 7.3 * k + 11.1 * np.arange(N), 1) % 300.0
+
+
+# ------------------------------------------------------------ the PLC layer on its own
+@pytest.mark.parametrize('sequenced', [True, False], ids=['sequence register', 'no sequence register'])
+def test_a_write_delayed_on_a_dead_connection_never_overwrites_a_newer_one(sequenced):
+    reg_map = REGISTER_MAP if sequenced else dataclasses.replace(REGISTER_MAP, sequence_register=None)
+    assert (reg_map.sequenced_block() is not None) == sequenced
+    # A long watchdog, armed once: only the writes under test change the registers.
+    with MockPlcServer(reg_map, watchdog_s=60.0, regulator_tau_s=0.0) as plc, \
+            FaultProxy('127.0.0.1', plc.port) as proxy:
+        client = PlcClient(reg_map, '127.0.0.1', proxy.port, timeout_s=0.2)
+        direct = PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=1.0)
+        try:
+            beat = [0]
+
+            def armed():
+                beat[0] += 1
+                direct.write_heartbeat(beat[0])
+                return plc.watchdog_armed
+            wait_until(armed, 2.0, what='the watchdog to arm')
+            a, b, c = command(1), command(2), command(3)
+            client.write_pressures(a)
+            assert np.allclose(plc.commands_kpa(), a, atol=TOLERANCE_KPA)
+
+            proxy.hold(HOLD_S, when=is_modbus_write_multiple)
+            with pytest.raises(PlcLinkError):
+                client.write_pressures(b)        # held in the proxy: times out, the client drops it
+            assert proxy.get('held_chunks') == 1
+            client.write_pressures(c)            # a new connection, not held
+            assert np.allclose(plc.commands_kpa(), c, atol=TOLERANCE_KPA)
+            wait_until(lambda: proxy.get('held_delivered') == 1, HOLD_S + 2.0, what='the held write delivered')
+            assert proxy.get('delivered_after_client_closed') == 1
+            # The late write has been handed to the server; give it its scan, then look.
+            wait_until(lambda: (len(plc.stale_writes) == 1) if sequenced else
+                       np.allclose(plc.commands_kpa(), b, atol=TOLERANCE_KPA), 2.0, what='the late write handled')
+            now = plc.commands_kpa()
+        finally:
+            client.close()
+            direct.close()
+    if sequenced:
+        np.testing.assert_allclose(now, c, atol=TOLERANCE_KPA, err_msg='the late, older write overwrote C')
+        (seq, last), = plc.stale_writes
+        assert seq != last
+    else:
+        # Without numbers the older command B wins over C: what the sequence register prevents.
+        np.testing.assert_allclose(now, b, atol=TOLERANCE_KPA)
+
+
+def test_a_restarted_client_is_not_taken_for_a_stale_one():
+    """A new plc_output process starts its counter afresh: it reads the PLC's last number and
+    jumps ahead of it, instead of being refused until its counter catches up."""
+    with MockPlcServer(REGISTER_MAP, watchdog_s=60.0, regulator_tau_s=0.0) as plc:
+        first = PlcClient(REGISTER_MAP, '127.0.0.1', plc.port, timeout_s=0.5)
+        for k in range(5):
+            first.write_pressures(command(k))
+        first.close()
+        second = PlcClient(REGISTER_MAP, '127.0.0.1', plc.port, timeout_s=0.5)
+        try:
+            second.write_pressures(command(9))
+            assert np.allclose(second.read_commands_kpa(), command(9), atol=TOLERANCE_KPA)
+        finally:
+            second.close()
+        assert plc.stale_writes == []
+
+
+# ------------------------------------------- plc_output and mock_plc with the proxy between
+class LinkRig:
+    """test_node_plc's Rig (mock_plc, plc_output, a probe playing the controller, a read-only
+    client on the mock), with plc_output talking to the mock through a FaultProxy."""
+
+    def __init__(self, log_dir):
+        from test_node_plc import Rig
+        port = free_port()
+        self.proxy = FaultProxy('127.0.0.1', port)
+        self.rig = Rig(log_dir, output={'plc_port': self.proxy.port}, port=port)
+
+    def status_since(self, n):
+        return self.rig.statuses(OUTPUT_STATUS, n)
+
+    def output_values(self):
+        return {kv.key: kv.value for kv in self.rig.latest_status(OUTPUT_STATUS).values}
+
+    def mock_records(self):
+        from fabric_guidance.plc.records import load_records
+        return load_records(self.rig.graph.records_files[-1])
+
+    def close(self):
+        self.proxy.heal()
+        try:
+            self.rig.close()
+        finally:
+            self.proxy.close()
+
+
+@pytest.fixture(scope='module')
+def link(tmp_path_factory):
+    rig = LinkRig(tmp_path_factory.mktemp('link'))
+    yield rig
+    rig.close()
+
+
+def _wait_status(link, n, level, deadline_s, what):
+    return wait_until(lambda: any(s.level == level for s in link.status_since(n)), deadline_s, what=what)
+
+
+@pytest.mark.parametrize('fault', ['drop', 'disconnect'])
+def test_an_outage_shows_at_error_vents_and_heals_with_the_latest_command(link, fault):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(10 + len(TIMES.get('outage vented by the PLC watchdog', ()))), command(40)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers before the fault')
+    before = link.output_values() if rig.latest_status(OUTPUT_STATUS) else {'link failures': '0', 'reconnects': '0'}
+    n = len(rig.diagnostics)
+    t0 = time.monotonic()
+    getattr(proxy, fault)()
+    seconds = rig.time_to_vent(t0, OUTAGE_VENT_DEADLINE_S, f'{fault}: the PLC watchdog venting during the outage')
+    record('outage vented by the PLC watchdog', seconds, OUTAGE_VENT_DEADLINE_S)
+    _wait_status(link, n, DiagnosticStatus.ERROR, OUTAGE_ERROR_DEADLINE_S, f'plc_output ERROR on /diagnostics ({fault})')
+    record('outage -> ERROR on /diagnostics', time.monotonic() - t0, OUTAGE_ERROR_DEADLINE_S)
+    error = next(s for s in link.status_since(n) if s.level == DiagnosticStatus.ERROR)
+    assert 'PLC link down' in error.message, error
+    rig.command(b)                       # the controller goes on; its latest command changes
+    rig.assert_stays_vented(0.5, f'{fault}: no command may reach the PLC while the link is down')
+    assert proxy.get('dropped_chunks' if fault == 'drop' else 'refused') > 0, proxy.counts
+
+    t_heal = time.monotonic()
+    proxy.heal()
+    rig.wait_registers(b, HEAL_DEADLINE_S, f'{fault} healed: the latest command B in the registers', hold_s=0.2)
+    record('link healed -> latest command in the registers', time.monotonic() - t_heal - 0.2, HEAL_DEADLINE_S)
+    n = len(rig.diagnostics)
+    _wait_status(link, n, DiagnosticStatus.OK, DIAGNOSTICS_PERIOD_S + 2.0, 'plc_output OK again')
+    after = link.output_values()
+    assert int(after['link failures']) > int(before['link failures']), (before, after)
+    assert int(after['reconnects']) > int(before['reconnects']), (before, after)
+
+
+def test_a_half_open_link_is_noticed_by_the_timeout_and_reconnected(link):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(50), command(51)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers')
+    wait_until(lambda: rig.latest_status(OUTPUT_STATUS), 5.0, what='a plc_output status')
+    before = link.output_values()
+    accepted = proxy.get('accepted')
+    t0 = time.monotonic()
+    proxy.half_open()
+    rig.command(b)
+    rig.wait_registers(b, HALF_OPEN_RESUME_DEADLINE_S, 'command B through a new connection after the half-open one')
+    record('half-open link -> command flowing on a new connection', time.monotonic() - t0,
+           HALF_OPEN_RESUME_DEADLINE_S)
+    assert proxy.get('half_opened') >= 1 and proxy.get('accepted') > accepted, proxy.counts
+    n = len(rig.diagnostics)
+    wait_until(lambda: link.status_since(n), DIAGNOSTICS_PERIOD_S + 2.0, what='a plc_output status')
+    after = link.output_values()
+    assert int(after['link failures']) > int(before['link failures']), (before, after)
+
+
+def test_a_delayed_link_never_lets_an_old_command_overwrite_a_newer_one(link):
+    rig, proxy = link.rig, link.proxy
+    a, b = command(60), command(61)
+    rig.command(a)
+    rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers')
+    stale_before = link.mock_records()['stale_count']
+    proxy.hold(HOLD_S, when=is_modbus_write_multiple)
+    wait_until(lambda: proxy.get('held_chunks'), 2.0, what='a write of A held on the current connection')
+    held_at = time.monotonic()
+    rig.command(b)
+    rig.wait_registers(b, MODBUS_TIMEOUT_S + RECONNECT_MAX_S + 1.0, 'B written on a new connection')
+    assert time.monotonic() - held_at < HOLD_S, 'B must be in before the held write of A lands, or nothing is shown'
+    # From here the registers must hold B, through the moment the old write of A arrives.
+    seen = []
+    done = threading.Event()
+
+    def watch():
+        while not done.is_set():
+            r = rig.registers()
+            if r is not None:
+                seen.append(r)
+            time.sleep(0.002)
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        wait_until(lambda: proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
+                   what='the held write of A delivered after plc_output dropped that connection')
+        wait_until(lambda: link.mock_records()['stale_count'] > stale_before, 2.0,
+                   what='the mock PLC refusing the late write of A as stale')
+        time.sleep(0.05)   # a few more reads after the refusal
+    finally:
+        done.set()
+        watcher.join(2)
+    wrong = [r for r in seen if np.max(np.abs(r - b)) > TOLERANCE_KPA]
+    assert not wrong, f'{len(wrong)} of {len(seen)} reads were not B, e.g. {wrong[0]}'
+    records = link.mock_records()
+    print(f'\n[link] stale writes refused by the mock PLC: {records["stale_writes"]}; {len(seen)} reads all B')
+    proxy.heal()
+
+
+def test_a_slow_link_below_the_timeout_keeps_commands_flowing(link):
+    """delay mode: 80 ms each way, under modbus_timeout_s: slower round trips, no link failure."""
+    rig, proxy = link.rig, link.proxy
+    delay_s = 0.08
+    assert 2 * delay_s < MODBUS_TIMEOUT_S
+    rig.command(command(70))
+    rig.wait_registers(command(70), COMMAND_DEADLINE_S, 'command in the registers')
+    wait_until(lambda: rig.latest_status(OUTPUT_STATUS), 5.0, what='a plc_output status')
+    failures = int(link.output_values()['link failures'])
+    proxy.delay(delay_s)
+    try:
+        rig.command(command(71))
+        rig.wait_registers(command(71), COMMAND_DEADLINE_S + 4 * delay_s, 'the command through the slow link')
+        n = len(rig.diagnostics)
+        wait_until(lambda: [s for s in link.status_since(n)
+                            if float(dict((kv.key, kv.value) for kv in s.values)['last round trip ms']) >= 2e3 * delay_s],
+                   DIAGNOSTICS_PERIOD_S + 2.0, what=f'a round trip of at least {2e3 * delay_s:.0f} ms on /diagnostics')
+    finally:
+        proxy.heal()
+    assert int(link.output_values()['link failures']) == failures

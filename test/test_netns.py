@@ -1,0 +1,150 @@
+"""The lab graph split over two "hosts": two network namespaces joined by a veth pair.
+
+Host A runs gaze_bridge, target_selector and pressure_controller (and the HoloLens stub);
+host B runs plc_output and mock_plc. The only thing between them is ROS 2's DDS over UDP on
+the veth link (shared memory is switched off with FASTDDS_BUILTIN_TRANSPORTS=UDPv4, so the
+commands cannot take a same-machine shortcut), discovered by multicast on that link
+(ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET: the namespaces are an isolated network of two, so
+this does not reach beyond them). It passes the end-to-end test of test_graph.py unchanged:
+guidance reaches the PLC, a stopped gaze vents, SIGKILL of plc_output lets the PLC watchdog
+vent. Needs root (CAP_SYS_ADMIN) and `ip netns`; skipped with the reason where that is not
+allowed (containers, CI runners).
+"""
+import ctypes
+import json
+import os
+import shutil
+import socket
+import subprocess
+import threading
+
+import pytest
+
+from rosgraph import Graph, free_port
+from test_graph import SIM_CAL, HoloLensStub, RegisterWatch, end_to_end
+
+FILES = ('guidance.yaml', 'sim.yaml')
+CLONE_NEWNET = 0x40000000
+HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')
+HOST_B = ('plc_output', 'mock_plc')
+SUBNET = '10.231.7'
+
+
+def _ip(*args, check=True):
+    return subprocess.run(['ip', *args], capture_output=True, text=True, check=check)
+
+
+def _why_no_netns():
+    if shutil.which('ip') is None:
+        return '`ip` (iproute2) is not installed'
+    if os.geteuid() != 0:
+        return 'network namespaces need root (CAP_SYS_ADMIN); this runs as an ordinary user'
+    probe = f'fgprobe{os.getpid()}'
+    out = _ip('netns', 'add', probe, check=False)
+    if out.returncode != 0:
+        return f'`ip netns add` is not allowed here: {out.stderr.strip()}'
+    _ip('netns', 'del', probe, check=False)
+    return None
+
+
+def in_netns(name, fn):
+    """Run fn() on a thread that has entered network namespace `name` (setns affects only the
+    calling thread); sockets it creates stay in that namespace whoever uses them later."""
+    result = {}
+
+    def run():
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd = os.open(f'/var/run/netns/{name}', os.O_RDONLY)
+        try:
+            if libc.setns(fd, CLONE_NEWNET) != 0:
+                raise OSError(ctypes.get_errno(), f'setns into {name} failed')
+        finally:
+            os.close(fd)
+        try:
+            result['value'] = fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            result['error'] = exc
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join()
+    if 'error' in result:
+        raise result['error']
+    return result['value']
+
+
+class NetnsGraph(Graph):
+    """A Graph whose nodes run on host A or host B (`ip netns exec`, which execs: the Popen's
+    pid is the node's)."""
+
+    def __init__(self, log_dir, hosts):
+        super().__init__(log_dir)
+        self.hosts = hosts
+        self.env.update(ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
+
+    def command_prefix(self, node):
+        return ['ip', 'netns', 'exec', self.hosts[node]]
+
+
+class NetnsRegisterWatch(RegisterWatch):
+    """RegisterWatch whose Modbus socket lives on host B."""
+
+    def __init__(self, port, ns):
+        super().__init__(port)
+        self.ns = ns
+
+    def read(self):
+        return in_netns(self.ns, super().read)
+
+
+@pytest.fixture
+def two_hosts():
+    why = _why_no_netns()
+    if why:
+        pytest.skip(f'cannot split the graph over two network namespaces: {why}')
+    a, b = f'fga{os.getpid()}', f'fgb{os.getpid()}'
+    try:
+        _ip('netns', 'add', a)
+        _ip('netns', 'add', b)
+        _ip('link', 'add', f'va{os.getpid()}', 'netns', a, 'type', 'veth', 'peer', 'name', f'vb{os.getpid()}',
+            'netns', b)
+        for ns, dev, host in ((a, f'va{os.getpid()}', 1), (b, f'vb{os.getpid()}', 2)):
+            _ip('-n', ns, 'addr', 'add', f'{SUBNET}.{host}/24', 'dev', dev)
+            _ip('-n', ns, 'link', 'set', 'lo', 'up')
+            _ip('-n', ns, 'link', 'set', dev, 'up')
+            # DDS discovery is multicast: it needs a route on the link.
+            _ip('-n', ns, 'route', 'add', '224.0.0.0/4', 'dev', dev)
+        yield a, b
+    finally:
+        _ip('netns', 'del', a, check=False)   # takes the veth pair with it
+        _ip('netns', 'del', b, check=False)
+
+
+def test_the_graph_split_over_two_hosts_passes_the_end_to_end_test(two_hosts, tmp_path):
+    a, b = two_hosts
+    hosts = {**{n: a for n in HOST_A}, **{n: b for n in HOST_B}}
+    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
+    graph = NetnsGraph(tmp_path / 'logs', hosts)
+    hololens = watch = None
+    try:
+        graph.start('mock_plc', FILES, port=plc_port)
+        graph.start('plc_output', FILES, plc_port=plc_port)
+        graph.start('gaze_bridge', FILES, port=gaze_port)
+        graph.start('target_selector', FILES, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
+                    auto_advance=False)
+        graph.start('pressure_controller', FILES, calibration_file=str(SIM_CAL),
+                    calibration_dir=str(tmp_path / 'cal'))
+        hololens = in_netns(a, lambda: HoloLensStub(gaze_port))   # its socket on host A
+        watch = NetnsRegisterWatch(plc_port, b)
+        stale_vent, watchdog_vent = end_to_end(graph, hololens, watch)
+        # The commands crossed the veth link: host A sent DDS traffic over it.
+        stats = json.loads(_ip('-n', a, '-s', '-j', 'link', 'show', 'dev', f'va{os.getpid()}').stdout)[0]
+        sent = stats['stats64']['tx']['packets']
+        assert sent > 100, f'only {sent} packets left host A over the veth link'
+        print(f'[netns] hosts {a} (10.231.7.1: {", ".join(HOST_A)}) and {b} (10.231.7.2: {", ".join(HOST_B)}): '
+              f'gaze stop vented in {stale_vent:.3f} s, watchdog in {watchdog_vent:.3f} s; {sent} packets A -> B')
+    finally:
+        if hololens is not None:
+            hololens.close()
+        graph.stop_all()
+        if watch is not None:
+            watch.client.close()

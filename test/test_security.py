@@ -1,0 +1,50 @@
+"""What the package exposes by default: the gaze port on loopback for localhost senders only,
+the PLC written only at mapped registers, DDS discovery on this machine for every simulated
+and test graph. (Running checks: test_node_gaze_bridge.py binds and filters, every Graph's
+stop_all holds the mock PLC to the register map, test_faults_process.py reads the running
+nodes' environment.)"""
+import ast
+import ipaddress
+from pathlib import Path
+
+import yaml
+
+from fabric_guidance.nodes import gaze_bridge
+from fabric_guidance.plc import RegisterMap
+from rosgraph import CONFIG, ROOT, Graph
+
+
+def _declared_default(module_file: Path, name: str):
+    """The default of declare(self, '<name>', default, ...) in a node's source."""
+    for node in ast.walk(ast.parse(module_file.read_text())):
+        if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'declare' and len(node.args) >= 3 \
+                and isinstance(node.args[1], ast.Constant) and node.args[1].value == name:
+            return ast.literal_eval(node.args[2])
+    raise AssertionError(f'{name} is not declared in {module_file}')
+
+
+def test_the_bridge_listens_on_loopback_for_loopback_senders_by_default():
+    source = Path(gaze_bridge.__file__)
+    assert _declared_default(source, 'bind_address') == '127.0.0.1'
+    assert _declared_default(source, 'allowed_senders') == ['127.0.0.1']
+    params = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
+    assert ipaddress.ip_address(params['bind_address']).is_loopback
+    assert all(ipaddress.ip_address(a).is_loopback for a in params['allowed_senders'])
+
+
+def test_the_package_writes_only_mapped_registers():
+    """The register map names every holding register the client may write; the mock PLC
+    records anything else, and every test graph fails on such a record (process_graph)."""
+    m = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+    writable = set(m.command_registers) | {m.heartbeat_register, m.sequence_register}
+    assert all(m.is_mapped_holding(a) for a in writable)
+    assert not any(m.is_mapped_holding(a) for a in set(range(65536)) - writable)
+
+
+def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
+    assert Graph(tmp_path).env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
+    assert "SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')" in launch
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
+    sim = yaml.safe_load((CONFIG / 'sim.yaml').read_text())
+    assert ipaddress.ip_address(sim['mock_plc']['ros__parameters']['host']).is_loopback
