@@ -89,6 +89,13 @@ class PlcClient:
         self._call('write heartbeat', 'write_register', self.map.heartbeat_register,
                    int(value) & REGISTER_MAX)
 
+    def write_counts(self, counts: Sequence[int]) -> None:
+        """Raw register counts to the command registers, as they are (no clamp, no scaling):
+        the benchmarks' bare Modbus hop. The package's commands go through write_pressures."""
+        if len(counts) != len(self.map):
+            raise ValueError(f'need {len(self.map)} counts, got {len(counts)}')
+        self._write_commands(list(counts))
+
     def _write_commands(self, counts: list[int]) -> None:
         block = self.map.command_block()
         if block is not None:
@@ -160,6 +167,9 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         self.max_written_counts: dict[str, int] = {}
         self.out_of_map_writes: list[tuple[int, int]] = []
         self.over_limit_writes: list[tuple[int, int]] = []
+        #: (time.monotonic_ns(), first address, values) per client write, when timing is on
+        #: (the benchmarks' landing times); None: off, nothing is recorded.
+        self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
 
     def _check(self, address: int, count: int) -> int:
         start = address - _BLOCK_START
@@ -177,6 +187,10 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         values = list(values) if isinstance(values, (list, tuple)) else [values]
         with self._lock:
             start = self._check(address, len(values))
+            if self.write_times is not None:
+                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
+                # process. Taken under the lock, so a take_write_times() never misses an earlier one.
+                self.write_times.append((time.monotonic_ns(), start, tuple(values)))
             for a, v in enumerate(values, start):
                 name = self._channel_of.get(a)
                 if name is not None:
@@ -212,7 +226,8 @@ class MockPlcServer:
     """
 
     def __init__(self, register_map: RegisterMap, host: str = '127.0.0.1', port: int = 0,
-                 regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0):
+                 regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0,
+                 time_writes: bool = False):
         if not update_hz > 0:
             raise ValueError(f'update_hz must be > 0, got {update_hz!r}')
         self.map = register_map
@@ -221,6 +236,8 @@ class MockPlcServer:
         self.update_hz = float(update_hz)
         self._lock = threading.RLock()
         self._holding = _RecordingHoldingBlock(register_map, self._lock)
+        if time_writes:
+            self._holding.write_times = []
         self._input = ModbusSequentialDataBlock(_BLOCK_START, [0] * _N_ADDRESSES)
         slave = ModbusSlaveContext(di=ModbusSequentialDataBlock.create(), co=ModbusSequentialDataBlock.create(),
                                    hr=self._holding, ir=self._input)
@@ -359,6 +376,16 @@ class MockPlcServer:
         """The measured-pressure input registers as they are now."""
         with self._lock:
             return self.map.decode([self._input.values[a] for a in self.map.measured_registers])
+
+    def take_write_times(self) -> list[tuple[int, int, tuple[int, ...]]]:
+        """The (time.monotonic_ns(), first address, values) of every client write since the last
+        call, oldest first; [] unless started with time_writes=True."""
+        with self._lock:
+            taken = self._holding.write_times
+            if taken is None:
+                return []
+            self._holding.write_times = []
+            return taken
 
     def heartbeat_value(self) -> int:
         return self._holding.read(self.map.heartbeat_register)
