@@ -4,6 +4,7 @@ sweep and the two ends' clocks give the latency of each sample.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 import socket
 import subprocess
@@ -39,6 +40,15 @@ def rss_mb(pid: int) -> float | None:
     except OSError:
         pass
     return None
+
+
+def cpu_s(pid: int) -> float | None:
+    """CPU time (user + system) a process has used [s], from /proc."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 class Rig:
@@ -81,12 +91,17 @@ class Rig:
     def measure(self, rate_hz: float, n: int, warmup_s: float) -> dict:
         """n samples at rate_hz after warmup_s of the same stream; the figures of the n."""
         warm = int(round(warmup_s * rate_hz))
+        cpu0 = {name: cpu_s(p.pid) for name, p in self.graph.processes.items()}
         samples = self._send(warm + n, rate_hz)
+        cpu1 = {name: cpu_s(p.pid) for name, p in self.graph.processes.items()}
         start_ns = self.sender.sent_ns[samples[0]]
         self.log.wait_drained(time.monotonic_ns() + int(SETTLE_S * 1e9))
         self._check_alive()
         result = summarize(self.sender.sent_ns, self._landed(start_ns), samples[warm:])
         result['rate_hz'] = rate_hz
+        # What each process spent per sample sent (user + system CPU; its timers included).
+        result['cpu_us_per_sample'] = {name: round(1e6 * (cpu1[name] - cpu0[name]) / len(samples), 1)
+                                       for name in cpu0 if cpu0[name] is not None and cpu1[name] is not None}
         return result
 
     def close(self) -> None:

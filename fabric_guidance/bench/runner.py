@@ -126,8 +126,9 @@ def run_all(plan: Plan, work: Path, say) -> dict:
 def _line(r: dict) -> str:
     if r['p50'] is None:
         return f"no sample applied of {r['sent']}"
+    cpu = ', '.join(f'{k} {v:.0f}' for k, v in r.get('cpu_us_per_sample', {}).items())
     return (f"p50 {r['p50']:.2f} ms, p99 {r['p99']:.2f} ms, max {r['max']:.2f} ms; "
-            f"{r['applied']} of {r['sent']} applied")
+            f"{r['applied']} of {r['sent']} applied; CPU us per sample: {cpu}")
 
 
 def _fmt(v, digits: int = 2) -> str:
