@@ -16,7 +16,7 @@ from ..core import Calibration
 from ..plc import RegisterMap
 from ..process_graph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 from . import floor
-from .latency import Sender, WriteLog, landings, summarize
+from .latency import Sender, WriteLog, landings, percentiles_ms
 from .sweep import Sweep
 
 FILES = ('guidance.yaml', 'sim.yaml')
@@ -49,6 +49,18 @@ def cpu_s(pid: int) -> float | None:
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def combine(blocks: list[dict], rate_hz: float) -> dict:
+    """Figures over blocks of one chain at one rate: p50, p99, max [ms] of the applied samples,
+    sent, applied, and the CPU per sample sent of each process [us]."""
+    latencies = [x for b in blocks for x in b['latencies_ns']]
+    out = percentiles_ms(latencies)
+    out.update(sent=sum(b['sent'] for b in blocks), applied=len(latencies), rate_hz=rate_hz)
+    samples = sum(b['samples'] for b in blocks)
+    out['cpu_us_per_sample'] = {k: round(1e6 * sum(b['cpu_s'].get(k, 0.0) for b in blocks) / samples, 1)
+                                for k in blocks[0]['cpu_s']}
+    return out
 
 
 class Rig:
@@ -88,8 +100,9 @@ class Rig:
             if proc.poll() is not None:
                 raise RuntimeError(f'{name} exited with {proc.returncode}; its log: {self.graph.log_dir}')
 
-    def measure(self, rate_hz: float, n: int, warmup_s: float) -> dict:
-        """n samples at rate_hz after warmup_s of the same stream; the figures of the n."""
+    def block(self, rate_hz: float, n: int, warmup_s: float) -> dict:
+        """n samples at rate_hz after warmup_s of the same stream: their latencies [ns] (the
+        applied ones), how many were sent, and the CPU each process spent per sample sent."""
         warm = int(round(warmup_s * rate_hz))
         cpu0 = {name: cpu_s(p.pid) for name, p in self.graph.processes.items()}
         samples = self._send(warm + n, rate_hz)
@@ -97,12 +110,14 @@ class Rig:
         start_ns = self.sender.sent_ns[samples[0]]
         self.log.wait_drained(time.monotonic_ns() + int(SETTLE_S * 1e9))
         self._check_alive()
-        result = summarize(self.sender.sent_ns, self._landed(start_ns), samples[warm:])
-        result['rate_hz'] = rate_hz
-        # What each process spent per sample sent (user + system CPU; its timers included).
-        result['cpu_us_per_sample'] = {name: round(1e6 * (cpu1[name] - cpu0[name]) / len(samples), 1)
-                                       for name in cpu0 if cpu0[name] is not None and cpu1[name] is not None}
-        return result
+        landed, sent = self._landed(start_ns), self.sender.sent_ns
+        return {'latencies_ns': [landed[i] - sent[i] for i in samples[warm:] if i in landed], 'sent': n,
+                'cpu_s': {k: cpu1[k] - cpu0[k] for k in cpu0 if cpu0[k] is not None and cpu1[k] is not None},
+                'samples': len(samples)}
+
+    def measure(self, rate_hz: float, n: int, warmup_s: float) -> dict:
+        """One block's figures (see combine)."""
+        return combine([self.block(rate_hz, n, warmup_s)], rate_hz)
 
     def close(self) -> None:
         self.sender.close()

@@ -123,11 +123,3 @@ def landings(sent_ns: Sequence[int], writes: Sequence[Write], register: int,
         if i >= 0 and i not in landed:
             landed[i] = w.t_ns
     return landed
-
-
-def summarize(sent_ns: Sequence[int], landed: dict[int, int], measured: range) -> dict:
-    """Figures over the measured samples (after the warm-up): p50, p99, max [ms], sent, applied."""
-    lat = [landed[i] - sent_ns[i] for i in measured if i in landed]
-    out = percentiles_ms(lat)
-    out.update(sent=len(measured), applied=len(lat))
-    return out
