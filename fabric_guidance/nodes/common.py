@@ -77,18 +77,6 @@ def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStat
     publisher.publish(msg)
 
 
-def make_executor():
-    """rclpy's EventsExecutor where this rclpy has it (Kilted: rclpy.experimental), else the
-    SingleThreadedExecutor. The events executor dispatches each message from C++ callbacks;
-    the single-threaded one rebuilds a wait set in Python for every spin_once, which cost
-    ~0.5 ms of CPU per gaze sample in pressure_controller (more than the control step itself)."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        return SingleThreadedExecutor()
-    return EventsExecutor()
-
-
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
@@ -114,7 +102,7 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
         # middle of a control step) every so many allocations.
         gc.collect()
         gc.freeze()
-        executor = make_executor()
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
