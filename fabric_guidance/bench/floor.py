@@ -7,8 +7,8 @@
   modbus  writes the 18 values as register counts in one Modbus TCP request (PlcClient.write_counts)
 
 Each hop is what the package's path cannot avoid: a UDP receive, a DDS publish and subscribe
-per node hop, one Modbus write, in Python on rclpy. Callbacks run on rclpy's EventsExecutor
-where it exists (the fastest executor rclpy has), else the SingleThreadedExecutor.
+per node hop, one Modbus write, in Python on rclpy, spun as the package's nodes spin
+(nodes/common.run: the SingleThreadedExecutor, spin_once with a 50 ms timeout).
 
     python -m fabric_guidance.bench.floor udp --port P | relay | modbus --plc-port P
 """
@@ -24,16 +24,6 @@ import threading
 DATAGRAM = struct.Struct('<Iq')   # sample number, register count
 GAZE_TOPIC, COMMAND_TOPIC = 'floor_gaze', 'floor_command'
 N_CHANNELS, CHANNEL_INDEX = 18, 8   # L1
-
-
-def make_executor(context=None):
-    """rclpy's EventsExecutor where this rclpy has it, else the SingleThreadedExecutor."""
-    try:
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    except ImportError:
-        from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor(context=context)
 
 
 def encode(i: int, count: int) -> bytes:
@@ -101,7 +91,8 @@ def main(argv=None) -> int:
         node.create_subscription(Float64MultiArray, COMMAND_TOPIC, write, COMMAND_QOS)
         closers.append(client.close)
 
-    executor = make_executor()
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         while not stop.is_set() and rclpy.ok():

@@ -170,10 +170,20 @@ class PackageGraph:
         self.graph.start('bag_recorder', FILES, output=str(bag),
                          topics=['controller_input', 'controller_parameters', 'pressure_command'])
         wait_until(lambda: 'recording' in self.graph.log('bag_recorder'), 30.0, what='bag_recorder to start')
+        # Record only once the recorder is in the graph: the controller builds controller_input
+        # only for a subscriber, and the latched parameters reach a matched one.
+        node = self.probe.node
+        wait_until(lambda: node.count_subscribers('controller_input') and node.count_subscribers(
+            'controller_parameters') and node.count_subscribers('pressure_command') >= 2, 30.0,
+            what='bag_recorder subscribed')
         self.rig.prime()
         self.rig.measure(rate_hz, int(seconds * rate_hz), 0.0)
         self.graph.stop('bag_recorder')
-        rec = offline.load(bag)
+        try:
+            rec = offline.load(bag)
+        except ValueError as exc:
+            return {'speedup': None, 'reason': str(exc), 'exact': False, 'steps': 0, 'compared': 0,
+                    'session_s': 0.0}
         result = offline.replay(rec)
         return {'speedup': result.speedup, 'exact': result.exact, 'steps': result.steps,
                 'compared': result.compared, 'session_s': result.bag_duration_s}

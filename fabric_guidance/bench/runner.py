@@ -118,8 +118,12 @@ def run_all(plan: Plan, work: Path, say) -> dict:
                 g.close()
     results['replay_speedup'] = replay['speedup']
     results['replay'] = replay
-    say(f"  offline replay: {replay['session_s']:.1f} s session, {replay['steps']} steps, "
-        f"{'exact' if replay['exact'] else 'NOT exact'}, {replay['speedup']:.0f}x real time")
+    if replay['speedup'] is None:
+        results['replay_reason'] = replay['reason']
+        say(f"  offline replay: not measured: {replay['reason']}")
+    else:
+        say(f"  offline replay: {replay['session_s']:.1f} s session, {replay['steps']} steps, "
+            f"{'exact' if replay['exact'] else 'NOT exact'}, {replay['speedup']:.0f}x real time")
     package_p99, floor_p99 = results['e2e_latency_ms']['90']['p99'], results['floor_latency_ms']['p99']
     results['ratio_p99'] = (package_p99 / floor_p99) if package_p99 is not None and floor_p99 else None
     results['wall_s'] = time.monotonic() - t_all
