@@ -10,7 +10,8 @@ pressure_command the node published for it, channel by channel.
 Pairing a step with its command does not rely on the order messages of two topics were
 received in: controller_input carries the index of its command among all the node's commands;
 the offset between that index and the recorded commands (commands published before the
-recorder heard the node were not recorded) is the one most steps agree on in bag order.
+recorder heard the node were not recorded) is the one most steps agree on in bag order, or
+the neighbour of it whose pairing the recorded parameters reproduce at more steps (see load).
 Steps of a live calibration (Algorithm 1's commands, not Eq. 5's) are not compared.
 """
 from __future__ import annotations
@@ -49,6 +50,7 @@ class ReplayResult:
     channels: tuple[str, ...]
     steps: int = 0                        # control steps rerun
     compared: int = 0                     # steps compared with a recorded command
+    mismatched: int = 0                   # compared steps whose command differs
     calibrating: int = 0                  # Algorithm 1 steps (not compared)
     unmatched: int = 0                    # steps whose command is not in the bag
     step_gaps: int = 0                    # control steps missing from the bag
@@ -120,7 +122,17 @@ def load(path, namespace: str = '/') -> Recording:
     offset = votes.most_common(1)[0][0] if votes else 0
     inputs.sort(key=lambda i: i.step)
     setups.sort(key=lambda s: s[0])
-    return Recording(setups, inputs, commands, offset, time.perf_counter() - t0)
+    rec = Recording(setups, inputs, commands, offset, 0.0)
+    # A step's input and command are published microseconds apart; a recorder that takes both
+    # in one wake-up stores them in its own subscription order, so bag order cannot tell
+    # "input then its command" from "command then the next input": the vote may be one off.
+    # The neighbour whose pairing the recorded parameters reproduce at more steps is the pairing.
+    if votes:
+        mismatched = {o: replay(Recording(setups, inputs, commands, o, 0.0)).mismatched
+                      for o in (offset, offset - 1, offset + 1)}
+        rec.offset = min(mismatched, key=lambda o: (mismatched[o], o != offset))
+    rec.read_s = time.perf_counter() - t0
+    return rec
 
 
 def parse_overrides(items) -> dict[str, Any]:
@@ -168,6 +180,7 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
             continue
         result.compared += 1
         diff = np.abs(command - rec.commands[position])
+        result.mismatched += bool(diff.any())
         worst = int(np.argmax(diff))
         if diff[worst] > result.max_diff.max() or not result.worst:
             result.worst = dict(step=inp.step, t=inp.t, channel=result.channels[worst],

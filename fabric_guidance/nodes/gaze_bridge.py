@@ -5,7 +5,8 @@ drops it when the sender is not in allowed_senders ('sender'); parses it with
 core.gaze_wire.parse_datagram, dropping it under the WireFormatError's reason; tracks its
 sequence number, dropping duplicates and reordered samples ('stale'); drops it when the
 HoloLens marks eye tracking as not valid and require_eye_tracking_valid is set
-('eye_tracking_invalid'); otherwise publishes it on `gaze` and `head_pose`.
+('eye_tracking_invalid'); otherwise publishes it on `gaze` and, when something subscribes
+to it, `head_pose`.
 
 The sequence number is tracked before the eye-tracking check so that samples the bridge
 drops on purpose are not counted as lost on the network.
