@@ -127,10 +127,13 @@ def load(path, namespace: str = '/') -> Recording:
     # in one wake-up stores them in its own subscription order, so bag order cannot tell
     # "input then its command" from "command then the next input": the vote may be one off.
     # The neighbour whose pairing the recorded parameters reproduce at more steps is the pairing.
-    if votes:
+    base = replay(rec).mismatched if votes else 0
+    if base:
         mismatched = {o: replay(Recording(setups, inputs, commands, o, 0.0)).mismatched
-                      for o in (offset, offset - 1, offset + 1)}
-        rec.offset = min(mismatched, key=lambda o: (mismatched[o], o != offset))
+                      for o in (offset - 1, offset + 1)}
+        best = min(mismatched, key=mismatched.get)
+        if mismatched[best] < base:
+            rec.offset = best
     rec.read_s = time.perf_counter() - t0
     return rec
 
