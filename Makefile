@@ -1,4 +1,4 @@
-# The two commands of the README. Each creates (or reuses) .venv/ with the pinned
+# The commands of the README. Each creates (or reuses) .venv/ with the pinned
 # ROS 2 Kilted wheels, the package (editable) and its test tools, then runs.
 PYTHON ?= python3.11
 VENV   := .venv
@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # DDS stays on this machine; tests pick their own domain ids on top of this.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test venv clean
+.PHONY: demo test bench venv clean
 
 venv: $(STAMP)
 
@@ -23,6 +23,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+
+# Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
+bench: $(STAMP)
+	$(VENV)/bin/fabric-guidance bench --out bench/results.json
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis *.egg-info

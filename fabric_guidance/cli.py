@@ -7,6 +7,7 @@
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
+  bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
   example   the core alone on a worked example (no ROS)
 """
 from __future__ import annotations
@@ -89,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     demo.add_argument('--record', type=Path, default=None, metavar='DIR',
                       help='record the session as a ROS 2 bag (MCAP) in DIR')
     from . import calibration_report, replay
+    from .bench import runner as bench
     from .experiments import analyze, beyond, experiment, tradeoff
     replay.add_parser(sub)
     calibration_report.add_parser(sub)
@@ -96,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     experiment.add_parser(sub)
     tradeoff.add_parser(sub)
     beyond.add_parser(sub)
+    bench.add_parser(sub)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,
                          help='folder for the calibration file (default: a temporary folder)')
@@ -115,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         return beyond.run(args)
     if args.command == 'tradeoff':
         return tradeoff.run(args)
+    if args.command == 'bench':
+        return bench.run(args)
     if args.out is not None:
         return run_worked_example(args.out)
     with tempfile.TemporaryDirectory(prefix='fabric-guidance-example-') as tmp:

@@ -273,7 +273,10 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         overrides['pressure_controller'].update(
             calibration_file=str(plan.calibration_file.resolve()), wearer=plan.wearer.name, gain=ctl.gain,
             control_rate_hz=ctl.control_rate_hz, p_max_kpa=ctl.p_max_kpa, gaze_timeout_s=ctl.gaze_timeout_s,
-            rate_deadband_dps=ctl.rate_deadband_dps)
+            rate_deadband_dps=ctl.rate_deadband_dps,
+            # Eq. 5 at the scene's control rate, as the headless engine runs it (G acts once per
+            # step), not once per gaze sample.
+            step_on_gaze=False)
         sequence = [name for name, *_ in plan.targets]
         overrides['target_selector'].update(
             target_names=sequence, target_positions=[float(x) for *_, pos in plan.targets for x in pos])

@@ -13,17 +13,15 @@ import dataclasses
 import threading
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
-from std_msgs.msg import Float64MultiArray
 import yaml
 
 from faultproxy import FaultProxy, is_modbus_write_multiple
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from fabric_guidance.plc.modbus import MockPlcServer
-from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
+from rosgraph import CONFIG, free_port, wait_until
 
 PARAMS_FILES = ('guidance.yaml', 'sim.yaml')
 

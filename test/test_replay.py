@@ -173,3 +173,19 @@ def test_offline_replay_of_a_bag_cut_mid_guidance_compares_from_the_first_vent(t
     assert late.unsynced >= 1 and late.compared > 5 and late.exact, late.worst
     gap = offline.replay(replace(rec, inputs=rec.inputs[:cut] + rec.inputs[cut + 1:]))
     assert gap.step_gaps == 1 and gap.unsynced >= 1 and gap.exact, gap.worst
+
+
+def test_pairing_offset_holds_when_the_recorder_stores_a_command_before_its_input():
+    """Input and command of a step arrive microseconds apart in two subscriptions: either may
+    be stored first. The recorder missed the node's first 5 commands (offset 5); one stall
+    delivers a batch at once."""
+    inputs, input_ts, command_ts = [], [], []
+    for step in range(200):
+        t = step * 11_000_000                       # 90 Hz steps [ns]
+        command_first = step % 2 == 0
+        inputs.append(step + 5)                     # the node's command index of this step
+        input_ts.append(t + (3000 if command_first else 0))
+        command_ts.append(t + (0 if command_first else 3000))
+    command_ts[50:60] = [command_ts[59] + 1] * 10   # a stall: ten commands taken at once
+    assert offline.pairing_offset(inputs, input_ts, command_ts) == 5
+    assert offline.pairing_offset(inputs[1:], input_ts[1:], command_ts) == 5   # an input lost

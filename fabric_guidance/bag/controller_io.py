@@ -175,7 +175,10 @@ def why_not_guide(setup: ControllerSetup, controller, inp: StepInput) -> str:
 
 def safe_command(channels: np.ndarray, p_max: float) -> np.ndarray:
     """Last line of defence: nothing above P_MAX and nothing non-finite leaves the node."""
-    return np.clip(np.nan_to_num(channels, nan=0.0, posinf=0.0, neginf=0.0), 0.0, p_max)
+    channels = np.asarray(channels, dtype=float)
+    if not np.isfinite(channels).all():
+        channels = np.nan_to_num(channels, nan=0.0, posinf=0.0, neginf=0.0)
+    return np.clip(channels, 0.0, p_max)
 
 
 def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,

@@ -10,7 +10,8 @@ pressure_command the node published for it, channel by channel.
 Pairing a step with its command does not rely on the order messages of two topics were
 received in: controller_input carries the index of its command among all the node's commands;
 the offset between that index and the recorded commands (commands published before the
-recorder heard the node were not recorded) is the one most steps agree on in bag order.
+recorder heard the node were not recorded) is the one most steps agree on when each step's
+input is paired with the command received nearest to it in time (see pairing_offset).
 Steps of a live calibration (Algorithm 1's commands, not Eq. 5's) are not compared.
 """
 from __future__ import annotations
@@ -49,6 +50,7 @@ class ReplayResult:
     channels: tuple[str, ...]
     steps: int = 0                        # control steps rerun
     compared: int = 0                     # steps compared with a recorded command
+    mismatched: int = 0                   # compared steps whose command differs
     calibrating: int = 0                  # Algorithm 1 steps (not compared)
     unmatched: int = 0                    # steps whose command is not in the bag
     unsynced: int = 0                     # steps before the controller's state is known (see replay)
@@ -97,8 +99,8 @@ def load(path, namespace: str = '/') -> Recording:
     t0 = time.perf_counter()
     topics = {bag_topic(CONTROLLER_INPUT, namespace): 'in', bag_topic(CONTROLLER_PARAMETERS, namespace): 'par',
               bag_topic(PRESSURE_COMMAND, namespace): 'cmd'}
-    setups, inputs, commands, order = [], [], [], []
-    for topic, msgtype, _, data in raw_messages(path, topics):
+    setups, inputs, commands, input_ts, command_ts = [], [], [], [], []
+    for topic, msgtype, stamp, data in raw_messages(path, topics):
         kind = topics[topic]
         if kind == 'par':
             d = yaml.load(store.deserialize_cdr(data, msgtype).data, Loader=_YamlLoader)
@@ -110,18 +112,40 @@ def load(path, namespace: str = '/') -> Recording:
             values = np.asarray(store.deserialize_cdr(data, msgtype).data, dtype=float)
         if kind == 'in':
             inputs.append(StepInput.decode(values))
-            order.append((inputs[-1].command, len(commands)))   # the next command received, in bag order
+            input_ts.append(stamp)
         else:
             commands.append(np.array(values, dtype=float))
+            command_ts.append(stamp)
     if not setups:
         raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller published it?)')
     if not inputs:
         raise ValueError(f'{path}: no {CONTROLLER_INPUT}: nothing to replay')
-    votes = Counter(index - position for index, position in order if position < len(commands))
-    offset = votes.most_common(1)[0][0] if votes else 0
+    inputs_by_time = [i.command for i in inputs]
     inputs.sort(key=lambda i: i.step)
     setups.sort(key=lambda s: s[0])
-    return Recording(setups, inputs, commands, offset, time.perf_counter() - t0)
+    rec = Recording(setups, inputs, commands, pairing_offset(inputs_by_time, input_ts, command_ts), 0.0)
+    rec.read_s = time.perf_counter() - t0
+    return rec
+
+
+def pairing_offset(input_commands: list[int], input_ts: list[int], command_ts: list[int]) -> int:
+    """The offset between a step's command index (controller_input's `command`) and the position
+    of that command among the recorded pressure_command messages.
+
+    A step's input and its command are published microseconds apart, steps milliseconds apart;
+    the recorder takes them in two subscriptions, so their order in the bag may be either, but
+    their receive times are nearest each other. Each step votes for the command received nearest
+    in time to its input; a stall of the recorder (a batch received at once) only costs votes.
+    Bag order alone cannot tell "input, then its command" from "command, then the next input"."""
+    if not command_ts or not input_ts:
+        return 0
+    ct = np.asarray(command_ts, dtype=np.int64)
+    it = np.asarray(input_ts, dtype=np.int64)
+    right = np.clip(np.searchsorted(ct, it), 0, len(ct) - 1)
+    left = np.clip(right - 1, 0, len(ct) - 1)
+    nearest = np.where(np.abs(ct[left] - it) <= np.abs(ct[right] - it), left, right)
+    votes = Counter((np.asarray(input_commands, dtype=np.int64) - nearest).tolist())
+    return int(votes.most_common(1)[0][0])
 
 
 def parse_overrides(items) -> dict[str, Any]:
@@ -182,6 +206,7 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
             continue
         result.compared += 1
         diff = np.abs(command - rec.commands[position])
+        result.mismatched += bool(diff.any())
         worst = int(np.argmax(diff))
         if diff[worst] > result.max_diff.max() or not result.worst:
             result.worst = dict(step=inp.step, t=inp.t, channel=result.channels[worst],

@@ -171,7 +171,10 @@ class GuidanceController:
         """
         if self.initial_gaze is None:
             self.begin(gaze)
-        theta_t = angles_between(self.initial_gaze, target).by_direction()
-        theta = angles_between(self.initial_gaze, gaze).by_direction()
+        at = angles_between(self.initial_gaze, target)
+        a = angles_between(self.initial_gaze, gaze)
         _finite(t, 'time')
-        return np.array([d.step(tt, th, t) for d, tt, th in zip(self.directions, theta_t, theta)])
+        # split_directions written out: (left, right, down, up) = (h, -h, -v, v).
+        ht, vt, h, v = at.horizontal, at.vertical, a.horizontal, a.vertical
+        left, right, down, up = self.directions
+        return np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t), up.step(vt, v, t)])

@@ -69,6 +69,10 @@ class PowerLaw:
 
     def pressure(self, theta):
         """f(theta) in kPa; theta <= 0 (or NaN-free negative) gives c. Accepts scalars or arrays."""
+        if type(theta) is float:  # the control loop's case: the same formula in scalar math
+            t = 0.0 if theta < 0.0 else (THETA_MAX if theta > THETA_MAX else theta)
+            if t == t:
+                return self.a * t ** self.b + self.c
         t = np.clip(np.asarray(theta, dtype=float), 0.0, THETA_MAX)
         if np.any(np.isnan(t)):
             raise ValueError('angle is NaN')

@@ -5,7 +5,8 @@ drops it when the sender is not in allowed_senders ('sender'); parses it with
 core.gaze_wire.parse_datagram, dropping it under the WireFormatError's reason; tracks its
 sequence number, dropping duplicates and reordered samples ('stale'); drops it when the
 HoloLens marks eye tracking as not valid and require_eye_tracking_valid is set
-('eye_tracking_invalid'); otherwise publishes it on `gaze` and `head_pose`.
+('eye_tracking_invalid'); otherwise publishes it on `gaze` and, when something subscribes
+to it, `head_pose`.
 
 The sequence number is tracked before the eye-tracking check so that samples the bridge
 drops on purpose are not counted as lost on the network.
@@ -177,16 +178,18 @@ class GazeBridge(Node):
         gaze.header.stamp = stamp
         gaze.header.frame_id = self.frame_id
         p, o = gaze.pose.position, gaze.pose.orientation
-        p.x, p.y, p.z = (float(c) for c in sample.gaze_origin)
-        o.x, o.y, o.z, o.w = (float(c) for c in q)
-        head = PoseStamped()
-        head.header.stamp = stamp
-        head.header.frame_id = self.frame_id
-        p, o = head.pose.position, head.pose.orientation
-        p.x, p.y, p.z = (float(c) for c in sample.head_position)
-        o.x, o.y, o.z, o.w = (float(c) for c in sample.head_orientation)
-        self._gaze_pub.publish(gaze)
-        self._head_pub.publish(head)
+        p.x, p.y, p.z = sample.gaze_origin.tolist()
+        o.x, o.y, o.z, o.w = q.tolist()
+        self._gaze_pub.publish(gaze)   # first: the gaze is what the control loop waits for
+        # A head pose nobody listens to (nothing in the graph does, bar a recorder) is not built.
+        if self._head_pub.get_subscription_count():
+            head = PoseStamped()
+            head.header.stamp = stamp
+            head.header.frame_id = self.frame_id
+            p, o = head.pose.position, head.pose.orientation
+            p.x, p.y, p.z = sample.head_position.tolist()
+            o.x, o.y, o.z, o.w = sample.head_orientation.tolist()
+            self._head_pub.publish(head)
         with lock:
             self._published += 1
 

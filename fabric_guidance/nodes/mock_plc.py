@@ -5,10 +5,15 @@ heartbeat watchdog) and reports what was written to it: the largest pressure eve
 channel and, on /diagnostics, every write above p_max or outside the register map.
 
 Publishes: mock_plc/max_written_kpa (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
+
+With write_log_file set (the benchmarks), every client write to the holding registers is also
+appended to that file as `<CLOCK_MONOTONIC ns> <first address> <values...>`, and every drain
+(20 Hz) ends with `# drained <ns>`: a reader knows every write before that time is in the file.
 """
 from __future__ import annotations
 
 import sys
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
@@ -44,9 +49,18 @@ class MockPlc(Node):
                                  'mock_plc/max_written_kpa and /diagnostics publication rate', 'Hz', 0.1, 100.0,
                                  read_only=True)
 
+        write_log_file = declare(self, 'write_log_file', '',
+                                 "append every holding-register write with its CLOCK_MONOTONIC time [ns] to this "
+                                 "file (benchmarks); '' = off", read_only=True)
+
         self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'))
         self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
-                                    update_hz=update_hz, records_path=records_file or None).start()
+                                    update_hz=update_hz, records_path=records_file or None,
+                                    time_writes=bool(write_log_file)).start()
+        self._write_log = None
+        if write_log_file:
+            self._write_log = open(write_log_file, 'a')
+            self.create_timer(0.05, self._drain_write_log, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.address = f'{host}:{self.server.port}'
         self._max_pub = self.create_publisher(Float64MultiArray, MAX_WRITTEN, COMMAND_QOS)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -70,8 +84,18 @@ class MockPlc(Node):
                   'max written kPa': f'{max(written.values()):g}', 'address': self.address}
         publish_diagnostics(self, self._diagnostics_pub, [status(self, 'mock PLC', level, message, values)])
 
+    def _drain_write_log(self) -> None:
+        drained_ns = time.monotonic_ns()  # before the take: every write up to here is in it
+        lines = [f'{t} {start} {" ".join(map(str, values))}\n' for t, start, values in self.server.take_write_times()]
+        lines.append(f'# drained {drained_ns}\n')
+        self._write_log.writelines(lines)
+        self._write_log.flush()
+
     def safe_shutdown(self) -> None:
         self.server.stop()
+        if self._write_log is not None:
+            self._drain_write_log()
+            self._write_log.close()
         self.get_logger().info(f'mock PLC on {self.address} stopped')
 
 

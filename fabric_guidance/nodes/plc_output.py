@@ -6,6 +6,8 @@ within command_timeout_s or the latest one was invalid; then it bumps the heartb
 watchdog watches, reads the measured pressures back and publishes them. A lost link is retried
 with an exponential backoff, and the latest fresh command is written again once it is back.
 On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
+With write_on_command (the default) each command is also written the moment it arrives, so it
+does not wait for the next cycle; the cycle keeps the heartbeat, the re-send and the read-back.
 
 Subscribes: pressure_command (std_msgs/Float64MultiArray, kPa, channel order)
 Publishes:  measured_pressure (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
@@ -59,6 +61,8 @@ class PlcOutput(Node):
                                        read_only=True)
         self.reconnect_max_s = declare(self, 'reconnect_max_s', 5.0, 'longest wait between reconnection attempts',
                                        's', 0.01, 600.0, read_only=True)
+        self.write_on_command = declare(self, 'write_on_command', True,
+                                        'also write each command as soon as it arrives', read_only=True)
         diagnostics_period_s = declare(self, 'diagnostics_period_s', 1.0, '/diagnostics publication period',
                                        's', 0.05, 60.0, read_only=True)
         if self.reconnect_min_s > self.reconnect_max_s:
@@ -117,6 +121,8 @@ class PlcOutput(Node):
             self._invalid, self._command = True, self._zeros
             self.get_logger().error(f'invalid pressure_command ({why}): venting all channels',
                                     throttle_duration_sec=LOG_THROTTLE_S)
+            if self.write_on_command and self._link_up:
+                self._write_now()
             return
         if np.any(p > self.p_max_kpa):
             self.get_logger().warning(f'pressure_command above p_max ({p.max():g} kPa): clamped to '
@@ -124,6 +130,15 @@ class PlcOutput(Node):
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
         self._command_s = time.monotonic()
+        if self.write_on_command and self._link_up:
+            self._write_now()
+
+    def _write_now(self) -> None:
+        """Write what the cycle would write (the latest command, or zeros) at once."""
+        try:
+            self._client.write_pressures(self._target(time.monotonic())[0])
+        except PlcLinkError as exc:
+            self._link_lost(exc)
 
     def _target(self, now_s: float) -> tuple[np.ndarray, str]:
         """What to write now, and why it is zeros ('' when it is the command)."""

@@ -12,6 +12,12 @@ Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
 
+Steps: with step_on_gaze (the default) a step runs on every valid gaze sample, so a sample
+reaches the suit without waiting for a timer; the control_rate_hz timer still steps whenever
+no step ran for one of its periods (no gaze: it is what notices the stale gaze and vents).
+Eq. 5 adds G once per step, so with step_on_gaze it acts once per gaze sample (the HoloLens'
+30 Hz is the paper's rate); step_on_gaze false steps on the timer alone, as before.
+
 Time: the t of Eq. 5 is the node clock, so with use_sim_time:=true it is the bag's /clock (a
 replay), and a clock that jumps back (a looping replay) restarts Eq. 5's derivative in the core.
 The control timer and gaze staleness run on the steady clock, whatever the ROS clock does: a
@@ -20,6 +26,7 @@ sim clock would keep the suit pressurised after a replay ends. Safety never wait
 """
 from __future__ import annotations
 
+from array import array
 from pathlib import Path
 import shutil
 import subprocess
@@ -78,6 +85,9 @@ class PressureController(Node):
                                        'calibration file when it has one (beyond the paper)')
         self.follow_target = declare(self, 'follow_moving_target', False, 'shift the pressure with f(theta_t) '
                                      'when the target moves (beyond the paper)')
+        self.step_on_gaze = declare(self, 'step_on_gaze', True, 'run a control step on every valid gaze sample; '
+                                    'the control_rate_hz timer fills in when none came for a period',
+                                    read_only=True)
 
         self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
         self.layout = self.condition.layout or 'suit'
@@ -94,6 +104,7 @@ class PressureController(Node):
         self.gaze_origin = self.gaze_direction = None
         self.gaze_received = -float('inf')   # self.now_s(): the steady clock
         self.step_count = 0
+        self.last_step_s = -float('inf')      # self.now_s() of the latest step
         self.command_count = 0
         self.reset_pending = False            # vented between steps (recorded in controller_input)
         self.target = None
@@ -106,6 +117,7 @@ class PressureController(Node):
         self.invalid_inputs = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
+        self.command_msg, self.input_msg = Float64MultiArray(), Float64MultiArray()
         self.input_pub = self.create_publisher(Float64MultiArray, CONTROLLER_INPUT, COMMAND_QOS)
         self.parameters_pub = self.create_publisher(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
         self.publish_parameters(0)
@@ -119,7 +131,8 @@ class PressureController(Node):
         self.create_service(SetBool, 'enable', self.on_enable)
         self.create_service(Trigger, 'vent', self.on_vent)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0 / rate, self.step, clock=steady)
+        self.period_s = 1.0 / rate
+        self.create_timer(self.period_s, self.on_timer, clock=steady)
         self.create_timer(1.0, self.publish_diagnostics, clock=steady)
         self.zeros = np.zeros(len(self.channel_map.channels))
         self.get_logger().info(
@@ -158,6 +171,13 @@ class PressureController(Node):
             return
         self.gaze_origin, self.gaze_direction = origin, direction
         self.gaze_received = self.now_s()
+        if self.step_on_gaze:
+            self.step()
+
+    def on_timer(self) -> None:
+        # The minimum rate: skipped while gaze steps come at least this often.
+        if self.now_s() - self.last_step_s >= 0.9 * self.period_s:
+            self.step()
 
     def on_active_target(self, msg: String) -> None:
         if msg.data == self.target_name:
@@ -222,7 +242,10 @@ class PressureController(Node):
     def publish(self, channels: np.ndarray) -> None:
         # Last line of defence: nothing above P_MAX and nothing non-finite leaves this node.
         safe = safe_command(channels, self.p_max)
-        self.command_pub.publish(Float64MultiArray(data=safe.tolist()))
+        # One message object reused (publish serialises at once); array('d', bytes) skips the
+        # per-element checks a list goes through.
+        self.command_msg.data = array('d', safe.tobytes())
+        self.command_pub.publish(self.command_msg)
         self.command_count += 1
 
     def step(self) -> None:
@@ -233,8 +256,11 @@ class PressureController(Node):
                         self.procedure is not None, self.condition.number, self.step_count, self.command_count)
         self.reset_pending = False
         self.step_count += 1
+        self.last_step_s = self.now_s()
         # The exact inputs of this step, right before its command (offline replay reruns them).
-        self.input_pub.publish(Float64MultiArray(data=inp.encode()))
+        if self.input_pub.get_subscription_count():   # volatile: unheard, it would be dropped anyway
+            self.input_msg.data = array('d', inp.encode())
+            self.input_pub.publish(self.input_msg)
         if self.procedure is not None:
             self.publish(self.calibration_step(t, fresh))
             return

@@ -97,6 +97,13 @@ class PlcClient:
         self._call('write heartbeat', 'write_register', self.map.heartbeat_register,
                    int(value) & REGISTER_MAX)
 
+    def write_counts(self, counts: Sequence[int]) -> None:
+        """Raw register counts to the command registers, as they are (no clamp, no scaling):
+        the benchmarks' bare Modbus hop. The package's commands go through write_pressures."""
+        if len(counts) != len(self.map):
+            raise ValueError(f'need {len(self.map)} counts, got {len(counts)}')
+        self._write_commands(list(counts))
+
     def _write_commands(self, counts: list[int]) -> None:
         sequenced = self.map.sequenced_block()
         if sequenced is not None:
@@ -186,6 +193,9 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
         self.stale_writes: list[tuple[int, int]] = []  # (sequence number, last applied) of refused writes
         self.writes = 0    # client write requests to holding registers
         self.version = 0   # bumped on every change of the records
+        #: (time.monotonic_ns(), first address, values) per applied client write, when timing is
+        #: on (the benchmarks' landing times); None: off, nothing is recorded.
+        self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
 
     def _check(self, address: int, count: int) -> int:
         start = address - _BLOCK_START
@@ -222,6 +232,10 @@ class _RecordingHoldingBlock(ModbusSequentialDataBlock):
                     # Refused whole, with an exception response (the registers keep the newer
                     # command); its sender is normally gone already.
                     raise ValueError(f'stale write: sequence {seq} is not newer than {last}')
+            if self.write_times is not None:
+                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
+                # process. Taken under the lock, so a take_write_times() never misses an earlier one.
+                self.write_times.append((time.monotonic_ns(), start, tuple(values)))
             super().setValues(address, values)
 
     def read(self, address: int) -> int:
@@ -251,7 +265,7 @@ class MockPlcServer:
 
     def __init__(self, register_map: RegisterMap, host: str = '127.0.0.1', port: int = 0,
                  regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0,
-                 records_path: str | Path | None = None):
+                 records_path: str | Path | None = None, time_writes: bool = False):
         if not update_hz > 0:
             raise ValueError(f'update_hz must be > 0, got {update_hz!r}')
         self.map = register_map
@@ -264,6 +278,8 @@ class MockPlcServer:
         self.update_hz = float(update_hz)
         self._lock = threading.RLock()
         self._holding = _RecordingHoldingBlock(register_map, self._lock)
+        if time_writes:
+            self._holding.write_times = []
         self._input = ModbusSequentialDataBlock(_BLOCK_START, [0] * _N_ADDRESSES)
         slave = ModbusSlaveContext(di=ModbusSequentialDataBlock.create(), co=ModbusSequentialDataBlock.create(),
                                    hr=self._holding, ir=self._input)
@@ -440,6 +456,16 @@ class MockPlcServer:
         """The measured-pressure input registers as they are now."""
         with self._lock:
             return self.map.decode([self._input.values[a] for a in self.map.measured_registers])
+
+    def take_write_times(self) -> list[tuple[int, int, tuple[int, ...]]]:
+        """The (time.monotonic_ns(), first address, values) of every client write since the last
+        call, oldest first; [] unless started with time_writes=True."""
+        with self._lock:
+            taken = self._holding.write_times
+            if taken is None:
+                return []
+            self._holding.write_times = []
+            return taken
 
     def heartbeat_value(self) -> int:
         return self._holding.read(self.map.heartbeat_register)

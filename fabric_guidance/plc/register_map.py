@@ -132,7 +132,7 @@ class RegisterMap:
         counts = np.rint(p * self.counts_per_kpa)
         # Rounding to nearest could step one count past a p_max that is not a whole count.
         counts = np.clip(counts, 0, self.p_max_counts)
-        return [int(c) for c in counts]
+        return counts.astype(np.int64).tolist()
 
     def decode(self, counts: Sequence[int]) -> np.ndarray:
         """Register counts (channel order) -> pressures in kPa."""

@@ -1,0 +1,11 @@
+"""Benchmarks: the loop from gaze to regulator against the floor of its transports, the core's
+component costs, memory per node and simulation/replay throughput (`fabric-guidance bench`).
+
+- sweep:      a gaze sweep whose every sample lands as its own register value
+- latency:    the sender, the mock PLC's write log, matching sample to landing
+- floor:      the bare chain (UDP, DDS hops, one Modbus write) as separate processes
+- graphs:     the package's graph and the floor's, started and measured
+- components: controller step, datagram parse, calibration fit
+- throughput: headless simulation and offline replay speed
+- runner:     everything in order, bench/results.json and bench/results.md
+"""

@@ -1,0 +1,223 @@
+"""`fabric-guidance bench --out FILE [--quick]`: every benchmark in order, the figures as JSON
+(FILE) and as a markdown table beside it (FILE with .md), progress on the way. It measures and
+prints; it never fails because a machine is slow (the goals are read off the table).
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+import json
+import math
+import os
+from pathlib import Path
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+from ..paths import share_dir
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How many samples each figure takes."""
+    e2e_90: int = 1000
+    e2e_1000: int = 3000
+    warmup_s: float = 1.0
+    floor_90: int = 1000
+    floor_1000: int = 3000
+    steps: int = 20000
+    parses: int = 20000
+    fits: int = 1000
+    replay_s: float = 5.0
+    headless_repetitions: int | None = None
+    blocks: int = 4
+
+
+FULL = Plan()
+QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
+             fits=30, replay_s=1.5, headless_repetitions=1, blocks=2)
+
+#: Goals of the issue, read off the figures (never asserted).
+GOALS = {
+    'p99_90': 5.0, 'ratio_90': 3.0, 'applied_1000': 0.99, 'p99_1000': 10.0,
+    'controller_step_us': 50.0, 'fit_ms': 5.0, 'headless_speedup': 1000.0,
+}
+
+
+def machine() -> dict:
+    from importlib import metadata
+    try:
+        rclpy_version = metadata.version('ros-rclpy')
+    except metadata.PackageNotFoundError:
+        try:
+            rclpy_version = metadata.version('rclpy')
+        except metadata.PackageNotFoundError:
+            rclpy_version = None
+    try:
+        commit = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True, text=True,
+                                cwd=share_dir(), timeout=5).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        commit = None
+    return {'cores': os.cpu_count(), 'python': platform.python_version(), 'rclpy': rclpy_version,
+            'platform': platform.platform(), 'rmw': os.environ.get('RMW_IMPLEMENTATION', 'default'),
+            'load_avg_1min': os.getloadavg()[0] if hasattr(os, 'getloadavg') else None, 'commit': commit}
+
+
+def run_all(plan: Plan, work: Path, say) -> dict:
+    from . import components, throughput
+    from .graphs import FloorGraph, PackageGraph, combine
+
+    results: dict = {'machine': machine(), 'quick': plan is QUICK}
+    t_all = time.monotonic()
+
+    say('components: one controller step, one gaze datagram, one calibration fit ...')
+    results['controller_step_us'] = components.controller_step_us(plan.steps)
+    results['gaze_parse_us'] = components.gaze_parse_us(plan.parses)
+    results['fit_ms'] = components.fit_ms(plan.fits)
+    say(f"  controller step p50 {results['controller_step_us']['p50']:.1f} us, gaze datagram p50 "
+        f"{results['gaze_parse_us']['p50']:.1f} us, fit p50 {results['fit_ms']['p50']:.2f} ms")
+
+    say('headless simulation of the speed protocol (one wearer, one core) ...')
+    headless = throughput.headless_speedup(1, plan.headless_repetitions)
+    results['headless_speedup'] = headless['speedup']
+    results['headless'] = headless
+    say(f"  {headless['simulated_s']:.0f} simulated s in {headless['wall_s']:.2f} s: {headless['speedup']:.0f}x")
+
+    say('starting the package graph (gaze_bridge, pressure_controller, plc_output, mock_plc) and the floor '
+        '(UDP receive, two DDS hops, one Modbus write) ...')
+    pkg = fl = None
+    try:
+        pkg = PackageGraph(work / 'package', say)
+        fl = FloorGraph(work / 'floor', say)
+        pkg.rig.prime()
+        fl.rig.prime()
+        # Blocks alternate between the two chains, so both see the same background load.
+        for rate, n_pkg, n_floor in (('90', plan.e2e_90, plan.floor_90), ('1000', plan.e2e_1000, plan.floor_1000)):
+            blocks = {'package': [], 'floor': []}
+            say(f'  {rate} Hz: {n_pkg} samples through the package and {n_floor} through the floor, in '
+                f'{plan.blocks} alternating blocks, each after {plan.warmup_s:g} s of warm-up ...')
+            for _ in range(plan.blocks):
+                blocks['package'].append(pkg.rig.block(float(rate), n_pkg // plan.blocks, plan.warmup_s))
+                blocks['floor'].append(fl.rig.block(float(rate), n_floor // plan.blocks, plan.warmup_s))
+            figures = {k: combine(v, float(rate)) for k, v in blocks.items()}
+            results.setdefault('e2e_latency_ms', {})[rate] = figures['package']
+            results['floor_latency_ms' if rate == '90' else f'floor_latency_{rate}_ms'] = figures['floor']
+            say('    package: ' + _line(figures['package']))
+            say('    floor:   ' + _line(figures['floor']))
+        fl.close()
+        fl = None
+        results['rss_mb'] = pkg.rss_mb()
+        say(f"  resident memory: {', '.join(f'{k} {v:.0f} MB' for k, v in results['rss_mb'].items() if v)}")
+        say(f'  recording {plan.replay_s:g} s at 90 Hz for the offline replay ...')
+        replay = pkg.record_and_replay(plan.replay_s, 90.0)
+    finally:
+        for g in (fl, pkg):
+            if g is not None:
+                g.close()
+    results['replay_speedup'] = replay['speedup']
+    results['replay'] = replay
+    if replay['speedup'] is None:
+        results['replay_reason'] = replay['reason']
+        say(f"  offline replay: not measured: {replay['reason']}")
+    else:
+        say(f"  offline replay: {replay['session_s']:.1f} s session, {replay['steps']} steps, "
+            f"{'exact' if replay['exact'] else 'NOT exact'}, {replay['speedup']:.0f}x real time")
+    package_p99, floor_p99 = results['e2e_latency_ms']['90']['p99'], results['floor_latency_ms']['p99']
+    results['ratio_p99'] = (package_p99 / floor_p99) if package_p99 is not None and floor_p99 else None
+    results['wall_s'] = time.monotonic() - t_all
+    return results
+
+
+def _line(r: dict) -> str:
+    if r['p50'] is None:
+        return f"no sample applied of {r['sent']}"
+    cpu = ', '.join(f'{k} {v:.0f}' for k, v in r.get('cpu_us_per_sample', {}).items())
+    return (f"p50 {r['p50']:.2f} ms, p99 {r['p99']:.2f} ms, max {r['max']:.2f} ms; "
+            f"{r['applied']} of {r['sent']} applied; CPU us per sample: {cpu}")
+
+
+def _fmt(v, digits: int = 2) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return 'n/a'
+    return f'{v:.{digits}f}'
+
+
+def markdown(r: dict) -> str:
+    m = r['machine']
+    e90, e1000, fl = r['e2e_latency_ms']['90'], r['e2e_latency_ms']['1000'], r['floor_latency_ms']
+    fl1000 = r.get('floor_latency_1000_ms', {})
+
+    def ok(cond) -> str:
+        return '' if cond is None else ('yes' if cond else 'no')
+
+    def le(v, goal):
+        return None if v is None else v <= goal
+    applied_1000 = e1000['applied'] / e1000['sent'] if e1000['sent'] else None
+    rows = [
+        ('gaze to register, 90 Hz: p50 / p99 / max [ms]',
+         f"{_fmt(e90['p50'])} / {_fmt(e90['p99'])} / {_fmt(e90['max'])}", 'p99 <= 5', ok(le(e90['p99'], 5.0))),
+        ('  applied / sent', f"{e90['applied']} / {e90['sent']}", '', ''),
+        ('floor, 90 Hz: p50 / p99 / max [ms]', f"{_fmt(fl['p50'])} / {_fmt(fl['p99'])} / {_fmt(fl['max'])}", '', ''),
+        ('package p99 / floor p99, 90 Hz', _fmt(r['ratio_p99']), '<= 3', ok(le(r['ratio_p99'], 3.0))),
+        ('gaze to register, 1000 Hz: p50 / p99 / max [ms]',
+         f"{_fmt(e1000['p50'])} / {_fmt(e1000['p99'])} / {_fmt(e1000['max'])}", 'p99 <= 10',
+         ok(le(e1000['p99'], 10.0))),
+        ('  applied / sent', f"{e1000['applied']} / {e1000['sent']} ({_fmt(100 * applied_1000 if applied_1000 is not None else None, 1)} %)",
+         '>= 99 %', ok(None if applied_1000 is None else applied_1000 >= 0.99)),
+    ]
+    if fl1000:
+        rows.append(('floor, 1000 Hz: p50 / p99 / max [ms]',
+                     f"{_fmt(fl1000['p50'])} / {_fmt(fl1000['p99'])} / {_fmt(fl1000['max'])} "
+                     f"({fl1000['applied']} / {fl1000['sent']})", '', ''))
+    c, g, f = r['controller_step_us'], r['gaze_parse_us'], r['fit_ms']
+    rows += [
+        ('controller step p50 / p99 [us]', f"{_fmt(c['p50'], 1)} / {_fmt(c['p99'], 1)}", 'p50 < 50',
+         ok(c['p50'] < 50.0)),
+        ('gaze datagram parse and convert p50 / p99 [us]', f"{_fmt(g['p50'], 1)} / {_fmt(g['p99'], 1)}", '', ''),
+        ('calibration fit p50 / p99 [ms]', f"{_fmt(f['p50'])} / {_fmt(f['p99'])}", 'p50 < 5', ok(f['p50'] < 5.0)),
+        ('headless simulation [x real time]', _fmt(r['headless_speedup'], 0), '>= 1000',
+         ok(r['headless_speedup'] >= 1000.0)),
+        ('offline replay [x real time]', _fmt(r['replay_speedup'], 0) if r['replay_speedup'] is not None
+         else f"n/a ({r.get('replay_reason', '')})", '', ''),
+    ]
+    rows += [(f'resident memory, {k} [MB]', _fmt(v, 0), '', '') for k, v in r['rss_mb'].items()]
+    lines = ['| figure | value | goal | met |', '| --- | --- | --- | --- |']
+    lines += [f'| {a} | {b} | {c_} | {d} |' for a, b, c_, d in rows]
+    head = (f"Benchmarks{' (quick)' if r['quick'] else ''}: {m['cores']} cores, Python {m['python']}, "
+            f"rclpy {m['rclpy']}, commit {m['commit']}, load {_fmt(m['load_avg_1min'])} at the start, "
+            f"{_fmt(r['wall_s'], 0)} s in all.")
+    return head + '\n\n' + '\n'.join(lines) + '\n'
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser('bench', help='benchmarks: gaze to regulator latency against the transports\' '
+                              'floor, component costs, memory, simulation and replay speed',
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--out', type=Path, default=Path('bench/results.json'),
+                   help='the JSON file to write; the markdown table goes beside it (.md)')
+    p.add_argument('--quick', action='store_true', help='few samples: a smoke run, not figures to quote')
+    p.add_argument('--work', type=Path, default=None, help='folder for logs and the recorded session '
+                   '(default: a temporary folder, removed afterwards)')
+    return p
+
+
+def run(args, stream=sys.stdout) -> int:
+    def say(line: str = '') -> None:
+        print(line, file=stream, flush=True)
+    plan = QUICK if args.quick else FULL
+    if args.work is not None:
+        results = run_all(plan, Path(args.work), say)
+    else:
+        with tempfile.TemporaryDirectory(prefix='fabric-guidance-bench-') as tmp:
+            results = run_all(plan, Path(tmp), say)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2) + '\n')
+    table = markdown(results)
+    out.with_suffix('.md').write_text(table)
+    say()
+    say(table)
+    say(f'written: {out}, {out.with_suffix(".md")}')
+    return 0

@@ -1,0 +1,73 @@
+"""fabric-guidance bench: the sample-to-landing matching on its own, the sweep's promise that
+every level lands on its own register count, and a quick run end to end (every key of the JSON
+there, numbers finite and consistent). No timing is asserted: the figures are read, not tested."""
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from fabric_guidance.bench.graphs import make_sweep
+from fabric_guidance.bench.latency import Write, landings, percentiles_ms
+from fabric_guidance.bench.sweep import check_sweep
+from rosgraph import ROOT
+
+
+def test_every_sweep_level_lands_on_its_own_count():
+    sweep = make_sweep()
+    assert len(set(sweep.counts.tolist())) == sweep.levels
+    # The controller's geometry reproduces each level far inside half a count (0.05 kPa).
+    assert check_sweep(sweep) < 1e-6
+    assert all(sweep.count(i) != sweep.count(i + 1) for i in range(2 * sweep.levels))
+
+
+def test_a_landing_is_the_latest_sample_of_its_level_and_counted_once():
+    levels = 4
+    counts = [100, 200, 300, 400]
+
+    def level_of(c):
+        return counts.index(c) if c in counts else None
+    sent = [0, 10, 20, 30, 40, 50, 60, 70]                  # sample i sent at 10*i ns
+    writes = [Write(5, 0, (0, 100)),                        # register 1: sample 0
+              Write(15, 0, (0, 100)),                       # re-sent: not a new landing
+              Write(33, 1, (300,)),                         # sample 2, written on its own
+              Write(34, 100, (7,)),                         # the heartbeat: not this register
+              Write(45, 0, (0, 0)),                         # a vent: no sample
+              Write(66, 0, (0, 200))]                       # level 1, latest sent before: sample 5
+    landed = landings(sent, writes, register=1, level_of=level_of, levels=levels)
+    assert landed == {0: 5, 2: 33, 5: 66}
+    assert percentiles_ms([]) == {'p50': None, 'p99': None, 'max': None}
+    assert percentiles_ms([2_000_000, 4_000_000])['max'] == pytest.approx(4.0)
+
+
+def test_a_quick_bench_writes_every_key(tmp_path):
+    out = tmp_path / 'results.json'
+    run = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'bench', '--quick', '--out', str(out),
+                          '--work', str(tmp_path / 'work')], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert run.returncode == 0, run.stdout + run.stderr
+    r = json.loads(out.read_text())
+
+    def finite(v):
+        return isinstance(v, (int, float)) and math.isfinite(v)
+    for rate in ('90', '1000'):
+        e = r['e2e_latency_ms'][rate]
+        assert set(e) >= {'p50', 'p99', 'max', 'sent', 'applied'}
+        assert e['sent'] > 0 and 0 <= e['applied'] <= e['sent']
+    for fig in (r['e2e_latency_ms']['90'], r['floor_latency_ms']):
+        # At 90 Hz some samples land even on a loaded machine; their percentiles are ordered.
+        assert fig['applied'] > 0
+        assert 0 < fig['p50'] <= fig['p99'] <= fig['max'] < 1000
+    assert finite(r['ratio_p99']) and r['ratio_p99'] > 0
+    for key in ('controller_step_us', 'gaze_parse_us', 'fit_ms'):
+        assert 0 < r[key]['p50'] <= r[key]['p99'] and finite(r[key]['p99'])
+    assert set(r['rss_mb']) == {'gaze_bridge', 'pressure_controller', 'plc_output', 'mock_plc'}
+    assert all(finite(v) and 10 < v < 4000 for v in r['rss_mb'].values())
+    assert finite(r['headless_speedup']) and r['headless_speedup'] > 1
+    assert finite(r['replay_speedup']) and r['replay_speedup'] > 0
+    # The recorded event-driven session replays offline bit for bit.
+    assert r['replay']['exact'] and r['replay']['compared'] > 0
+    assert r['machine']['cores'] >= 1 and r['machine']['python'] and r['machine']['rclpy']
+    table = out.with_suffix('.md').read_text()
+    assert '| figure | value | goal | met |' in table and 'gaze to register, 90 Hz' in table
+    assert 'gaze to register, 90 Hz' in run.stdout
