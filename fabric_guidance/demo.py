@@ -25,6 +25,7 @@ import time
 import numpy as np
 import yaml
 
+from .bag.recorder_status import hears, recorded_counts
 from .core import ChannelMap, condition as condition_of, ray_direction, target_direction
 from .core.geometry import DIRECTIONS
 from .core.task import angular_error_deg
@@ -71,7 +72,7 @@ class SessionWatch:
         self.max_command = 0.0
         self.speech: list[str] = []
         self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
-        self.recorder: dict[str, str] = {}        # bag_recorder's last diagnostics values
+        self.recorder: dict[str, int] | None = None   # bag_recorder's messages per topic, latest
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
         probe.subscribe(PoseStamped, common.GAZE, common.SENSOR_QOS, self.on_gaze)
         probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS, self.on_target)
@@ -121,14 +122,15 @@ class SessionWatch:
             if st.name.startswith('gaze_bridge:'):
                 with self.lock:
                     self.bridge = {kv.key: kv.value for kv in st.values}
-            elif st.name.startswith('bag_recorder:'):
-                with self.lock:
-                    self.recorder = {kv.key: kv.value for kv in st.values}
+        counts = recorded_counts(msg)
+        if counts is not None:
+            with self.lock:
+                self.recorder = counts
 
     def recorder_hears(self, *topics: str) -> bool:
         """bag_recorder has written messages of every one of `topics` (from its /diagnostics)."""
         with self.lock:
-            return all(int(self.recorder.get(f'messages {t}', 0)) > 0 for t in topics)
+            return hears(self.recorder, *topics)
 
     def on_max_written(self, msg) -> None:
         with self.lock:

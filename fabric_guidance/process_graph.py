@@ -164,6 +164,7 @@ class Probe:
         self.executor.add_node(self.node)
         self._lock = threading.Lock()
         self.messages: dict[str, list] = {}
+        self.subscriptions: dict[str, Any] = {}
         self._running = True
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -182,8 +183,14 @@ class Probe:
                 received.append(msg)
             if callback is not None:
                 callback(msg)
-        self.node.create_subscription(msg_type, topic, keep, qos)
+        self.subscriptions[topic] = self.node.create_subscription(msg_type, topic, keep, qos)
         return received
+
+    def hears(self, topic: str, publishers: int = 1) -> bool:
+        """The probe's subscription to `topic` has matched at least `publishers` publishers
+        (being on the graph is not enough for a volatile topic: discovery is pairwise)."""
+        sub = self.subscriptions.get(topic)
+        return sub is not None and sub.get_publisher_count() >= publishers
 
     def latest(self, topic: str):
         with self._lock:

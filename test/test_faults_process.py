@@ -17,6 +17,7 @@ import time
 
 import pytest
 
+from deadlines import DeadlineLog
 from fabric_guidance.plc.records import load_records
 from rosgraph import Graph, free_port, wait_until
 from test_graph import F_LEFT_40, GAZE_STALE_VENT_S, SIM_CAL, HoloLensStub, RegisterWatch, encode_datagram
@@ -49,12 +50,8 @@ RESTART_DEADLINE_S = 30.0
 #: The mock PLC restarted (listening) -> the latest command back: plc_output's longest backoff.
 MOCK_RECONNECT_DEADLINE_S = 5.0 + 2.0
 
-TIMES: dict[str, list[tuple[float, float]]] = {}
-
-
-def record(kind, seconds, deadline_s):
-    TIMES.setdefault(kind, []).append((seconds, deadline_s))
-    print(f'\n[process] {kind}: {seconds:.3f} s (deadline {deadline_s:.3f} s)')
+LOG = DeadlineLog('process')
+record = LOG.record
 
 
 class Stub(HoloLensStub):
@@ -132,11 +129,7 @@ def lab(tmp_path_factory):
         yield lab
     finally:
         lab.close()
-        if TIMES:
-            print('\nworst times, process faults:')
-            for kind, times in TIMES.items():
-                worst, deadline = max(times)
-                print(f'  {kind:<58} worst {worst:.3f} s of {len(times)}, deadline {deadline:.3f} s')
+        LOG.report('worst times, process faults')
 
 
 @pytest.mark.parametrize('kind', ['invalid', 'junk'])

@@ -66,8 +66,13 @@ def micromanipulation_graph(tmp_path):
     graph.start('pressure_controller', files, calibration_file=SIM_CAL, calibration_dir=str(tmp_path / 'cal'))
     graph.start('wearer_sim', files, bridge_port=gaze_port)
     graph.start('micromanipulator_sim', files)
-    graph.start('target_selector', files)
+    # The task starts once the probe hears target_selector's events (volatile: an event sent
+    # before the probe matched the publisher would be lost to the test, not to the wearer).
+    graph.start('target_selector', files, autostart=False)
     try:
+        wait_until(lambda: probe.hears(common.TARGET_FOUND) and active, 30.0, what='the probe matched target_selector')
+        from std_srvs.srv import Trigger
+        assert probe.call(Trigger, 'next_target', Trigger.Request()).success
         yield graph, t0, dict(found=found, t_found=t_found, targets=targets, active=active, commands=commands,
                               stack=stack)
     finally:

@@ -18,6 +18,7 @@ import pytest
 from std_msgs.msg import Float64MultiArray
 import yaml
 
+from deadlines import DeadlineLog
 from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
@@ -87,23 +88,15 @@ HOLD_S = 0.2
 OUTPUT_STATUS = 'plc_output: PLC output'
 MOCK_STATUS = 'mock_plc: mock PLC'
 
-#: kind of vent -> every time measured [s]; the worst is printed at the end of the module.
-VENT_TIMES: dict[str, list[tuple[float, float]]] = {}
-
-
-def record_vent(kind, seconds, deadline_s):
-    VENT_TIMES.setdefault(kind, []).append((seconds, deadline_s))
-    print(f'\n[vent] {kind}: {seconds:.3f} s (deadline {deadline_s:.3f} s)')
+#: every vent time measured [s]; the worst of each kind is printed at the end of the module.
+VENTS = DeadlineLog('vent')
+record_vent = VENTS.record
 
 
 @pytest.fixture(scope='module', autouse=True)
 def vent_report():
     yield
-    if VENT_TIMES:
-        print('\nworst vent times (registers read back every %.0f ms):' % (POLL_S * 1e3))
-        for kind, times in VENT_TIMES.items():
-            worst, deadline = max(times)
-            print(f'  {kind:<58} worst {worst:.3f} s of {len(times)}, deadline {deadline:.3f} s')
+    VENTS.report('worst vent times (registers read back every %.0f ms)' % (POLL_S * 1e3))
 
 
 # ---------------------------------------------------------------------- rig

@@ -172,10 +172,16 @@ class PackageGraph:
         wait_until(lambda: 'recording' in self.graph.log('bag_recorder'), 30.0, what='bag_recorder to start')
         # Record only once the recorder is in the graph: the controller builds controller_input
         # only for a subscriber, and the latched parameters reach a matched one.
-        node = self.probe.node
-        wait_until(lambda: node.count_subscribers('controller_input') and node.count_subscribers(
-            'controller_parameters') and node.count_subscribers('pressure_command') >= 2, 30.0,
-            what='bag_recorder subscribed')
+        # Discovery is pairwise: wait until the recorder has written what the controller publishes
+        # while no gaze comes (vented steps: the replay's state is known from the first one).
+        from diagnostic_msgs.msg import DiagnosticArray
+        from ..bag.recorder_status import hears, recorded_counts
+        from ..nodes.common import DIAGNOSTICS
+        counts = {}
+        self.probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10,
+                             lambda msg: counts.update(recorded_counts(msg) or {}))
+        wait_until(lambda: hears(counts, 'controller_input', 'controller_parameters', 'pressure_command'), 30.0,
+                   what='bag_recorder to hear the controller')
         self.rig.prime()
         self.rig.measure(rate_hz, int(seconds * rate_hz), 0.0)
         self.graph.stop('bag_recorder')

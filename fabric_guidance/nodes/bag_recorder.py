@@ -26,6 +26,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
+from ..bag.recorder_status import STATUS_SUFFIX, count_key
 from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
 from ..bag.writer import BagWriter
 from .common import COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, publish_diagnostics, run, status
@@ -84,8 +85,8 @@ class BagRecorder(Node):
         counts = {name: self.bag.counts.get(bag_topic(name, self.get_namespace()), 0) for name in self.topics}
         total = sum(counts.values())
         publish_diagnostics(self, self.diag_pub, [status(
-            self, 'recording', DiagnosticStatus.OK, f'{total} messages to {self.path}',
-            {'bag': str(self.path), **{f'messages {name}': n for name, n in counts.items()}})])
+            self, STATUS_SUFFIX[2:], DiagnosticStatus.OK, f'{total} messages to {self.path}',
+            {'bag': str(self.path), **{count_key(name): n for name, n in counts.items()}})])
 
     def _writer_for(self, name: str):
         topic = bag_topic(name, self.get_namespace())
