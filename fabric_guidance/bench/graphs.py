@@ -162,18 +162,16 @@ class PackageGraph:
     def rss_mb(self) -> dict:
         return {name: rss_mb(self.graph.processes[name].pid) for name in NODES}
 
-    def record_and_replay(self, seconds: float, rate_hz: float) -> dict:
-        """Record `seconds` of the sweep with bag_recorder, then rerun it offline: the replay's
-        speed-up over real time and whether it reproduced every command."""
-        from ..bag import offline
+    def record(self, seconds: float, rate_hz: float) -> Path:
+        """Record `seconds` of the sweep with bag_recorder; the bag (replay() reruns it)."""
         bag = self.work / 'session'
         self.graph.start('bag_recorder', FILES, output=str(bag),
                          topics=['controller_input', 'controller_parameters', 'pressure_command'])
         wait_until(lambda: 'recording' in self.graph.log('bag_recorder'), 30.0, what='bag_recorder to start')
-        # Record only once the recorder is in the graph: the controller builds controller_input
-        # only for a subscriber, and the latched parameters reach a matched one.
-        # Discovery is pairwise: wait until the recorder has written what the controller publishes
-        # while no gaze comes (vented steps: the replay's state is known from the first one).
+        # Record only once the recorder hears the controller (discovery is pairwise; the
+        # controller builds controller_input only for a matched subscriber): wait until it has
+        # written what the controller publishes while no gaze comes (vented steps: the replay's
+        # state is known from the first one).
         from diagnostic_msgs.msg import DiagnosticArray
         from ..bag.recorder_status import hears, recorded_counts
         from ..nodes.common import DIAGNOSTICS
@@ -185,14 +183,7 @@ class PackageGraph:
         self.rig.prime()
         self.rig.measure(rate_hz, int(seconds * rate_hz), 0.0)
         self.graph.stop('bag_recorder')
-        try:
-            rec = offline.load(bag)
-        except ValueError as exc:
-            return {'speedup': None, 'reason': str(exc), 'exact': False, 'steps': 0, 'compared': 0,
-                    'session_s': 0.0}
-        result = offline.replay(rec)
-        return {'speedup': result.speedup, 'exact': result.exact, 'steps': result.steps,
-                'compared': result.compared, 'session_s': result.bag_duration_s}
+        return bag
 
     def close(self) -> None:
         self.rig.close()
@@ -226,3 +217,17 @@ class FloorGraph:
     def close(self) -> None:
         self.rig.close()
         self.graph.stop_all()
+
+
+def replay(bag: Path) -> dict:
+    """Rerun a recorded session offline (with the graphs closed: nothing else competes for the
+    cores): the replay's speed-up over real time and whether it reproduced every command."""
+    from ..bag import offline
+    try:
+        rec = offline.load(bag)
+    except ValueError as exc:
+        return {'speedup': None, 'reason': str(exc), 'exact': False, 'steps': 0, 'compared': 0,
+                'session_s': 0.0}
+    result = offline.replay(rec)
+    return {'speedup': result.speedup, 'exact': result.exact, 'steps': result.steps,
+            'compared': result.compared, 'session_s': result.bag_duration_s}
