@@ -28,6 +28,7 @@ import sys
 
 import numpy as np
 
+from . import subcommand
 from .core.calibration import Calibration, CalibrationFileError, atomic_write
 from .core.geometry import DIRECTIONS
 from .core.power_law import THETA_MAX
@@ -201,9 +202,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the `calibration-report` subcommand to an argparse subparsers object; dispatch to run(args)."""
-    parser = subparsers.add_parser('calibration-report', help=HELP, description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    return configure(parser)
+    return subcommand.add(subparsers, 'calibration-report', HELP, __doc__, configure, run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -221,9 +220,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = configure(argparse.ArgumentParser(prog=PROG, description=__doc__,
-                                               formatter_class=argparse.RawDescriptionHelpFormatter))
-    return run(parser.parse_args(argv))
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 if __name__ == '__main__':

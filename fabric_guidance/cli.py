@@ -92,13 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     from . import calibration_report, replay
     from .bench import runner as bench
     from .experiments import analyze, beyond, experiment, tradeoff
-    replay.add_parser(sub)
-    calibration_report.add_parser(sub)
-    analyze.add_parser(sub)
-    experiment.add_parser(sub)
-    tradeoff.add_parser(sub)
-    beyond.add_parser(sub)
-    bench.add_parser(sub)
+    for module in (replay, calibration_report, analyze, experiment, tradeoff, beyond, bench):
+        module.add_parser(sub).set_defaults(run=module.run)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,
                          help='folder for the calibration file (default: a temporary folder)')
@@ -106,20 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == 'demo':
         from .demo import run_demo  # imports rclpy: only for the graph
         return run_demo(args.condition, args.timeout, args.out, scene=args.scene, record_dir=args.record)
-    if args.command == 'replay':
-        return replay.run(args)
-    if args.command == 'calibration-report':
-        return calibration_report.run(args)
-    if args.command == 'analyze':
-        return analyze.run(args)
-    if args.command == 'experiment':
-        return experiment.run(args)
-    if args.command == 'beyond':
-        return beyond.run(args)
-    if args.command == 'tradeoff':
-        return tradeoff.run(args)
-    if args.command == 'bench':
-        return bench.run(args)
+    if args.command != 'example':
+        return args.run(args)
     if args.out is not None:
         return run_worked_example(args.out)
     with tempfile.TemporaryDirectory(prefix='fabric-guidance-example-') as tmp:

@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 import sys
 
+from .. import subcommand
 from .stats import analyze_blocks, format_analysis, load_table
 
 PROG = 'fabric-guidance analyze'
@@ -32,9 +33,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the `analyze` subcommand to an argparse subparsers object; dispatch to run(args)."""
-    parser = subparsers.add_parser('analyze', help=HELP, description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    return configure(parser)
+    return subcommand.add(subparsers, 'analyze', HELP, __doc__, configure, run)
 
 
 def _error(message: str) -> None:
@@ -70,9 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    return run(configure(parser).parse_args(argv))
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 if __name__ == '__main__':

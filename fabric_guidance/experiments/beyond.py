@@ -26,6 +26,7 @@ import sys
 
 import pandas as pd
 
+from .. import subcommand
 from .report import _image_path, _md_table, analysis_markdown
 from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
 
@@ -51,9 +52,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the `beyond` subcommand to an argparse subparsers object; dispatch to run(args)."""
-    parser = subparsers.add_parser('beyond', help=HELP, description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    return configure(parser)
+    return subcommand.add(subparsers, 'beyond', HELP, __doc__, configure, run)
 
 
 def _error(message) -> None:
@@ -363,9 +362,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    return run(configure(parser).parse_args(argv))
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 if __name__ == '__main__':

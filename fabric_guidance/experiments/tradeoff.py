@@ -58,6 +58,7 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from .. import subcommand
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import CalibrationFitError, fit_power_law
 from ..sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial_run
@@ -921,9 +922,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the `tradeoff` subcommand to an argparse subparsers object; dispatch to run(args)."""
-    parser = subparsers.add_parser('tradeoff', help=HELP, description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    return configure(parser)
+    return subcommand.add(subparsers, 'tradeoff', HELP, __doc__, configure, run)
 
 
 def settings_from_args(args: argparse.Namespace) -> Settings:
@@ -969,9 +968,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    return run(configure(parser).parse_args(argv))
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 __all__ = ['DEFAULT_GRIDS', 'KNOBS', 'QUICK_GRIDS', 'Row', 'Settings', 'SweepResult', 'add_parser',

@@ -1,0 +1,24 @@
+"""One way to build a `fabric-guidance <name>` subcommand and its stand-alone `python -m` entry
+from a module's HELP, docstring, configure(parser) and run(args)."""
+from __future__ import annotations
+
+import argparse
+from typing import Callable, Sequence
+
+Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
+
+
+def add(subparsers, name: str, help_text: str, doc: str | None, configure: Configure,
+        run: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
+    """The subcommand `name` on an argparse subparsers object; `args.run(args)` dispatches to run."""
+    parser = subparsers.add_parser(name, help=help_text, description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    configure(parser).set_defaults(run=run)
+    return parser
+
+
+def main(prog: str, doc: str | None, configure: Configure, run: Callable[[argparse.Namespace], int],
+         argv: Sequence[str] | None = None) -> int:
+    """The module run on its own (`python -m ...`): the same options, no subcommand."""
+    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    return run(configure(parser).parse_args(argv))
