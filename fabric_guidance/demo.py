@@ -321,7 +321,7 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             # not mean the recorder hears the controller yet. Its /diagnostics say what it has written.
             wait_until(lambda: watch.recorder_hears('controller_input', 'pressure_command', 'gaze'),
                        timeout_s, what='the recorder to hear the controller')
-        probe.call(Trigger, 'next_target', Trigger.Request())
+        start_task(probe, watch, Trigger)
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]
             if dead:
@@ -349,6 +349,20 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             probe.close()
         graph.stop_all()
     return code
+
+
+def start_task(probe: Probe, watch: SessionWatch, trigger, attempts: int = 3) -> None:
+    """Call next_target as an operator would and wait for the first target to be active. The
+    outcome is watched, not the response: a service response can be lost while discovery is
+    under way, though the request was handled (asking again would skip a target)."""
+    for attempt in range(attempts):
+        probe.send(trigger, 'next_target', trigger.Request())
+        try:
+            wait_until(lambda: watch.records, 5.0, what='the first target to be active')
+            return
+        except AssertionError:
+            if attempt + 1 == attempts:
+                raise
 
 
 def task_sequence() -> list[str]:

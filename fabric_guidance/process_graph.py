@@ -165,6 +165,7 @@ class Probe:
         self._lock = threading.Lock()
         self.messages: dict[str, list] = {}
         self.subscriptions: dict[str, Any] = {}
+        self._clients: dict[str, Any] = {}
         self._running = True
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -197,12 +198,31 @@ class Probe:
             msgs = self.messages.get(topic, [])
             return msgs[-1] if msgs else None
 
-    def call(self, srv_type, name: str, request, timeout: float = 10.0):
-        client = self.node.create_client(srv_type, name)
+    def _client(self, srv_type, name: str, timeout: float):
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name)
         wait_until(lambda: client.service_is_ready(), timeout, what=f'service {name}')
-        future = client.call_async(request)
-        wait_until(future.done, timeout, what=f'response of {name}')
-        return future.result()
+        return client
+
+    def call(self, srv_type, name: str, request, timeout: float = 10.0, attempts: int = 1):
+        """The service's response. A server that has not yet matched this client's response
+        reader drops the response ("failed to send response"), though it handled the request:
+        attempts > 1 sends the request again after `timeout`, for requests that may be repeated."""
+        client = self._client(srv_type, name, timeout)
+        for attempt in range(attempts):
+            future = client.call_async(request)
+            try:
+                wait_until(future.done, timeout, what=f'response of {name}')
+                return future.result()
+            except AssertionError:
+                if attempt + 1 == attempts:
+                    raise
+
+    def send(self, srv_type, name: str, request, timeout: float = 10.0):
+        """Send a request without waiting for its response (the caller watches the outcome on a
+        topic instead: a response can be lost while discovery is still under way)."""
+        return self._client(srv_type, name, timeout).call_async(request)
 
     def close(self):
         self._running = False

@@ -72,7 +72,8 @@ def micromanipulation_graph(tmp_path):
     try:
         wait_until(lambda: probe.hears(common.TARGET_FOUND) and active, 30.0, what='the probe matched target_selector')
         from std_srvs.srv import Trigger
-        assert probe.call(Trigger, 'next_target', Trigger.Request()).success
+        probe.send(Trigger, 'next_target', Trigger.Request())   # the outcome, not the response
+        wait_until(lambda: active and active[-1].data == ORDER[0], 10.0, what=f'{ORDER[0]} active')
         yield graph, t0, dict(found=found, t_found=t_found, targets=targets, active=active, commands=commands,
                               stack=stack)
     finally:
