@@ -148,6 +148,10 @@ def _param_text(value) -> str:
     return repr(value)
 
 
+#: How long a probe waits for a service to appear on the graph [s].
+DISCOVERY_TIMEOUT_S = 15.0
+
+
 class Probe:
     """An rclpy node in this process, on the graph's domain, spinning in a background thread."""
 
@@ -202,7 +206,8 @@ class Probe:
         client = self._clients.get(name)
         if client is None:
             client = self._clients[name] = self.node.create_client(srv_type, name)
-        wait_until(lambda: client.service_is_ready(), timeout, what=f'service {name}')
+        # Discovery under load can take seconds whatever the response deadline is.
+        wait_until(lambda: client.service_is_ready(), max(timeout, DISCOVERY_TIMEOUT_S), what=f'service {name}')
         return client
 
     def call(self, srv_type, name: str, request, timeout: float = 10.0, attempts: int = 1):
