@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # DDS stays on this machine; tests pick their own domain ids on top of this.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test bench venv clean test-pymodbus
 
 venv: $(STAMP)
 
@@ -24,9 +24,33 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
+# The Modbus tests under the other pymodbus releases the package supports (package.xml):
+# Ubuntu 24.04's python3-pymodbus 3.6.9 and the newest on the index (the pin 3.9.2 is .venv's).
+# Each extra venv holds pymodbus alone; a .pth file appends .venv's site-packages behind it,
+# so ROS wheels, pytest and the package come from .venv and are not installed again.
+PYMODBUS_VERSIONS ?= 3.6.9 latest
+MODBUS_TESTS ?= test/test_plc_modbus.py test/test_plc_endpoints.py test/test_node_plc.py \
+                $(wildcard test/test_plc_contract.py)
+SITE_PACKAGES = $(shell $(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+
+test-pymodbus: $(STAMP) $(PYMODBUS_VERSIONS:%=.venv-pymodbus-%/.installed)
+	@for v in $(PYMODBUS_VERSIONS); do \
+	  .venv-pymodbus-$$v/bin/python -c 'import pymodbus; print("pymodbus", pymodbus.__version__)' && \
+	  .venv-pymodbus-$$v/bin/python -m pytest -q -p no:cacheprovider $(MODBUS_TESTS) || exit 1; \
+	done
+
+.venv-pymodbus-%/.installed: $(STAMP)
+	@test -x $(@D)/bin/python || $(PYTHON) -m venv --without-pip $(@D)
+	$(PY) -m pip install --quiet --disable-pip-version-check --upgrade \
+	  --target $$($(@D)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])') \
+	  $(if $(filter latest,$*),pymodbus,pymodbus==$*)
+	echo "import site; site.addsitedir('$(SITE_PACKAGES)')" > \
+	  $$($(@D)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/zz_fabric_guidance_venv.pth
+	@touch $@
+
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)
 	$(VENV)/bin/fabric-guidance bench --out bench/results.json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis *.egg-info
+	rm -rf $(VENV) .venv-pymodbus-* .pytest_cache .hypothesis *.egg-info
