@@ -8,13 +8,13 @@ pymodbus_compat  the only module that imports pymodbus: every version difference
 The pymodbus-backed names are imported lazily, so the register map and the simulation can
 be used (and tested) where pymodbus is not installed.
 """
-from .register_map import ChannelRegisters, RegisterMap, RegisterMapError
+from .register_map import ChannelRegisters, PlcEndpoint, PlcLayout, RegisterMap, RegisterMapError
 from .regulator import FirstOrderLag, RegulatorSim, ScanResult, Watchdog
 
 _MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError')
 
-__all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcLinkError',
-           'PlcNoAnswerError', 'PlcRefusedError', 'RegisterMap', 'RegisterMapError', 'RegulatorSim',
+__all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcEndpoint',
+           'PlcLayout', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError', 'RegisterMap', 'RegisterMapError', 'RegulatorSim',
            'ScanResult', 'Watchdog']
 
 
