@@ -349,3 +349,16 @@ def test_start_fails_loudly_when_the_port_is_taken(reg_map, plc):
     with pytest.raises(RuntimeError, match='did not start'):
         second.start()
     assert not second.running
+
+
+def test_package_xml_states_the_supported_pymodbus_range_and_this_one_is_in_it():
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    (dep,) = [e for e in ET.parse(root / 'package.xml').getroot().findall('exec_depend')
+              if e.text == 'python3-pymodbus']
+    assert (dep.get('version_gte'), dep.get('version_lt')) == compat.SUPPORTED
+
+    def version(text):
+        return tuple(int(part) for part in text.split('.')[:3] if part.isdigit())
+    assert version(compat.SUPPORTED[0]) <= version(compat.PYMODBUS_VERSION) < version(compat.SUPPORTED[1])
