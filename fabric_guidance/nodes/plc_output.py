@@ -36,6 +36,7 @@ from fabric_guidance.nodes.common import (COMMAND_QOS, DIAGNOSTICS, MEASURED_PRE
                                           declare, publish_diagnostics, run, status)
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError
+from fabric_guidance.plc.pymodbus_compat import PYMODBUS_VERSION
 
 #: Errors about bad commands or an unreachable PLC are logged at most this often [s].
 LOG_THROTTLE_S = 1.0
@@ -138,7 +139,8 @@ class PlcOutput(Node):
         self.get_logger().info(
             f'writing {self.n} channels {list(channel_map.channels)} to the PLC at {self.plc_address} '
             f'at {write_rate_hz:g} Hz, p_max {self.p_max_kpa:g} kPa (parameter {p_max_param:g}, register map '
-            f'{self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s')
+            f'{self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s, '
+            f'pymodbus {PYMODBUS_VERSION}')
         if len(self._links) > 1 or self.layout.endpoints[0].host is not None:
             self.get_logger().info('PLC endpoints from the register map (plc_host and plc_port unused): ' + '; '.join(
                 f'{link.name} at {link.client.address} unit id {link.client.map.unit_id}: '
