@@ -119,7 +119,7 @@ class Lab:
         self.path.write_text(yaml.safe_dump(register_map))
         self.layout = PlcLayout.load(self.path)
         self.graph = Graph(log_dir / 'logs')
-        self.mocks = mocks   # process name -> (endpoint, mock's own register map file)
+        self.mocks = mocks   # process name -> (endpoint, mock's own register map file or None, port)
         for name in mocks:
             self.start_mock(name)
         self.graph.start('plc_output', PARAMS_FILES, register_map_file=str(self.path),
@@ -132,9 +132,8 @@ class Lab:
         self.readers = {}
 
     def start_mock(self, name):
-        endpoint, map_file = self.mocks[name]
-        e = self.layout.endpoint(endpoint)
-        self.graph.start('mock_plc', PARAMS_FILES, as_name=name, port=e.port or 0,
+        endpoint, map_file, port = self.mocks[name]
+        self.graph.start('mock_plc', PARAMS_FILES, as_name=name, port=port,
                          register_map_file=str(map_file or self.path), endpoint=endpoint if not map_file else '')
 
     def _publish(self):
@@ -144,11 +143,12 @@ class Lab:
     def command(self, values):
         self.data = [float(v) for v in values]
 
-    def registers(self, endpoint: str):
+    def registers(self, endpoint: str, port: int | None = None, register_map: RegisterMap | None = None):
         """An endpoint's command registers read back (kPa), None while it does not answer."""
         e = self.layout.endpoint(endpoint)
         if endpoint not in self.readers:
-            self.readers[endpoint] = PlcClient(e.map, '127.0.0.1', e.port, timeout_s=0.3)
+            self.readers[endpoint] = PlcClient(register_map or e.map, '127.0.0.1', port or e.port,
+                                               timeout_s=0.3)
         try:
             return self.readers[endpoint].read_commands_kpa()
         except PlcLinkError:
@@ -179,7 +179,9 @@ def command_vector():
 
 def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
     data = two_endpoints(free_port(), free_port())
-    lab = Lab(tmp_path, data, {'mock_suit': ('suit', None), 'mock_arm': ('arm', None)})
+    ports = {e['name']: e['port'] for e in data['endpoints']}
+    lab = Lab(tmp_path, data, {'mock_suit': ('suit', None, ports['suit']),
+                               'mock_arm': ('arm', None, ports['arm'])})
     try:
         command = command_vector()
         lab.command(command)
@@ -214,28 +216,27 @@ def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
 
 
 def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
-    """plc_output's map puts the heartbeat at 100; the PLC (its own map: the contract's) answers
-    exception 02 there. /diagnostics says which register and that the map or program is wrong."""
+    """plc_output's map (the single-PLC form) puts the heartbeat at 100; the PLC (the shipped map:
+    the contract's layout) answers exception 02 there. /diagnostics names the register and says
+    the map or the program is wrong; not one command lands meanwhile."""
     port = free_port()
-    data = two_endpoints(free_port(), port, heartbeat_register=100)
-    del data['endpoints'][0]   # one PLC: the arm's, with the wrong heartbeat register
-    plc_side = two_endpoints(free_port(), port)
-    del plc_side['endpoints'][0]
-    plc_map = tmp_path / 'plc_side.yaml'
-    plc_map.write_text(yaml.safe_dump(plc_side))
-    lab = Lab(tmp_path, data, {'mock_arm': ('arm', plc_map)}, {'channel_map_file': arm_channel_map(tmp_path)})
+    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+    data['heartbeat_register'] = 100
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)}, {'plc_port': port})
     try:
-        lab.command(command_vector()[12:])
-        wait_until(lambda: (s := lab.status('plc_output: PLC link arm')) and s.level == DiagnosticStatus.ERROR,
+        lab.command(command_vector())
+        wait_until(lambda: (s := lab.status('plc_output: PLC output')) and s.level == DiagnosticStatus.ERROR,
                    STARTUP_DEADLINE_S, what='the refusal on /diagnostics')
-        link = lab.status('plc_output: PLC link arm')
-        assert 'refuses' in link.message and 'down' not in link.message, link.message
-        assert 'exception 02' in link.message and 'holding register 100' in link.message, link.message
-        assert 'register map' in link.message and 'PLC program' in link.message
-        assert {kv.key: kv.value for kv in link.values}['state'] == 'refused'
+        message = lab.status('plc_output: PLC output').message
+        assert 'refuses' in message and 'down' not in message, message
+        assert 'exception 02' in message and 'holding register 100' in message, message
+        assert 'register map' in message and 'PLC program' in message, message
+        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S, what='the link status')
+        assert {kv.key: kv.value for kv in lab.status('plc_output: PLC link plc').values}['state'] == 'refused'
         end = time.monotonic() + NEVER_LANDS_S
+        shipped = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
         while time.monotonic() < end:
-            r = lab.registers('arm')
+            r = lab.registers('', port, shipped)
             assert r is not None and not r.any(), f'a command landed on a refusing PLC: {r}'
             time.sleep(0.02)
     finally:
@@ -247,29 +248,18 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
 
 def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
     port = free_port()
-    data = two_endpoints(free_port(), port)
-    del data['endpoints'][0]
-    plc_side = yaml.safe_load(yaml.safe_dump(data))
-    plc_side['endpoints'][0]['unit_id'] = 7   # the PLC answers unit 7 only
-    plc_map = tmp_path / 'plc_side.yaml'
-    plc_map.write_text(yaml.safe_dump(plc_side))
-    lab = Lab(tmp_path, data, {'mock_arm': ('arm', plc_map)}, {'channel_map_file': arm_channel_map(tmp_path)})
+    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+    data['unit_id'] = 2   # the PLC (the shipped map) answers unit id 1 only
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)}, {'plc_port': port})
     try:
-        lab.command(command_vector()[12:])
-        wait_until(lambda: (s := lab.status('plc_output: PLC link arm')) and s.level == DiagnosticStatus.ERROR,
+        lab.command(command_vector())
+        wait_until(lambda: (s := lab.status('plc_output: PLC output')) and s.level == DiagnosticStatus.ERROR,
                    STARTUP_DEADLINE_S, what='the silence on /diagnostics')
-        link = lab.status('plc_output: PLC link arm')
-        assert 'check unit_id' in link.message and 'unit id 2' in link.message, link.message
-        assert 'down' not in link.message and {kv.key: kv.value for kv in link.values}['state'] == 'no answer'
+        message = lab.status('plc_output: PLC output').message
+        assert 'check unit_id' in message and 'unit id 2' in message and 'down' not in message, message
+        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S, what='the link status')
+        assert {kv.key: kv.value for kv in lab.status('plc_output: PLC link plc').values}['state'] == 'no answer'
+        r = lab.registers('', port, RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
+        assert r is not None and not r.any(), r
     finally:
         lab.close()
-
-
-def arm_channel_map(tmp_path) -> str:
-    """A channel map of the arm channels only (plc_output then drives one PLC)."""
-    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
-    channel_map['channels'] = list(ARM)
-    channel_map['layouts'] = {'arm': channel_map['layouts']['arm']}
-    path = tmp_path / 'arm_channel_map.yaml'
-    path.write_text(yaml.safe_dump(channel_map))
-    return str(path)
