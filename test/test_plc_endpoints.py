@@ -51,11 +51,14 @@ def report():
 
 
 def two_endpoints(port_a=1502, port_b=1503, **b_overrides):
-    channels = [{'name': c, 'command_register': i, 'measured_register': i} for i, c in enumerate(SUIT)]
-    arm = [{'name': c, 'command_register': i, 'measured_register': i} for i, c in enumerate(ARM)]
+    def channels(names):
+        return [{'name': c, 'command_register': i, 'measured_register': i}
+                for i, c in enumerate(names)]
     return {'p_max_kpa': 375.0, 'counts_per_kpa': 10, 'endpoints': [
-        {'name': 'suit', 'host': '127.0.0.1', 'port': port_a, 'unit_id': 1, 'channels': channels},
-        {'name': 'arm', 'host': '127.0.0.1', 'port': port_b, 'unit_id': 2, 'channels': arm, **b_overrides}]}
+        {'name': 'suit', 'host': '127.0.0.1', 'port': port_a, 'unit_id': 1,
+         'channels': channels(SUIT)},
+        {'name': 'arm', 'host': '127.0.0.1', 'port': port_b, 'unit_id': 2,
+         'channels': channels(ARM), **b_overrides}]}
 
 
 # ------------------------------------------------------------------ the layout itself
@@ -84,14 +87,17 @@ def test_the_single_plc_form_is_one_endpoint_addressed_by_the_node():
 
 @pytest.mark.parametrize('change, field, reason', [
     (lambda d: d['endpoints'][1]['channels'].append(
-        {'name': 'F1', 'command_register': 6, 'measured_register': 6}), 'endpoints', "'F1' is served by both"),
+        {'name': 'F1', 'command_register': 6, 'measured_register': 6}),
+     'endpoints', "'F1' is served by both"),
     (lambda d: d['endpoints'][1]['channels'].pop(), 'endpoints', "missing ['arm_vi']"),
     (lambda d: d['endpoints'][1].update(name='suit'), 'endpoints[1].name', 'duplicates'),
-    (lambda d: d['endpoints'][1].update(port=1502, unit_id=1), 'endpoints[1]', 'is also endpoints[0]'),
+    (lambda d: d['endpoints'][1].update(port=1502, unit_id=1),
+     'endpoints[1]', 'is also endpoints[0]'),
     (lambda d: d['endpoints'][0].pop('host'), 'endpoints[0].host', 'missing'),
     (lambda d: d['endpoints'][0].update(slave=3), 'endpoints[0].slave', 'not a known field'),
     (lambda d: d.update(unit_id=1), 'unit_id', 'each endpoint'),
-    (lambda d: d['endpoints'][1].update(heartbeat_register=3), 'heartbeat_register', 'command register'),
+    (lambda d: d['endpoints'][1].update(heartbeat_register=3),
+     'heartbeat_register', 'command register'),
 ])
 def test_a_bad_endpoint_names_the_field_and_the_reason(change, field, reason):
     data = two_endpoints()
@@ -119,14 +125,16 @@ class Lab:
         self.path.write_text(yaml.safe_dump(register_map))
         self.layout = PlcLayout.load(self.path)
         self.graph = Graph(log_dir / 'logs')
-        self.mocks = mocks   # process name -> (endpoint, mock's own register map file or None, port)
+        # process name -> (endpoint, the mock's own register map file or None, port)
+        self.mocks = mocks
         for name in mocks:
             self.start_mock(name)
         self.graph.start('plc_output', PARAMS_FILES, register_map_file=str(self.path),
                          **(output_overrides or {}))
         self.probe = Probe(self.graph.domain_id)
         self.diagnostics = self.probe.subscribe(DiagnosticArray, DIAGNOSTICS, COMMAND_QOS)
-        self.pub = self.probe.node.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
+        self.pub = self.probe.node.create_publisher(Float64MultiArray, PRESSURE_COMMAND,
+                                                    COMMAND_QOS)
         self.data = None
         self.probe.node.create_timer(0.05, self._publish)
         self.readers = {}
@@ -134,7 +142,8 @@ class Lab:
     def start_mock(self, name):
         endpoint, map_file, port = self.mocks[name]
         self.graph.start('mock_plc', PARAMS_FILES, as_name=name, port=port,
-                         register_map_file=str(map_file or self.path), endpoint=endpoint if not map_file else '')
+                         register_map_file=str(map_file or self.path),
+                         endpoint=endpoint if not map_file else '')
 
     def _publish(self):
         if self.data is not None:
@@ -143,7 +152,8 @@ class Lab:
     def command(self, values):
         self.data = [float(v) for v in values]
 
-    def registers(self, endpoint: str, port: int | None = None, register_map: RegisterMap | None = None):
+    def registers(self, endpoint: str, port: int | None = None,
+                  register_map: RegisterMap | None = None):
         """An endpoint's command registers read back (kPa), None while it does not answer."""
         e = self.layout.endpoint(endpoint)
         if endpoint not in self.readers:
@@ -157,7 +167,15 @@ class Lab:
     def wait_registers(self, endpoint, expected, deadline_s, what):
         expected = np.asarray(expected, dtype=float)
         wait_until(lambda: (r := self.registers(endpoint)) is not None
-                   and np.max(np.abs(r - expected)) <= TOLERANCE_KPA + 1e-9, deadline_s, 0.01, what)
+                   and np.max(np.abs(r - expected)) <= TOLERANCE_KPA + 1e-9,
+                   deadline_s, 0.01, what)
+
+    def wait_level(self, name, level, deadline_s, what, start=0):
+        wait_until(lambda: (s := self.status(name, start)) and s.level == level, deadline_s,
+                   what=what)
+
+    def state(self, name):
+        return {kv.key: kv.value for kv in self.status(name).values}['state']
 
     def status(self, name, start=0):
         found = [s for msg in self.diagnostics[start:] for s in msg.status if s.name == name]
@@ -187,16 +205,18 @@ def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
         lab.command(command)
         lab.wait_registers('suit', command[:12], STARTUP_DEADLINE_S, 'the command on the suit PLC')
         lab.wait_registers('arm', command[12:], COMMAND_DEADLINE_S, 'the command on the arm PLC')
-        wait_until(lambda: (s := lab.status('plc_output: PLC link arm')) and s.level == DiagnosticStatus.OK,
-                   DIAGNOSTICS_DEADLINE_S, what='the arm link OK on /diagnostics')
+        lab.wait_level('plc_output: PLC link arm', DiagnosticStatus.OK, DIAGNOSTICS_DEADLINE_S,
+                       'the arm link OK on /diagnostics')
 
         t0 = time.monotonic()
         lab.graph.stop('mock_arm', signal.SIGKILL)
-        lab.wait_registers('suit', np.zeros(12), OTHER_VENT_DEADLINE_S, 'the suit PLC vented by plc_output')
-        LOG.record('one PLC killed -> the other vented by plc_output', time.monotonic() - t0, OTHER_VENT_DEADLINE_S)
+        lab.wait_registers('suit', np.zeros(12), OTHER_VENT_DEADLINE_S,
+                           'the suit PLC vented by plc_output')
+        LOG.record('one PLC killed -> the other vented by plc_output', time.monotonic() - t0,
+                   OTHER_VENT_DEADLINE_S)
         n = len(lab.diagnostics)
-        wait_until(lambda: (s := lab.status('plc_output: PLC link arm', n)) and s.level == DiagnosticStatus.ERROR,
-                   DIAGNOSTICS_DEADLINE_S, what='the arm link ERROR on /diagnostics')
+        lab.wait_level('plc_output: PLC link arm', DiagnosticStatus.ERROR, DIAGNOSTICS_DEADLINE_S,
+                       'the arm link ERROR on /diagnostics', start=n)
         assert 'PLC link down (arm)' in lab.status('plc_output: PLC link arm', n).message
         assert lab.status('plc_output: PLC link suit', n).level == DiagnosticStatus.OK
         assert 'venting all PLCs' in lab.status('plc_output: PLC output', n).message
@@ -208,9 +228,11 @@ def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
 
         t0 = time.monotonic()
         lab.start_mock('mock_arm')
-        lab.wait_registers('arm', command[12:], STARTUP_DEADLINE_S + HEAL_DEADLINE_S, 'the arm PLC back')
+        lab.wait_registers('arm', command[12:], STARTUP_DEADLINE_S + HEAL_DEADLINE_S,
+                           'the arm PLC back')
         lab.wait_registers('suit', command[:12], COMMAND_DEADLINE_S, 'the suit PLC back')
-        print(f'\n[endpoints] both PLCs commanded again {time.monotonic() - t0:.3f} s after restarting one')
+        print(f'\n[endpoints] both PLCs commanded again {time.monotonic() - t0:.3f} s after '
+              'restarting one')
     finally:
         lab.close()
 
@@ -222,17 +244,19 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
     port = free_port()
     data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
     data['heartbeat_register'] = 100
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)}, {'plc_port': port})
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
+              {'plc_port': port})
     try:
         lab.command(command_vector())
-        wait_until(lambda: (s := lab.status('plc_output: PLC output')) and s.level == DiagnosticStatus.ERROR,
-                   STARTUP_DEADLINE_S, what='the refusal on /diagnostics')
+        lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
+                       'the refusal on /diagnostics')
         message = lab.status('plc_output: PLC output').message
         assert 'refuses' in message and 'down' not in message, message
         assert 'exception 02' in message and 'holding register 100' in message, message
         assert 'register map' in message and 'PLC program' in message, message
-        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S, what='the link status')
-        assert {kv.key: kv.value for kv in lab.status('plc_output: PLC link plc').values}['state'] == 'refused'
+        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S,
+                   what='the link status')
+        assert lab.state('plc_output: PLC link plc') == 'refused'
         end = time.monotonic() + NEVER_LANDS_S
         shipped = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
         while time.monotonic() < end:
@@ -243,22 +267,26 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
         lab.close(check=False)
     found = lab.graph.plc_violations()
     # The tries at register 100 are recorded as out-of-map writes (refused, never stored).
-    assert found and all('outside the register map' in line and '[100,' in line for line in found), found
+    assert found and all('outside the register map' in line and '[100,' in line
+                         for line in found), found
 
 
 def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
     port = free_port()
     data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
     data['unit_id'] = 2   # the PLC (the shipped map) answers unit id 1 only
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)}, {'plc_port': port})
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
+              {'plc_port': port})
     try:
         lab.command(command_vector())
-        wait_until(lambda: (s := lab.status('plc_output: PLC output')) and s.level == DiagnosticStatus.ERROR,
-                   STARTUP_DEADLINE_S, what='the silence on /diagnostics')
+        lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
+                       'the silence on /diagnostics')
         message = lab.status('plc_output: PLC output').message
-        assert 'check unit_id' in message and 'unit id 2' in message and 'down' not in message, message
-        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S, what='the link status')
-        assert {kv.key: kv.value for kv in lab.status('plc_output: PLC link plc').values}['state'] == 'no answer'
+        assert 'check unit_id' in message and 'unit id 2' in message, message
+        assert 'down' not in message, message
+        wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S,
+                   what='the link status')
+        assert lab.state('plc_output: PLC link plc') == 'no answer'
         r = lab.registers('', port, RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
         assert r is not None and not r.any(), r
     finally:

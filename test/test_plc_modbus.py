@@ -251,7 +251,8 @@ def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_ma
         answer = compat.request(raw, 'write_registers', 0, [5000] + [0] * (N - 1) + [seq],
                                 unit_id=reg_map.unit_id)
         assert not answer.isError()
-        stored = compat.request(raw, 'read_holding_registers', 0, unit_id=reg_map.unit_id, count=N + 2)
+        stored = compat.request(raw, 'read_holding_registers', 0, unit_id=reg_map.unit_id,
+                                count=N + 2)
         assert stored.registers[0] == reg_map.p_max_counts and stored.registers[N] == seq
         assert compat.exception_code(compat.request(raw, 'read_input_registers', N,
                                                     unit_id=reg_map.unit_id, count=1)) == 2
@@ -295,7 +296,8 @@ def test_wrong_unit_id_says_check_the_unit_id(reg_map, plc):
                       timeout_s=0.3)
     try:
         for _ in range(2):   # the second time too: silence is not taken for a dead link
-            with pytest.raises(PlcNoAnswerError, match=f'unit id {reg_map.unit_id + 1}.*check unit_id'):
+            with pytest.raises(PlcNoAnswerError,
+                               match=f'unit id {reg_map.unit_id + 1}.*check unit_id'):
                 other.write_pressures(ramp(10.0))
     finally:
         other.close()
@@ -361,4 +363,5 @@ def test_package_xml_states_the_supported_pymodbus_range_and_this_one_is_in_it()
 
     def version(text):
         return tuple(int(part) for part in text.split('.')[:3] if part.isdigit())
-    assert version(compat.SUPPORTED[0]) <= version(compat.PYMODBUS_VERSION) < version(compat.SUPPORTED[1])
+    low, high = (version(v) for v in compat.SUPPORTED)
+    assert low <= version(compat.PYMODBUS_VERSION) < high

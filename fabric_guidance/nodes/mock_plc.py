@@ -2,8 +2,9 @@
 
 Runs fabric_guidance.plc.MockPlcServer (the PLC contract of docs/plc.md: same register map as
 the real PLC, regulator lag, heartbeat watchdog, sequence gate, clamp) for one endpoint of the
-register map (`endpoint`; one mock_plc per PLC) and reports what was written to it: the largest pressure ever written per
-channel and, on /diagnostics, every write above p_max or outside the register map.
+register map (`endpoint`; one mock_plc per PLC) and reports what was written to it: the
+largest pressure ever written per channel and, on /diagnostics, every write above p_max or
+outside the register map.
 
 Publishes: mock_plc/max_written_kpa (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
 

@@ -68,10 +68,12 @@ class PlcOutput(Node):
         # Every parameter is read once, here; read-only so that `ros2 param set` cannot appear
         # to change a value (a pressure limit above all) that the running node does not use.
         self.plc_host = declare(self, 'plc_host', '127.0.0.1',
-                                "the PLC's address (Modbus TCP); a register map with endpoints names its own",
+                                "the PLC's address (Modbus TCP); a register map with endpoints "
+                                'names its own',
                                 read_only=True)
         self.plc_port = declare(self, 'plc_port', 1502,
-                                "the PLC's Modbus TCP port; a register map with endpoints names its own",
+                                "the PLC's Modbus TCP port; a register map with endpoints names "
+                                'its own',
                                 '', 1, 65535, read_only=True)
         register_map_file = declare(self, 'register_map_file', '',
                                     "register map (YAML); '' = the package's config/plc_register_map.yaml",
@@ -142,9 +144,11 @@ class PlcOutput(Node):
             f'{self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s, '
             f'pymodbus {PYMODBUS_VERSION}')
         if len(self._links) > 1 or self.layout.endpoints[0].host is not None:
-            self.get_logger().info('PLC endpoints from the register map (plc_host and plc_port unused): ' + '; '.join(
-                f'{link.name} at {link.client.address} unit id {link.client.map.unit_id}: '
-                f'{list(link.client.map.names)}' for link in self._links))
+            listed = '; '.join(f'{link.name} at {link.client.address} unit id '
+                               f'{link.client.map.unit_id}: {list(link.client.map.names)}'
+                               for link in self._links)
+            self.get_logger().info(f'PLC endpoints from the register map (plc_host and plc_port '
+                                   f'unused): {listed}')
 
     # ---------------------------------------------------------------- commands
     def _on_command(self, msg: Float64MultiArray) -> None:
@@ -234,7 +238,8 @@ class PlcOutput(Node):
             if not link.client.connect():
                 link.last_error = f'cannot connect to {link.client.address}'
                 self._schedule_retry(link)
-                self.get_logger().error(f'PLC {link.name} at {link.client.address} unreachable; next attempt in '
+                self.get_logger().error(f'PLC {link.name} at {link.client.address} unreachable; '
+                                        f'next attempt in '
                                         f'{link.next_attempt_s - time.monotonic():.1f} s',
                                         throttle_duration_sec=LOG_THROTTLE_S)
                 return
@@ -260,9 +265,11 @@ class PlcOutput(Node):
         if exc.state == 'down':
             link.client.close()
         self._schedule_retry(link)
-        what = {'down': 'link lost', 'refused': 'refuses', 'no answer': 'does not answer'}[exc.state]
+        what = {'down': 'link lost', 'refused': 'refuses',
+                'no answer': 'does not answer'}[exc.state]
         self.get_logger().error(f'PLC {link.name} {what}: {exc}; venting all PLCs, retrying '
-                                '(the PLC watchdog vents meanwhile)', throttle_duration_sec=LOG_THROTTLE_S)
+                                '(the PLC watchdog vents meanwhile)',
+                                throttle_duration_sec=LOG_THROTTLE_S)
         for other in self._links:
             if other is not link and other.up:
                 try:
@@ -288,7 +295,8 @@ class PlcOutput(Node):
         else:
             level, message = DiagnosticStatus.OK, 'writing commands'
         age = 'never' if self._command_s is None else f'{time.monotonic() - self._command_s:.3f}'
-        rtts = [link.last_round_trip_s for link in self._links if link.last_round_trip_s is not None]
+        rtts = [link.last_round_trip_s for link in self._links
+                if link.last_round_trip_s is not None]
         rtt = 'none' if not rtts else f'{1e3 * max(rtts):.2f}'
         values = {'connected': not faulty, 'last round trip ms': rtt, 'writes': self._writes,
                   'link failures': sum(link.failures for link in self._links),
@@ -301,8 +309,10 @@ class PlcOutput(Node):
             statuses.append(status(self, f'PLC link {link.name}', link_level,
                                    'up' if link.up else self._link_message(link),
                                    {'state': link.state, 'address': link.client.address,
-                                    'unit id': link.client.map.unit_id, 'channels': ' '.join(link.client.map.names),
-                                    'link failures': link.failures, 'reconnects': link.reconnects}))
+                                    'unit id': link.client.map.unit_id,
+                                    'channels': ' '.join(link.client.map.names),
+                                    'link failures': link.failures,
+                                    'reconnects': link.reconnects}))
         publish_diagnostics(self, self._diagnostics_pub, statuses)
 
     @staticmethod
@@ -312,7 +322,8 @@ class PlcOutput(Node):
         if link.state == 'refused':
             return f'PLC {link.name} refuses (link up, commands not written): {link.last_error}'
         if link.state == 'no answer':
-            return f'PLC {link.name} does not answer its unit id (commands not written): {link.last_error}'
+            return (f'PLC {link.name} does not answer its unit id (commands not written): '
+                    f'{link.last_error}')
         return f'PLC link down ({link.name}): {link.last_error}'
 
     # ---------------------------------------------------------------- shutdown
@@ -346,8 +357,8 @@ class PlcOutput(Node):
                 break
             error = f'command registers read back {list(left)} after venting'
         if error is not None:
-            log.error(f'could not vent PLC {link.name} on shutdown: {error}; its watchdog vents once the '
-                      'heartbeat stops')
+            log.error(f'could not vent PLC {link.name} on shutdown: {error}; its watchdog vents '
+                      'once the heartbeat stops')
         client.close()
 
 

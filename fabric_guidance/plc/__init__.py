@@ -11,11 +11,12 @@ be used (and tested) where pymodbus is not installed.
 from .register_map import ChannelRegisters, PlcEndpoint, PlcLayout, RegisterMap, RegisterMapError
 from .regulator import FirstOrderLag, RegulatorSim, ScanResult, Watchdog
 
-_MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError')
+_MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError', 'PlcNoAnswerError',
+                 'PlcRefusedError')
 
 __all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcEndpoint',
-           'PlcLayout', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError', 'RegisterMap', 'RegisterMapError', 'RegulatorSim',
-           'ScanResult', 'Watchdog']
+           'PlcLayout', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError', 'RegisterMap',
+           'RegisterMapError', 'RegulatorSim', 'ScanResult', 'Watchdog']
 
 
 def __getattr__(name: str):

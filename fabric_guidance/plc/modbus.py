@@ -186,7 +186,8 @@ class PlcClient:
             raise PlcLinkError(f'{what} to {where} failed: cannot connect')
         t0 = time.monotonic()
         try:
-            response = compat.request(self._client, method, *args, unit_id=self.map.unit_id, count=count)
+            response = compat.request(self._client, method, *args, unit_id=self.map.unit_id,
+                                      count=count)
         except Exception as exc:  # noqa: BLE001
             # Broad on purpose: besides ModbusException and OSError, pymodbus can let decoding
             # errors through on a garbled frame; the control loop must see one error type.
@@ -199,8 +200,8 @@ class PlcClient:
                 self._answered = True
             if code is None:  # pymodbus 3.6 returns a timeout instead of raising it
                 raise self._failed(what, where, f'error response {response}', t0)
-            raise PlcRefusedError(f'{what} to {where} refused: {self._explain(code, method, args, count)}',
-                                  code)
+            explained = self._explain(code, method, args, count)
+            raise PlcRefusedError(f'{what} to {where} refused: {explained}', code)
         self._answered = True
         if count is not None and len(getattr(response, 'registers', ())) != count:
             self.close()
@@ -232,15 +233,16 @@ class PlcClient:
         n = count if count is not None else (len(args[1]) if method == 'write_registers' else 1)
         span = f'{first}' if n == 1 else f'{first}..{first + n - 1}'
         if code == 2:
-            return (f'exception 02 {name} for {table} register{"s" if n > 1 else ""} {span}: the PLC has '
-                    f'no such register, so the register map ({self.map.source}) or the PLC program '
+            plural = 's' if n > 1 else ''
+            return (f'exception 02 {name} for {table} register{plural} {span}: the PLC has no '
+                    f'such register, so the register map ({self.map.source}) or the PLC program '
                     f'is wrong (they must agree: docs/plc.md)')
         if code == 1:
-            return (f'exception 01 {name} ({method}): the PLC program does not implement this Modbus '
-                    f'function; it must answer function codes 3, 4, 6 and 16')
+            return (f'exception 01 {name} ({method}): the PLC program does not implement this '
+                    f'Modbus function; it must answer function codes 3, 4, 6 and 16')
         if code == 3:
-            return (f'exception 03 {name} for {table} registers {span}: the PLC program refuses this '
-                    f'quantity or value')
+            return (f'exception 03 {name} for {table} registers {span}: the PLC program refuses '
+                    f'this quantity or value')
         return f'exception {code:02d} {name} for {table} registers {span}'
 
 
@@ -324,7 +326,8 @@ class _Registers:
                 if len(pdu) < 6:
                     return _exception(fc, 3)
                 start, quantity, byte_count = struct.unpack('>HHB', pdu[1:6])
-                if not 1 <= quantity <= MAX_WRITE or byte_count != 2 * quantity or len(pdu) != 6 + byte_count:
+                if (not 1 <= quantity <= MAX_WRITE or byte_count != 2 * quantity
+                        or len(pdu) != 6 + byte_count):
                     return _exception(fc, 3)
                 values = list(struct.unpack(f'>{quantity}H', pdu[6:]))
                 if not self._mapped(self.holding, start, quantity):
@@ -353,10 +356,7 @@ class _Registers:
         with self.lock:
             self.writes += 1
             self.version += 1
-            if self.write_times is not None:
-                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
-                # process. Taken under the lock, so a take_write_times() never misses one.
-                self.write_times.append((time.monotonic_ns(), start, tuple(values)))
+            landed_ns = time.monotonic_ns()
             before = dict(self.holding)
             for a, v in enumerate(values, start):
                 name = self._channel_of.get(a)
@@ -368,22 +368,33 @@ class _Registers:
                         self.over_limit_writes.append((a, v))
                     v = min(v, m.p_max_counts)   # stored clamped: never reaches an output
                 self.holding[a] = v
-            seq = self.sequence
-            if seq is None:
+            if self._undo_unless_sequenced(before, start, values):
                 return
-            commands_changed = any(self.holding[a] != before[a] for a in self.commands)
-            seq_changed = self.holding[seq] != before[seq]
-            if not (commands_changed or seq_changed):
-                return
-            last = self.gate.last
-            if seq_changed and self.gate.accept(self.holding[seq]):
-                return
-            # Not newer, or no number at all: answered normally but undone (the library the
-            # PLC program runs on writes first and offers no hook; the program restores).
-            for a in self.commands + (seq,):
-                self.holding[a] = before[a]
-            written_seq = values[seq - start] if start <= seq < start + len(values) else None
-            self.stale_writes.append((written_seq, last))
+            if self.write_times is not None:
+                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
+                # process. Taken under the lock, so a take_write_times() never misses one.
+                self.write_times.append((landed_ns, start, tuple(values)))
+
+    def _undo_unless_sequenced(self, before: dict[int, int], start: int,
+                               values: list[int]) -> bool:
+        """The sequence gate on a write just stored; True when it was undone."""
+        seq = self.sequence
+        if seq is None:
+            return False
+        commands_changed = any(self.holding[a] != before[a] for a in self.commands)
+        seq_changed = self.holding[seq] != before[seq]
+        if not (commands_changed or seq_changed):
+            return False
+        last = self.gate.last
+        if seq_changed and self.gate.accept(self.holding[seq]):
+            return False
+        # Not newer, or no number at all: answered normally but undone (the library the PLC
+        # program runs on writes first and offers no hook; the program restores).
+        for a in self.commands + (seq,):
+            self.holding[a] = before[a]
+        written_seq = values[seq - start] if start <= seq < start + len(values) else None
+        self.stale_writes.append((written_seq, last))
+        return True
 
     def force_commands_zero(self) -> None:
         """The watchdog's vent: done by the PLC itself, not a client write (not recorded)."""
@@ -523,7 +534,8 @@ class MockPlcServer:
             await asyncio.gather(*others, return_exceptions=True)
             await asyncio.sleep(0)
 
-    async def _serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def _serve_connection(self, reader: asyncio.StreamReader,
+                                writer: asyncio.StreamWriter) -> None:
         """One client connection: request, answer, in order (Modbus TCP, MBAP framing)."""
         self._writers.add(writer)
         try:

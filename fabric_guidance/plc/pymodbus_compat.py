@@ -35,8 +35,9 @@ def _unit_keyword() -> str:
         return 'device_id'
     if 'slave' in params:
         return 'slave'
-    raise ImportError(f'pymodbus {PYMODBUS_VERSION}: read_holding_registers takes neither device_id= '
-                      f'nor slave=; supported pymodbus: {SUPPORTED[0]} <= version < {SUPPORTED[1]}')
+    raise ImportError(f'pymodbus {PYMODBUS_VERSION}: read_holding_registers takes neither '
+                      f'device_id= nor slave=; supported pymodbus: {SUPPORTED[0]} <= version < '
+                      f'{SUPPORTED[1]}')
 
 
 #: The keyword that carries the Modbus unit id in this pymodbus.

@@ -42,7 +42,8 @@ _OPTIONAL_FIELDS = ('sequence_register',)
 _CHANNEL_FIELDS = ('name', 'command_register', 'measured_register')
 #: The fields of a file with several PLCs, and of each of its endpoints.
 _LAYOUT_FIELDS = ('p_max_kpa', 'counts_per_kpa', 'endpoints')
-_ENDPOINT_FIELDS = ('name', 'host', 'port', 'unit_id', 'heartbeat_register', 'sequence_register', 'channels')
+_ENDPOINT_FIELDS = ('name', 'host', 'port', 'unit_id', 'heartbeat_register', 'sequence_register',
+                    'channels')
 _ENDPOINT_REQUIRED = ('name', 'host', 'unit_id', 'channels')
 
 
@@ -172,9 +173,10 @@ class RegisterMap:
         if isinstance(data, Mapping) and 'endpoints' in data:
             layout = PlcLayout.from_dict(data, source, expected_channels)
             if len(layout.endpoints) != 1:
-                raise fail('endpoints', f'names {len(layout.endpoints)} PLCs '
-                                        f'{[e.name for e in layout.endpoints]}: this reader takes one; '
-                                        'name the endpoint (PlcLayout.endpoint, mock_plc parameter "endpoint")')
+                names = [e.name for e in layout.endpoints]
+                raise fail('endpoints', f'names {len(names)} PLCs {names}: this reader takes one; '
+                                        'name the endpoint (PlcLayout.endpoint, mock_plc '
+                                        'parameter "endpoint")')
             return layout.endpoints[0].map
         if not isinstance(data, Mapping):
             raise RegisterMapError(f'{source}: expected a mapping with the fields {list(_TOP_FIELDS)}, '
@@ -302,25 +304,30 @@ class PlcLayout:
 
         if not (isinstance(data, Mapping) and 'endpoints' in data):
             m = RegisterMap.from_dict(data, source, expected_channels)
-            return cls((PlcEndpoint('plc', None, None, m, tuple(range(len(m)))),), m.names, m.p_max_kpa, source)
+            only = PlcEndpoint('plc', None, None, m, tuple(range(len(m))))
+            return cls((only,), m.names, m.p_max_kpa, source)
         for field in data:
             if field not in _LAYOUT_FIELDS:
-                raise fail(field, f'is not a known field next to "endpoints" (known: {list(_LAYOUT_FIELDS)}; '
-                                  'unit_id, registers and channels go into each endpoint)')
+                raise fail(field, f'is not a known field next to "endpoints" (known: '
+                                  f'{list(_LAYOUT_FIELDS)}; unit_id, registers and channels go '
+                                  'into each endpoint)')
         for field in ('p_max_kpa', 'counts_per_kpa'):
             if field not in data:
                 raise fail(field, 'is missing')
         raw = data['endpoints']
         if not isinstance(raw, list) or not raw:
-            raise fail('endpoints', 'must be a non-empty list of {name, host, port, unit_id, channels}')
+            raise fail('endpoints', 'must be a non-empty list of '
+                                    '{name, host, port, unit_id, channels}')
         maps, seen_names, seen_addresses = [], {}, {}
         for i, entry in enumerate(raw):
             where = f'endpoints[{i}]'
             if not isinstance(entry, Mapping):
-                raise fail(where, f'must be a mapping with {list(_ENDPOINT_FIELDS)}, got {entry!r}')
+                raise fail(where, f'must be a mapping with {list(_ENDPOINT_FIELDS)}, '
+                                  f'got {entry!r}')
             for field in entry:
                 if field not in _ENDPOINT_FIELDS:
-                    raise fail(f'{where}.{field}', f'is not a known field (known: {list(_ENDPOINT_FIELDS)})')
+                    raise fail(f'{where}.{field}',
+                               f'is not a known field (known: {list(_ENDPOINT_FIELDS)})')
             for field in _ENDPOINT_REQUIRED:
                 if field not in entry:
                     raise fail(f'{where}.{field}', 'is missing')
@@ -328,10 +335,12 @@ class PlcLayout:
             if not isinstance(name, str) or not name:
                 raise fail(f'{where}.name', f'must be a non-empty string, got {name!r}')
             if name in seen_names:
-                raise fail(f'{where}.name', f'{name!r} duplicates endpoints[{seen_names[name]}].name')
+                raise fail(f'{where}.name',
+                           f'{name!r} duplicates endpoints[{seen_names[name]}].name')
             seen_names[name] = i
             if not isinstance(host, str) or not host:
-                raise fail(f'{where}.host', f'must be a non-empty string (address of the PLC), got {host!r}')
+                raise fail(f'{where}.host',
+                           f'must be a non-empty string (address of the PLC), got {host!r}')
             port = _integer(entry.get('port', 502), 1, 65535, fail, f'{where}.port')
             unit_id = _integer(entry['unit_id'], *UNIT_ID_RANGE, fail, f'{where}.unit_id')
             if (host, port, unit_id) in seen_addresses:
@@ -340,8 +349,8 @@ class PlcLayout:
             seen_addresses[(host, port, unit_id)] = i
             channels = entry['channels']
             n = len(channels) if isinstance(channels, list) else 0
-            sub = {'unit_id': unit_id, 'p_max_kpa': data['p_max_kpa'], 'counts_per_kpa': data['counts_per_kpa'],
-                   'channels': channels,
+            sub = {'unit_id': unit_id, 'p_max_kpa': data['p_max_kpa'],
+                   'counts_per_kpa': data['counts_per_kpa'], 'channels': channels,
                    # The PLC contract's layout unless stated: sequence n, heartbeat n + 1.
                    'heartbeat_register': entry.get('heartbeat_register', n + 1),
                    'sequence_register': entry.get('sequence_register', n)}
@@ -352,7 +361,8 @@ class PlcLayout:
         for name, *_, m in maps:
             for c in m.names:
                 if c in owner:
-                    raise fail('endpoints', f'channel {c!r} is served by both {owner[c]!r} and {name!r}')
+                    raise fail('endpoints',
+                               f'channel {c!r} is served by both {owner[c]!r} and {name!r}')
                 owner[c] = name
         order = tuple(all_names) if expected_channels is None else tuple(expected_channels)
         if sorted(order) != sorted(all_names):
