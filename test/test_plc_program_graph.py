@@ -12,16 +12,18 @@ import signal
 import socket
 import struct
 import subprocess
+import threading
 import time
 
 import pytest
 
 from deadlines import DeadlineLog
 from fabric_guidance.plc.records import load_records, violations
-from faultproxy import FaultProxy
+from faultproxy import FaultProxy, is_modbus_write_multiple
 from plc_program import PlcProgram, need_tools, wait_listening
 from rosgraph import Graph, free_port, wait_until
-from test_graph import F_LEFT_40, REGMAP, SIM_CAL, WATCHDOG_VENT_S, HoloLensStub, RegisterWatch
+from test_graph import (F_LEFT_40, REGMAP, SIM_CAL, WATCHDOG_VENT_S, HoloLensStub,
+                        RegisterWatch)
 
 FILES = ('guidance.yaml', 'sim.yaml')
 GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
@@ -37,6 +39,9 @@ OUTPUT_VENT_S = WATCHDOG_VENT_S
 RESTART_DEADLINE_S = 30.0
 EXIT_DEADLINE_S = 10.0
 POLL_S = 0.005
+#: How long the proxy holds plc_output's guidance write: longer than plc_output's reconnect plus
+#: the vent after the gaze stops, so the vent is in before the old write lands.
+HOLD_S = 3.0
 
 LOG = DeadlineLog('PLC program')
 
@@ -205,3 +210,42 @@ def test_link_loss_vents_the_outputs_within_the_watchdog(lab, fault):
     assert lab.state()['vented']
     lab.proxy.heal()
     lab.guided(what=f'guidance back after the link {fault} healed')
+
+
+def test_a_guidance_write_delayed_past_the_vent_is_undone_by_the_program(lab):
+    """The case the sequence gate exists for: a command write held on a dead connection lands
+    after the suit was vented on a new one; the program undoes it and no output moves."""
+    lab.guided()
+    stale_before = lab.state()['stale_count']
+    lab.proxy.hold(HOLD_S, when=is_modbus_write_multiple)
+    wait_until(lambda: lab.proxy.get('held_chunks'), 2.0, what="a guidance write of plc_output's held")
+    held_at = time.monotonic()
+    lab.hololens.sending.clear()   # the gaze stops: the controller vents, plc_output writes zeros
+    wait_until(lambda: lab.watch.matches({}) and not any(lab.state()['output_counts']),
+               HOLD_S - 0.5, what='registers and outputs vented on a new connection')
+    assert lab.proxy.get('held_delivered') == 0, 'the held write landed before the vent: nothing shown'
+    outputs_seen = []
+    done = threading.Event()
+
+    def watch():
+        while not done.is_set():
+            outputs_seen.append(max(lab.state()['output_counts']))
+            time.sleep(0.002)
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        wait_until(lambda: lab.proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
+                   what='the held guidance write delivered after plc_output dropped that connection')
+        wait_until(lambda: lab.state()['stale_count'] > stale_before, 2.0,
+                   what='the program undoing the late write as stale')
+        time.sleep(0.05)   # a few scans after it
+    finally:
+        done.set()
+        watcher.join(2)
+    print(f'\n[PLC program] late write landed {time.monotonic() - held_at:.2f} s after it was sent; '
+          f'stale writes {lab.state()["stale_writes"]}; {len(outputs_seen)} output reads all 0')
+    assert max(outputs_seen) == 0, 'an output moved after the vent'
+    assert lab.watch.matches({})
+    lab.proxy.heal()
+    lab.hololens.sending.set()
+    lab.guided(what='guidance back with the gaze')
