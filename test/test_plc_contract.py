@@ -149,14 +149,23 @@ class Heartbeat:
         self.raw = Raw(port)
         self.value = 0
         self._stop = threading.Event()
+        self._paused = False
+        self._lock = threading.Lock()   # held during each write: pause() waits for one in flight
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
     def _run(self):
         while not self._stop.is_set():
-            self.value = (self.value + 1) & 0xFFFF
-            self.raw.write6(HEARTBEAT, self.value)
+            with self._lock:
+                if not self._paused:
+                    self.value = (self.value + 1) & 0xFFFF
+                    self.raw.write6(HEARTBEAT, self.value)
             self._stop.wait(0.05)
+
+    def pause(self):
+        """No heartbeat write after this returns (the watchdog then trips after WATCHDOG_S)."""
+        with self._lock:
+            self._paused = True
 
     def stop(self):
         self._stop.set()
@@ -164,12 +173,40 @@ class Heartbeat:
         self.raw.close()
 
 
+def arm(raw: Raw, port: int) -> tuple[Heartbeat, int]:
+    """A live heartbeat, and the watchdog armed: a probe command (on the last channel, with
+    sequence numbers 1, 2, ...) is written until it stays. Returns the heartbeat and the last
+    sequence number used; the tests number their writes from there."""
+    heartbeat = Heartbeat(port)
+    seqs = iter(range(1, 200))
+
+    def probe():
+        seq = next(seqs)
+        raw.write16(N - 1, [1, seq])
+        return raw.registers(N - 1, 1) == [1] and seq
+    try:
+        seq = wait_until(probe, 3.0, what='the watchdog armed by a live heartbeat')
+        raw.write16(N - 1, [0, seq + 1])
+    except BaseException:
+        heartbeat.stop()
+        raise
+    return heartbeat, seq + 1
+
+
+@pytest.fixture
+def armed(server, raw):
+    """The last sequence number used while arming; the heartbeat runs for the whole test."""
+    heartbeat, seq = arm(raw, server.port)
+    raw.heartbeat = heartbeat
+    yield seq
+    heartbeat.stop()
+
+
 # ------------------------------------------------------------------------------ answers
-def test_in_map_reads_and_writes_answer_normally(server, raw):
-    assert raw.command([100, 200, 300], seq=1) == echo16(0, N + 1)
-    assert raw.registers(0, N + 2) == [100, 200, 300] + [0] * (N - 3) + [1, 0]
-    assert raw.write6(HEARTBEAT, 7) == struct.pack('>BHH', 6, HEARTBEAT, 7)
-    assert raw.registers(HEARTBEAT, 1) == [7]
+def test_in_map_reads_and_writes_answer_normally(server, raw, armed):
+    assert raw.command([100, 200, 300], seq=armed + 1) == echo16(0, N + 1)
+    assert raw.registers(0, N + 1) == [100, 200, 300] + [0] * (N - 3) + [armed + 1]
+    assert len(raw.registers(0, N + 2)) == N + 2   # the whole map in one read
     assert len(raw.registers(0, N, fc=4)) == N   # measured pressures: input registers 0..N-1
 
 
@@ -230,50 +267,59 @@ def test_another_unit_id_gets_no_answer_and_the_connection_stays_open(server, ra
 
 
 # ----------------------------------------------------------------------- sequence gate
-def test_stale_write_is_answered_normally_and_undone(server, raw):
-    assert raw.command([500, 600], seq=1000) == echo16(0, N + 1)
-    assert raw.command([3000, 3000], seq=999) == echo16(0, N + 1)      # older
-    assert raw.command([3000, 3000], seq=1000) == echo16(0, N + 1)     # the same number again
-    assert raw.registers(0, 2) + raw.registers(SEQ, 1) == [500, 600, 1000]
-    assert raw.command([700], seq=1001) == echo16(0, N + 1)
+def test_stale_write_is_answered_normally_and_undone(server, raw, armed):
+    s = armed + 1000
+    assert raw.command([500, 600], seq=s) == echo16(0, N + 1)
+    assert raw.command([3000, 3000], seq=s - 1) == echo16(0, N + 1)      # older
+    assert raw.command([3000, 3000], seq=s) == echo16(0, N + 1)          # the same number again
+    assert raw.command([3000, 3000], seq=s + 0x8000) == echo16(0, N + 1)  # half the ring: not newer
+    assert raw.registers(0, 2) + raw.registers(SEQ, 1) == [500, 600, s]
+    assert raw.command([700], seq=s + 0x7FFF) == echo16(0, N + 1)        # farthest still newer
     assert raw.registers(0, 1) == [700]
 
 
-def test_sequence_numbers_wrap_modulo_65536(server, raw):
-    raw.command([100], seq=65535)
+def test_sequence_numbers_wrap_modulo_65536(server, raw, armed):
+    for seq in (armed + 30000, armed + 60000, 65535):   # up the ring in steps under half of it
+        raw.command([100], seq=seq)
     raw.command([200], seq=0)
     assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [200, 0]
     raw.command([300], seq=65535)
-    assert raw.registers(0, 1) == [200]
+    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [200, 0]
 
 
-def test_unsequenced_command_writes_are_answered_normally_and_undone(server, raw):
-    raw.command([500, 600], seq=10)
+def test_unsequenced_command_writes_are_answered_normally_and_undone(server, raw, armed):
+    raw.command([500, 600], seq=armed + 10)
     assert raw.write6(1, 3000) == struct.pack('>BHH', 6, 1, 3000)
     assert raw.write16(0, [3000, 3000, 3000]) == echo16(0, 3)
-    assert raw.registers(0, 3) + raw.registers(SEQ, 1) == [500, 600, 0, 10]
+    assert raw.registers(0, 3) + raw.registers(SEQ, 1) == [500, 600, 0, armed + 10]
 
 
-def test_sequence_register_alone_moves_the_gate_and_heartbeat_is_always_accepted(server, raw):
-    raw.command([500], seq=10)
-    assert raw.write6(SEQ, 20) == struct.pack('>BHH', 6, SEQ, 20)
-    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, 20]
-    raw.command([900], seq=15)            # behind the moved gate
-    raw.write6(SEQ, 5)                    # stale on its own
-    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, 20]
-    # A stale command write that also carries the heartbeat: the heartbeat is taken.
-    raw.write16(0, [900] * N + [3, 4242])
-    assert raw.registers(0, 1) + raw.registers(SEQ, 2) == [500, 20, 4242]
+def test_sequence_register_alone_moves_the_gate_and_heartbeat_is_always_accepted(server, raw, armed):
+    raw.command([500], seq=armed + 10)
+    assert raw.write6(SEQ, armed + 20) == struct.pack('>BHH', 6, SEQ, armed + 20)
+    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, armed + 20]
+    raw.command([900], seq=armed + 15)    # behind the moved gate
+    raw.write6(SEQ, armed + 5)            # stale on its own
+    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, armed + 20]
+    # A stale command write that also carries the heartbeat: the heartbeat is taken (the
+    # heartbeat thread paused, so 4242 can only come from this write).
+    raw.heartbeat.pause()
+    raw.write16(0, [900] * N + [armed + 3, 4242])
+    assert raw.registers(0, 1) + raw.registers(SEQ, 2) == [500, armed + 20, 4242]
 
 
 def test_first_write_after_power_up_is_accepted_whatever_its_number(server, raw):
-    raw.command([123], seq=40000)
-    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [123, 40000]
+    # The sequence register shows it (the commands themselves are zeroed while the watchdog
+    # has not been armed yet).
+    assert raw.command([123], seq=40000) == echo16(0, N + 1)
+    assert raw.registers(SEQ, 1) == [40000]
+    raw.command([123], seq=40000 - 1)
+    assert raw.registers(SEQ, 1) == [40000]
 
 
 # ------------------------------------------------------------------------------- clamp
-def test_over_limit_values_are_stored_clamped(server, raw):
-    assert raw.command([P_MAX + 1, 0xFFFF, P_MAX], seq=1) == echo16(0, N + 1)
+def test_over_limit_values_are_stored_clamped(server, raw, armed):
+    assert raw.command([P_MAX + 1, 0xFFFF, P_MAX], seq=armed + 1) == echo16(0, N + 1)
     assert raw.registers(0, 3) == [P_MAX, P_MAX, P_MAX]
 
 
@@ -289,10 +335,9 @@ def test_watchdog_starts_vented(server, raw):
 
 
 def test_watchdog_holds_while_the_heartbeat_changes_and_trips_when_it_stops(server, raw):
-    heartbeat = Heartbeat(server.port)
+    heartbeat, seq = arm(raw, server.port)
     try:
-        wait_until(lambda: raw.command([1000, 2000], seq=int(time.monotonic() * 100) & 0x7FFF)
-                   and raw.registers(0, 2) == [1000, 2000], 2.0, what='commands held once armed')
+        raw.command([1000, 2000], seq=seq + 1)
         t_end = time.monotonic() + 2 * WATCHDOG_S
         while time.monotonic() < t_end:   # longer than the watchdog: the heartbeat keeps it armed
             assert raw.registers(0, 2) == [1000, 2000]
@@ -320,16 +365,17 @@ def mbpoll(port: int, *options: str, values: tuple[str, ...] = ()) -> str:
 
 def mbpoll_session(port: int) -> dict[str, str]:
     """In-map, out-of-map and stale requests from mbpoll, after a known command (raw), with a
-    live heartbeat (else the watchdog zeroes the commands)."""
-    heartbeat, raw = Heartbeat(port), Raw(port)
+    live heartbeat (else the watchdog zeroes the commands). Not the input registers: the two
+    servers simulate the regulators differently."""
+    raw = Raw(port)
+    heartbeat, _seq = arm(raw, port)
     try:
-        wait_until(lambda: raw.command([1111, 2222], seq=1000) and raw.registers(0, 2) == [1111, 2222],
-                   2.0, what='the command held with a live heartbeat')
+        raw.command([1111, 2222], seq=1000)
+        assert raw.registers(0, 2) + raw.registers(SEQ, 1) == [1111, 2222, 1000]
         values = tuple(str(v) for v in [3333] * N + [999])  # a whole command write, older number
         unit = ('-a', str(UNIT))
         return {
             'in-map read': mbpoll(port, *unit, '-t', '4', '-r', '0', '-c', str(N + 1)),
-            'in-map input read': mbpoll(port, *unit, '-t', '3', '-r', '0', '-c', '1'),
             'out-of-map read': mbpoll(port, *unit, '-t', '4', '-r', str(N + 2), '-c', '1'),
             'out-of-map write': mbpoll(port, *unit, '-t', '4', '-r', '100', values=('5',)),
             'unknown function (coils)': mbpoll(port, *unit, '-t', '0', '-r', '0', '-c', '1'),

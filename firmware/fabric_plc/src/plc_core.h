@@ -12,12 +12,12 @@
 
 namespace plc {
 
-//: Channels one endpoint can serve at most (the default map has 18 on one endpoint).
+// Channels one endpoint can serve at most (the default map has 18 on one endpoint).
 const uint8_t kMaxChannels = 32;
-//: Largest Modbus TCP frame: 7 bytes MBAP header + 253 bytes PDU.
+// Largest Modbus TCP frame: 7 bytes MBAP header + 253 bytes PDU.
 const size_t kMaxAdu = 260;
 const size_t kMbapLength = 7;
-//: Entries kept per record list (the counts are always complete).
+// Entries kept per record list (the counts are always complete).
 const uint8_t kMaxListed = 8;
 
 enum Exception : uint8_t {
