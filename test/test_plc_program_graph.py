@@ -124,7 +124,7 @@ def lab(tmp_path_factory):
         LOG.report('worst times, graph against the PLC program')
 
 
-def raw_write(port: int, pdu: bytes) -> bytes:
+def raw_request(port: int, pdu: bytes) -> bytes:
     """One Modbus TCP request on a fresh connection; the answer's PDU."""
     with socket.create_connection(('127.0.0.1', port), timeout=2.0) as s:
         s.sendall(struct.pack('>HHHB', 1, 0, len(pdu) + 1, REGMAP.unit_id) + pdu)
@@ -142,8 +142,10 @@ def command_pdu(counts: list[int], seq: int) -> bytes:
 
 
 def sequence_now(lab) -> int:
-    return lab.watch.client._call('read sequence', 'read_holding_registers', REGMAP.sequence_register,
-                                  count=1).registers[0]
+    """The last sequence number the program applied (plc_output's, in this graph)."""
+    answer = raw_request(lab.plc_port, struct.pack('>BHH', 3, REGMAP.sequence_register, 1))
+    assert answer[:2] == b'\x03\x02', answer.hex()
+    return struct.unpack('>H', answer[2:4])[0]
 
 
 def test_guidance_reaches_the_outputs_and_nothing_else_is_driven(lab):
@@ -173,7 +175,7 @@ def test_a_stale_write_is_answered_normally_and_undone(lab):
     lab.guided()
     before = lab.state()['stale_count']
     stale = (sequence_now(lab) - 100) % 65536
-    answer = raw_write(lab.plc_port, command_pdu([3000] * N, stale))
+    answer = raw_request(lab.plc_port, command_pdu([3000] * N, stale))
     assert answer == struct.pack('>BHH', 16, 0, N + 1), answer.hex()
     wait_until(lambda: lab.state()['stale_count'] >= before + 1, 2.0, what='the stale write counted')
     assert lab.watch.matches(GUIDED), lab.watch.read()
@@ -184,13 +186,13 @@ def test_a_stale_write_is_answered_normally_and_undone(lab):
 def test_over_limit_counts_never_reach_an_output(lab):
     lab.guided()
     f1 = REGMAP.names.index('F1')
-    # Newer than plc_output's next numbers, so it is applied (plc_output's next few writes are
-    # then stale, and its command comes back after them).
-    seq = (sequence_now(lab) + 5) % 65536
+    # Newer than plc_output's next numbers, so it is applied (plc_output's next 40 writes, about
+    # half a second of them, are then stale, and its command comes back after them).
+    seq = (sequence_now(lab) + 40) % 65536
     counts = [0] * N
     counts[f1] = 0xFFFF
     lab.injected_over_limit.append([f1, 0xFFFF])
-    raw_write(lab.plc_port, command_pdu(counts, seq))
+    raw_request(lab.plc_port, command_pdu(counts, seq))
     wait_until(lambda: lab.state()['over_limit_count'] == 1, 2.0, what='the over-limit write recorded')
     # Applied, and clamped: F1's output went to p_max, not above.
     wait_until(lambda: lab.state()['max_output_counts'][f1] == P_MAX, 2.0, what='F1 output at p_max')
