@@ -266,6 +266,32 @@ def test_another_unit_id_gets_no_answer_and_the_connection_stays_open(server, ra
     assert raw.registers(0, 1) == [0]
 
 
+def test_a_request_split_over_two_segments_is_answered(server, raw):
+    """TCP is a byte stream: a request may arrive in pieces."""
+    frame = struct.pack('>HHHBBHH', 7, 0, 6, UNIT, 3, 0, 2)
+    raw.sock.sendall(frame[:5])
+    time.sleep(0.05)   # the first part alone on the wire
+    raw.sock.sendall(frame[5:])
+    answer = raw._exactly(7 + 6)
+    assert answer[:2] == b'\x00\x07' and answer[7:9] == b'\x03\x04', answer.hex()
+
+
+def test_the_program_answers_two_requests_sent_back_to_back(tmp_path):
+    """Not in the contract (plc_output has one request out at a time; pymodbus 3.9.2's server
+    answers only the first of two requests in one segment), but the program does."""
+    server = Server('program', tmp_path)
+    try:
+        raw = Raw(server.port)
+        raw.sock.sendall(struct.pack('>HHHBBHH', 7, 0, 6, UNIT, 3, 0, 2)
+                         + struct.pack('>HHHBBHH', 8, 0, 6, UNIT, 4, 0, 1))
+        answers = raw._exactly(7 + 6) + raw._exactly(7 + 4)
+        raw.close()
+    finally:
+        server.stop()
+    assert answers[:2] == b'\x00\x07' and answers[7:9] == b'\x03\x04', answers.hex()
+    assert answers[13:15] == b'\x00\x08' and answers[20:22] == b'\x04\x02', answers.hex()
+
+
 # ----------------------------------------------------------------------- sequence gate
 def test_stale_write_is_answered_normally_and_undone(server, raw, armed):
     s = armed + 1000
