@@ -23,7 +23,8 @@ PROGRAM_COUNTS_PER_KPA = 10
 
 def need_tools(*tools: str) -> None:
     """Skip (one line, naming the Debian package) when a build tool is absent."""
-    packages = {'g++': 'g++', 'make': 'make', 'avr-g++': 'gcc-avr', 'avr-size': 'binutils-avr', 'mbpoll': 'mbpoll'}
+    packages = {'g++': 'g++', 'make': 'make', 'avr-g++': 'gcc-avr', 'avr-size': 'binutils-avr',
+                'mbpoll': 'mbpoll'}
     for tool in tools:
         if shutil.which(tool) is None:
             pytest.skip(f'{tool} not installed (Debian package {packages.get(tool, tool)})')

@@ -42,7 +42,8 @@ class Server:
     def __init__(self, kind: str, tmp_path):
         self.kind = kind
         if kind == 'program':
-            self._impl = PlcProgram(tmp_path / 'plc.state.json', REGMAP, watchdog_s=WATCHDOG_S).start()
+            self._impl = PlcProgram(tmp_path / 'plc.state.json', REGMAP,
+                                    watchdog_s=WATCHDOG_S).start()
         else:
             self._impl = MockPlcServer(REGMAP, port=0, watchdog_s=WATCHDOG_S).start()
         self.port = self._impl.port
@@ -298,7 +299,7 @@ def test_stale_write_is_answered_normally_and_undone(server, raw, armed):
     assert raw.command([500, 600], seq=s) == echo16(0, N + 1)
     assert raw.command([3000, 3000], seq=s - 1) == echo16(0, N + 1)      # older
     assert raw.command([3000, 3000], seq=s) == echo16(0, N + 1)          # the same number again
-    assert raw.command([3000, 3000], seq=s + 0x8000) == echo16(0, N + 1)  # half the ring: not newer
+    assert raw.command([3000, 3000], seq=s + 0x8000) == echo16(0, N + 1)  # half the ring: stale
     assert raw.registers(0, 2) + raw.registers(SEQ, 1) == [500, 600, s]
     assert raw.command([700], seq=s + 0x7FFF) == echo16(0, N + 1)        # farthest still newer
     assert raw.registers(0, 1) == [700]
@@ -320,7 +321,8 @@ def test_unsequenced_command_writes_are_answered_normally_and_undone(server, raw
     assert raw.registers(0, 3) + raw.registers(SEQ, 1) == [500, 600, 0, armed + 10]
 
 
-def test_sequence_register_alone_moves_the_gate_and_heartbeat_is_always_accepted(server, raw, armed):
+def test_sequence_register_alone_moves_the_gate_and_heartbeat_is_always_accepted(
+        server, raw, armed):
     raw.command([500], seq=armed + 10)
     assert raw.write6(SEQ, armed + 20) == struct.pack('>BHH', 6, SEQ, armed + 20)
     assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, armed + 20]

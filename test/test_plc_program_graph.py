@@ -52,8 +52,8 @@ class ProgramLab:
         self.plc_port, self.gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
         self.program = PlcProgram(log_dir / 'plc_program.records.json', REGMAP, port=self.plc_port,
                                   watchdog_s=WATCHDOG_S, scan_s=SCAN_S)
-        proc = subprocess.Popen(self.program.args(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True)
+        proc = subprocess.Popen(self.program.args(), stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
         self.graph.processes['plc_program'] = self.program.proc = proc
         wait_listening(proc, 10.0)
         # Checked by the graph at the end like a mock_plc's records (see close()).
@@ -63,9 +63,10 @@ class ProgramLab:
         self.overrides = {
             'plc_output': dict(plc_port=self.proxy.port),
             'gaze_bridge': dict(port=self.gaze_port),
-            'target_selector': dict(target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
-                                    auto_advance=False),
-            'pressure_controller': dict(calibration_file=str(SIM_CAL), calibration_dir=str(log_dir / 'cal')),
+            'target_selector': dict(target_names=['left40'],
+                                    target_positions=[1.5321, 1.2856, 1.2], auto_advance=False),
+            'pressure_controller': dict(calibration_file=str(SIM_CAL),
+                                        calibration_dir=str(log_dir / 'cal')),
         }
         for node in self.overrides:
             self.start(node)
@@ -79,11 +80,12 @@ class ProgramLab:
         return self.program.state()
 
     def guided(self, deadline_s=RESTART_DEADLINE_S, what='guidance at the registers'):
-        wait_until(lambda: self.watch.matches(GUIDED), deadline_s, what=f'{what}: L1, L2 at {F_LEFT_40:.1f} kPa')
+        wait_until(lambda: self.watch.matches(GUIDED), deadline_s,
+                   what=f'{what}: L1, L2 at {F_LEFT_40:.1f} kPa')
         wanted = round(F_LEFT_40 * REGMAP.counts_per_kpa)
         at = [REGMAP.names.index(c) for c in GUIDED]
-        wait_until(lambda: all(abs(self.state()['output_counts'][i] - wanted) <= 1 for i in at), 2.0,
-                   what=f'{what}: L1, L2 outputs at {wanted} counts')
+        wait_until(lambda: all(abs(self.state()['output_counts'][i] - wanted) <= 1 for i in at),
+                   2.0, what=f'{what}: L1, L2 outputs at {wanted} counts')
 
     def time_to_vented_outputs(self, t0, deadline_s, what) -> float:
         while True:
@@ -91,8 +93,9 @@ class ProgramLab:
             if not any(outputs):
                 return time.monotonic() - t0
             if time.monotonic() - t0 > deadline_s:
-                raise AssertionError(f'{what}: outputs not vented {time.monotonic() - t0:.3f} s after the '
-                                     f'fault (deadline {deadline_s:.3f} s); outputs {outputs}')
+                raise AssertionError(f'{what}: outputs not vented {time.monotonic() - t0:.3f} s '
+                                     f'after the fault (deadline {deadline_s:.3f} s); '
+                                     f'outputs {outputs}')
             time.sleep(POLL_S)
 
     def close(self):
@@ -166,7 +169,8 @@ def test_sigkill_of_plc_output_vents_the_outputs_within_the_watchdog(lab):
     assert proc.wait(EXIT_DEADLINE_S) == -signal.SIGKILL
     assert lab.state()['watchdog_trips'] == trips + 1
     assert seconds >= WATCHDOG_S - 0.1, 'vented before the watchdog could have tripped'
-    wait_until(lambda: lab.watch.matches({}), 1.0, what='the command registers zeroed with the outputs')
+    wait_until(lambda: lab.watch.matches({}), 1.0,
+               what='the command registers zeroed with the outputs')
     lab.start('plc_output')
     lab.guided(what='guidance back with a new plc_output')
 
@@ -177,7 +181,8 @@ def test_a_stale_write_is_answered_normally_and_undone(lab):
     stale = (sequence_now(lab) - 100) % 65536
     answer = raw_request(lab.plc_port, command_pdu([3000] * N, stale))
     assert answer == struct.pack('>BHH', 16, 0, N + 1), answer.hex()
-    wait_until(lambda: lab.state()['stale_count'] >= before + 1, 2.0, what='the stale write counted')
+    wait_until(lambda: lab.state()['stale_count'] >= before + 1, 2.0,
+               what='the stale write counted')
     assert lab.watch.matches(GUIDED), lab.watch.read()
     # F1 is never guided here: 3000 counts there would only come from the stale write.
     assert lab.state()['max_output_counts'][REGMAP.names.index('F1')] == 0
@@ -193,9 +198,11 @@ def test_over_limit_counts_never_reach_an_output(lab):
     counts[f1] = 0xFFFF
     lab.injected_over_limit.append([f1, 0xFFFF])
     raw_request(lab.plc_port, command_pdu(counts, seq))
-    wait_until(lambda: lab.state()['over_limit_count'] == 1, 2.0, what='the over-limit write recorded')
+    wait_until(lambda: lab.state()['over_limit_count'] == 1, 2.0,
+               what='the over-limit write recorded')
     # Applied, and clamped: F1's output went to p_max, not above.
-    wait_until(lambda: lab.state()['max_output_counts'][f1] == P_MAX, 2.0, what='F1 output at p_max')
+    wait_until(lambda: lab.state()['max_output_counts'][f1] == P_MAX, 2.0,
+               what='F1 output at p_max')
     state = lab.state()
     assert max(state['max_output_counts']) <= P_MAX, state['max_output_counts']
     lab.guided(10.0, 'guidance back after the injected write')
@@ -220,12 +227,14 @@ def test_a_guidance_write_delayed_past_the_vent_is_undone_by_the_program(lab):
     lab.guided()
     stale_before = lab.state()['stale_count']
     lab.proxy.hold(HOLD_S, when=is_modbus_write_multiple)
-    wait_until(lambda: lab.proxy.get('held_chunks'), 2.0, what="a guidance write of plc_output's held")
+    wait_until(lambda: lab.proxy.get('held_chunks'), 2.0,
+               what="a guidance write of plc_output's held")
     held_at = time.monotonic()
     lab.hololens.sending.clear()   # the gaze stops: the controller vents, plc_output writes zeros
     wait_until(lambda: lab.watch.matches({}) and not any(lab.state()['output_counts']),
                HOLD_S - 0.5, what='registers and outputs vented on a new connection')
-    assert lab.proxy.get('held_delivered') == 0, 'the held write landed before the vent: nothing shown'
+    assert lab.proxy.get('held_delivered') == 0, \
+        'the held write landed before the vent: nothing shown'
     outputs_seen = []
     done = threading.Event()
 
@@ -237,14 +246,15 @@ def test_a_guidance_write_delayed_past_the_vent_is_undone_by_the_program(lab):
     watcher.start()
     try:
         wait_until(lambda: lab.proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
-                   what='the held guidance write delivered after plc_output dropped that connection')
+                   what='the held write delivered after plc_output dropped that connection')
         wait_until(lambda: lab.state()['stale_count'] > stale_before, 2.0,
                    what='the program undoing the late write as stale')
         time.sleep(0.05)   # a few scans after it
     finally:
         done.set()
         watcher.join(2)
-    print(f'\n[PLC program] late write landed {time.monotonic() - held_at:.2f} s after it was sent; '
+    print(f'\n[PLC program] late write landed {time.monotonic() - held_at:.2f} s after it was '
+          f'sent; '
           f'stale writes {lab.state()["stale_writes"]}; {len(outputs_seen)} output reads all 0')
     assert max(outputs_seen) == 0, 'an output moved after the vent'
     assert lab.watch.matches({})

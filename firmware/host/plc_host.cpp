@@ -143,7 +143,8 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   if (o.state.empty()) return;
   const plc::Records& r = core.records();
   std::string s = "{";
-  s += "\"p_max_kpa\": " + std::to_string(static_cast<double>(o.p_max_counts) / plc::kCountsPerKpa);
+  s += "\"p_max_kpa\": " +
+       std::to_string(static_cast<double>(o.p_max_counts) / plc::kCountsPerKpa);
   s += ", \"p_max_counts\": " + std::to_string(o.p_max_counts);
   s += ", \"counts_per_kpa\": " + std::to_string(plc::kCountsPerKpa);
   s += ", \"writes\": " + std::to_string(r.writes);
@@ -220,7 +221,9 @@ int main(int argc, char** argv) {
   memset(&addr, 0, sizeof(addr));
   addr.sin_family = AF_INET;
   addr.sin_port = htons(static_cast<uint16_t>(o.port));
-  if (inet_pton(AF_INET, o.host.c_str(), &addr.sin_addr) != 1) usage("--host: not an IPv4 address");
+  if (inet_pton(AF_INET, o.host.c_str(), &addr.sin_addr) != 1) {
+    usage("--host: not an IPv4 address");
+  }
   if (bind(listener, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 ||
       listen(listener, 8) != 0) {
     fprintf(stderr, "plc_host: cannot listen on %s:%d: %s\n", o.host.c_str(), o.port,

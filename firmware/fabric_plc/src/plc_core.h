@@ -89,7 +89,8 @@ class Core {
 
  private:
   size_t exception(uint8_t function, uint8_t code, uint8_t* pdu_out);
-  size_t read_registers(const uint8_t* pdu, size_t len, uint8_t* pdu_out, size_t cap, bool holding);
+  size_t read_registers(const uint8_t* pdu, size_t len, uint8_t* pdu_out, size_t cap,
+                        bool holding);
   size_t write_single(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
   size_t write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
   // Applies a write that lies inside the holding registers: the gate, the clamp, the records.
