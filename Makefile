@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # DDS stays on this machine; tests pick their own domain ids on top of this.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test test-deep bench venv clean
 
 venv: $(STAMP)
 
@@ -23,6 +23,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+
+# The property tests only, with many random examples (test/conftest.py, profile "deep"):
+# for people to run now and then; CI runs the fixed, derandomized examples.
+test-deep: $(STAMP)
+	HYPOTHESIS_PROFILE=deep $(PY) -m pytest -m property -p no:cacheprovider
 
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)
