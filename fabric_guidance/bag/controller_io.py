@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
+from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, TARGET
 from ..core.geometry import DIRECTIONS
 
 CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
@@ -105,6 +106,14 @@ class ControllerSetup:
     follow_moving_target: bool
     calibration: Calibration | None
     channel_map: ChannelMap
+    #: Origin of Eq. 5's angles: 'rest' (the calibration's rest gaze) or 'target' (the gaze when
+    #: a target begins). A bag recorded before issue 11 has no key: 'target', as it ran then.
+    guidance_frame: str = REST
+    #: "The error grows": 'filtered' (rate filter + threshold) or 'sign' (the paper's literal
+    #: test). A bag recorded before issue 11 has no key: 'sign'.
+    rate_estimator: str = FILTERED
+    rate_filter_tau_s: float = RATE_FILTER_TAU_S
+    rate_threshold_dps: float = RATE_THRESHOLD_DPS
 
     @property
     def layout(self) -> str:
@@ -120,7 +129,10 @@ class ControllerSetup:
             gain = self.calibration.adjustment_gain
         return GuidanceController(self.calibration.laws, p_max=min(self.p_max_kpa, self.calibration.p_max),
                                   gain=gain, mode=cond.mode, rate_deadband=self.rate_deadband_dps,
-                                  follow_target=self.follow_moving_target)
+                                  follow_target=self.follow_moving_target, estimator=self.rate_estimator,
+                                  rate_filter_tau_s=self.rate_filter_tau_s,
+                                  rate_threshold=self.rate_threshold_dps, frame=self.guidance_frame,
+                                  rest_gaze=self.calibration.origin)
 
     def to_dict(self) -> dict:
         return {'schema': PARAMETERS_SCHEMA, 'condition': int(self.condition), 'gain': float(self.gain),
@@ -128,6 +140,9 @@ class ControllerSetup:
                 'gaze_timeout_s': float(self.gaze_timeout_s), 'rate_deadband_dps': float(self.rate_deadband_dps),
                 'use_wearer_gain': bool(self.use_wearer_gain),
                 'follow_moving_target': bool(self.follow_moving_target),
+                'guidance_frame': str(self.guidance_frame), 'rate_estimator': str(self.rate_estimator),
+                'rate_filter_tau_s': float(self.rate_filter_tau_s),
+                'rate_threshold_dps': float(self.rate_threshold_dps),
                 'calibration': self.calibration.to_dict() if self.calibration is not None else None,
                 'channel_map': channel_map_dict(self.channel_map)}
 
@@ -141,7 +156,11 @@ class ControllerSetup:
                    float(d['gaze_timeout_s']), float(d['rate_deadband_dps']), bool(d['use_wearer_gain']),
                    bool(d['follow_moving_target']),
                    Calibration.from_dict(cal, 'controller_parameters.calibration') if cal else None,
-                   ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'))
+                   ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'),
+                   # Keys missing: a bag of the law before issue 11, replayed as it ran.
+                   str(d.get('guidance_frame', TARGET)), str(d.get('rate_estimator', SIGN)),
+                   float(d.get('rate_filter_tau_s', RATE_FILTER_TAU_S)),
+                   float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)))
 
     @classmethod
     def from_yaml(cls, text: str) -> 'ControllerSetup':

@@ -29,7 +29,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import yaml
 
-from .feedback import PAPER_P_MAX
+from .feedback import FRONT, PAPER_P_MAX
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 
@@ -95,12 +95,28 @@ class Calibration:
     #: This wearer's own adjustment gain G (beyond the paper: its Discussion found the best G
     #: differed between subjects); None: use the controller's.
     adjustment_gain: float | None = None
+    #: The wearer's rest gaze (unit vector, immersive frame, REP 103) that Algorithm 1 measured
+    #: every angle from; the origin of Eq. 5's angles. None: not recorded (an older file).
+    rest_gaze: tuple[float, float, float] | None = None
 
     def with_gain(self, gain: float | None) -> 'Calibration':
         """The same calibration with this wearer's own adjustment gain."""
         if gain is not None and not (math.isfinite(gain) and gain >= 0):
             raise ValueError(f'adjustment gain must be finite and >= 0, got {gain}')
-        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain)
+        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain, self.rest_gaze)
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        """The origin of Eq. 5's angles: the rest gaze, or the front when none was recorded."""
+        return self.rest_gaze if self.rest_gaze is not None else FRONT
+
+    @property
+    def origin_warning(self) -> str:
+        """'' when the rest gaze was recorded, else the warning to show once."""
+        if self.rest_gaze is not None:
+            return ''
+        return (f'calibration of {self.wearer!r} records no rest_gaze: angles are measured from the '
+                f'front of the immersive frame {list(FRONT)}; recalibrate to record it')
 
     @property
     def laws(self) -> list[PowerLaw]:
@@ -122,6 +138,7 @@ class Calibration:
             'created': self.created,
             'p_max_kpa': float(self.p_max),
             **({'adjustment_gain': float(self.adjustment_gain)} if self.adjustment_gain is not None else {}),
+            **({'rest_gaze': [float(x) for x in self.rest_gaze]} if self.rest_gaze is not None else {}),
             'directions': {
                 d: {
                     'a': c.law.a, 'b': c.law.b, 'c': c.law.c,
@@ -185,7 +202,16 @@ class Calibration:
         if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
                                  or not (math.isfinite(gain) and gain >= 0)):
             fail('adjustment_gain', f'must be a finite number >= 0 when present, got {gain!r}')
-        return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain))
+        rest = data.get('rest_gaze')
+        if rest is not None:
+            if (not isinstance(rest, list) or len(rest) != 3
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in rest)):
+                fail('rest_gaze', f'must be a list of 3 numbers (x, y, z) when present, got {rest!r}')
+            try:
+                rest = tuple(float(x) for x in unit_vector(rest, 'rest_gaze'))
+            except GeometryError as exc:
+                fail('rest_gaze', f'is not a direction: {exc}')
+        return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain), rest)
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
@@ -243,6 +269,7 @@ class CalibrationProcedure:
         self._step = 0           # 0: resting before the direction's first step
         self._phase_start: float | None = None
         self._g0: np.ndarray | None = None
+        self._rests: list[np.ndarray] = []    # g0 of every direction: the rest gaze
         self._window: list[tuple[float, np.ndarray]] = []
         self._angles: list[float] = []
         self._phase = REST
@@ -315,6 +342,7 @@ class CalibrationProcedure:
                 g0 = np.mean([g for _, g in self._window], axis=0)
                 angles_between(g0, g0)
                 self._g0 = g0
+                self._rests.append(g0)
                 self._angles = []
             else:
                 k = DIRECTIONS.index(self.directions[self._dir_index])
@@ -361,5 +389,8 @@ class CalibrationProcedure:
         missing = [d for d in DIRECTIONS if d not in dirs]
         if missing:
             raise CalibrationFitError(f'directions {missing} were neither calibrated nor given by a base calibration')
+        rest = np.mean(self._rests, axis=0)
+        rest = tuple(float(x) for x in unit_vector(rest, 'rest gaze'))
         return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS},
-                           adjustment_gain=base.adjustment_gain if base is not None else None)
+                           adjustment_gain=base.adjustment_gain if base is not None else None,
+                           rest_gaze=rest)

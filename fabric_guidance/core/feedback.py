@@ -18,6 +18,18 @@ restarts the derivative from that sample and holds, so neither can produce a ste
 
 Mode "adjusted" is conditions 1 and 3; "fixed" (condition 2) keeps P = f(theta_t).
 
+"The error grows" (docs/guidance.md): estimator FILTERED (the default) low-passes the raw
+de/dt with a first-order filter of time constant rate_filter_tau_s and counts growth only when
+the filtered rate exceeds rate_threshold_dps > 0, a threshold derived from the tracker's noise
+(noise_rate_threshold): tracker noise alone rarely crosses it, and no float rounding can
+(a rate of 1e-13 deg/s is not above 14 deg/s). Estimator SIGN is the paper's literal test:
+the raw rate of successive samples above rate_deadband (0: any growth, however small).
+
+Frame (docs/guidance.md): with frame REST (the default) both angles of Eq. 5 are measured from
+the rest gaze that the wearer's calibration recorded (Algorithm 1's g0), the origin f_k was
+fitted from; frame TARGET takes g0 from the gaze when guidance to a target begins (the
+behaviour before issue 11, kept as an explicit option).
+
 Beyond the paper (its Discussion: "the proposed system cannot be directly applied to the
 directional guidance of moving targets"): with follow_target, a change of theta_t while guiding
 shifts the pressure by f(theta_t_new) - f(theta_t_old), so the feed-forward part follows the
@@ -39,10 +51,52 @@ ADJUSTED = 'adjusted'
 FIXED = 'fixed'
 MODES = (ADJUSTED, FIXED)
 
+#: "The error grows" estimators: the filtered rate against a noise threshold, or the paper's sign.
+FILTERED = 'filtered'
+SIGN = 'sign'
+ESTIMATORS = (FILTERED, SIGN)
+#: Origins of Eq. 5's angles: the calibration's rest gaze, or the gaze when a target begins.
+REST = 'rest'
+TARGET = 'target'
+FRAMES = (REST, TARGET)
+#: The front of the immersive frame (REP 103: x forward): the rest gaze of a calibration
+#: that recorded none.
+FRONT = (1.0, 0.0, 0.0)
+
 #: The paper's adjustment gain G (conditions 1 and 3).
 PAPER_GAIN = 0.05
 #: The paper's pressure limit, kPa.
 PAPER_P_MAX = 375.0
+
+#: HoloLens 2 eye-tracking accuracy, deg: "approximately within 1.5 degrees in visual angle
+#: around the actual target" (Microsoft Learn, "Eye tracking on HoloLens 2", accuracy).
+#: Taken as the per-sample noise sd: pessimistic (an accuracy figure includes bias).
+TRACKER_NOISE_DEG = 1.5
+#: The HoloLens 2 eye-tracking rate, Hz (Microsoft Learn: 30 FPS), the rate Eq. 5 steps at.
+TRACKER_RATE_HZ = 30.0
+#: Time constant of the rate filter, s: short against a guided turn (the paper's wearers find
+#: targets in seconds) and long enough to average about nine samples at 30 Hz.
+RATE_FILTER_TAU_S = 0.3
+#: Standard deviations of filtered tracker noise the threshold sits above.
+RATE_THRESHOLD_SIGMAS = 3.0
+
+
+def noise_rate_threshold(noise_deg: float = TRACKER_NOISE_DEG, rate_hz: float = TRACKER_RATE_HZ,
+                         tau_s: float = RATE_FILTER_TAU_S, sigmas: float = RATE_THRESHOLD_SIGMAS) -> float:
+    """The filtered-rate threshold, deg/s, that tracker noise alone crosses rarely.
+
+    For independent angle noise of sd s sampled every dt, the raw rate (e_k - e_k-1)/dt fed to
+    the first-order filter r += a (raw - r), a = 1 - exp(-dt/tau), has the stationary sd
+    a * s * sqrt(2 / (2 - a)) / dt (the sum of a geometric series of differences). The
+    threshold is `sigmas` of those: 14.6 deg/s for the defaults (1.5 deg, 30 Hz, 0.3 s, 3).
+    """
+    dt = 1.0 / rate_hz
+    a = 1.0 - math.exp(-dt / tau_s)
+    return sigmas * a * noise_deg * math.sqrt(2.0 / (2.0 - a)) / dt
+
+
+#: The default threshold of the FILTERED estimator, deg/s.
+RATE_THRESHOLD_DPS = noise_rate_threshold()
 
 
 def _finite(value: float, name: str) -> float:
@@ -60,10 +114,17 @@ class FeedbackLaw:
     p_max: float = PAPER_P_MAX
     gain: float = PAPER_GAIN
     mode: str = ADJUSTED
-    #: de/dt must exceed this (deg/s) to count as "the error grows"; 0 is the paper's law.
+    #: SIGN: the raw de/dt must exceed this (deg/s) to count as "the error grows"; 0 is the
+    #: paper's literal law.
     rate_deadband: float = 0.0
     #: Shift the pressure with f(theta_t) when the target moves (beyond the paper).
     follow_target: bool = False
+    #: How "the error grows" is decided: FILTERED (default) or the paper's literal SIGN.
+    estimator: str = FILTERED
+    #: FILTERED: time constant of the rate filter, s.
+    rate_filter_tau_s: float = RATE_FILTER_TAU_S
+    #: FILTERED: the filtered de/dt must exceed this (deg/s, > 0).
+    rate_threshold: float = RATE_THRESHOLD_DPS
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -74,6 +135,13 @@ class FeedbackLaw:
             raise ValueError(f'gain must be finite and >= 0, got {self.gain}')
         if not (math.isfinite(self.rate_deadband) and self.rate_deadband >= 0):
             raise ValueError(f'rate_deadband must be finite and >= 0 deg/s, got {self.rate_deadband}')
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f'estimator must be one of {ESTIMATORS}, got {self.estimator!r}')
+        if not (math.isfinite(self.rate_filter_tau_s) and self.rate_filter_tau_s > 0):
+            raise ValueError(f'rate_filter_tau_s must be finite and > 0 s, got {self.rate_filter_tau_s}')
+        # > 0 strictly: a zero threshold would let a rounding-sized rate count as growth.
+        if not (math.isfinite(self.rate_threshold) and self.rate_threshold > 0):
+            raise ValueError(f'rate_threshold must be finite and > 0 deg/s, got {self.rate_threshold}')
         self.reset()
 
     def reset(self) -> None:
@@ -83,6 +151,7 @@ class FeedbackLaw:
         self._last_error: float | None = None
         self._last_time: float | None = None
         self._last_target: float | None = None
+        self.rate = 0.0    # the filtered de/dt, deg/s (FILTERED)
 
     def _clamp(self, p: float) -> float:
         # An increment can overflow to +inf with an absurd gain: that is "above P_MAX", not NaN.
@@ -114,13 +183,19 @@ class FeedbackLaw:
         if self._last_time is None or t < self._last_time:
             # Clock jumped back: restart the derivative here rather than read a jump.
             self._last_error, self._last_time = error, t
+            self.rate = 0.0
             return self.pressure
         dt = t - self._last_time
         if dt == 0.0:
             return self.pressure
-        rate = (error - self._last_error) / dt
+        raw = (error - self._last_error) / dt
         self._last_error, self._last_time = error, t
-        if self.mode == ADJUSTED and rate > self.rate_deadband:
+        if self.estimator == SIGN:
+            grows = raw > self.rate_deadband
+        else:
+            self.rate += (1.0 - math.exp(-dt / self.rate_filter_tau_s)) * (raw - self.rate)
+            grows = self.rate > self.rate_threshold
+        if self.mode == ADJUSTED and grows:
             increment = self.gain * (self.law.pressure(theta_target) - self.law.pressure(theta))
             self.pressure = self._clamp(self.pressure + increment)
         return self.pressure
@@ -129,26 +204,36 @@ class FeedbackLaw:
 class GuidanceController:
     """Eq. 5 in all four directions for one target, from gaze directions (REP 103).
 
-    begin() records the initial gaze g0; target and current angles are measured from g0, as in
-    the paper's calibration (Fig. 5) so that f_k maps them to pressure.
+    Target and current angles are measured from the origin g0 that f_k was fitted from: with
+    frame REST (default) the calibration's rest gaze `rest_gaze` (Algorithm 1's g0), with frame
+    TARGET the gaze at begin() (the per-target origin, an explicit option).
     """
 
     def __init__(self, laws: Sequence[PowerLaw], p_max: float = PAPER_P_MAX, gain: float | Sequence[float] = PAPER_GAIN,
-                 mode: str = ADJUSTED, rate_deadband: float = 0.0, follow_target: bool = False):
+                 mode: str = ADJUSTED, rate_deadband: float = 0.0, follow_target: bool = False,
+                 estimator: str = FILTERED, rate_filter_tau_s: float = RATE_FILTER_TAU_S,
+                 rate_threshold: float = RATE_THRESHOLD_DPS, frame: str = REST,
+                 rest_gaze: Sequence[float] = FRONT):
         if len(laws) != len(DIRECTIONS):
             raise ValueError(f'need one power law per direction {DIRECTIONS}, got {len(laws)}')
         gains = [gain] * len(DIRECTIONS) if np.ndim(gain) == 0 else list(gain)
         if len(gains) != len(DIRECTIONS):
             raise ValueError(f'need one gain per direction {DIRECTIONS}, got {len(gains)}')
-        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target)
+        if frame not in FRAMES:
+            raise ValueError(f'frame must be one of {FRAMES}, got {frame!r}')
+        angles_between(rest_gaze, rest_gaze)  # validates the vector
+        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target, estimator,
+                                       rate_filter_tau_s, rate_threshold)
                            for law, g in zip(laws, gains)]
         self.p_max = p_max
+        self.frame = frame
+        self.rest_gaze = np.asarray(rest_gaze, dtype=float)
         self.initial_gaze: np.ndarray | None = None
 
     def begin(self, gaze: Sequence[float]) -> None:
-        """Start guidance toward a new target from the current gaze direction."""
+        """Start guidance toward a new target with the wearer's gaze now (g0 in frame TARGET)."""
         angles_between(gaze, gaze)  # validates the vector
-        self.initial_gaze = np.asarray(gaze, dtype=float)
+        self.initial_gaze = self.rest_gaze if self.frame == REST else np.asarray(gaze, dtype=float)
         for d in self.directions:
             d.reset()
 
