@@ -129,3 +129,50 @@ def test_calibration_file_keeps_the_rest_gaze_and_warns_without_one(tmp_path):
     d['rest_gaze'] = [0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match='rest_gaze'):
         Calibration.from_dict(d, 'x.yaml')
+
+
+def test_stall_watch_vents_after_no_progress_and_keeps_it_until_vent():
+    laws = [LAW] * 4
+    ctl = GuidanceController(laws, stall_timeout_s=2.0)
+    target = gaze_from_angles(40.0, 0.0)
+    stuck = gaze_from_angles(0.0, 0.0)
+    t = 0.0
+    while t < 1.9:
+        assert ctl.update(stuck, target, t)[0] > 0
+        t += DT
+    while t < 2.5 and not ctl.stalled:
+        ctl.update(stuck, target, t)
+        t += DT
+    assert ctl.stalled and 'no progress' in ctl.stalled and 2.0 < t < 2.2
+    assert not ctl.update(stuck, target, t).any()
+    ctl.vent(forget_stall=False)                 # a stale-gaze vent keeps it
+    assert not ctl.update(stuck, target, t + 1).any()
+    ctl.vent()                                   # a new target or a service forgets it
+    assert ctl.update(stuck, target, t + 2)[0] > 0
+
+
+def test_progress_and_arrival_are_not_a_stall():
+    ctl = GuidanceController([LAW] * 4, stall_timeout_s=1.0)
+    target = gaze_from_angles(40.0, 0.0)
+    for k in range(300):                        # 10 s moving 4 deg/s toward it, then there
+        yaw = min(4.0 * k * DT, 38.0)
+        ctl.update(gaze_from_angles(yaw, 0.0), target, k * DT)
+        assert not ctl.stalled, (k, yaw)
+
+
+def test_procedure_records_the_rest_gaze():
+    from fabric_guidance.core import CalibrationProcedure
+    rest = gaze_from_angles(4.0, -2.0)
+    proc = CalibrationProcedure('w', steps=3, dwell_s=0.2, rest_s=0.2, record_window_s=0.1)
+    t = 0.0
+    while proc.phase not in ('done', 'failed'):
+        cmd = proc.tick(t, rest if cmd_direction(proc) is None else gaze_from_angles(
+            *{'left': (4.0 + 10 * proc._step, -2.0), 'right': (4.0 - 10 * proc._step, -2.0),
+              'down': (4.0, -2.0 - 10 * proc._step), 'up': (4.0, -2.0 + 10 * proc._step)}[proc.direction]))
+        t += 0.01
+    assert proc.phase == 'done', proc.error
+    assert proc.result().rest_gaze == pytest.approx(tuple(rest))
+
+
+def cmd_direction(proc):
+    return None if proc.phase == 'rest' else proc.direction

@@ -32,7 +32,7 @@ import numpy as np
 import yaml
 
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
-from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, TARGET
+from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S, TARGET
 from ..core.geometry import DIRECTIONS
 
 CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
@@ -114,6 +114,9 @@ class ControllerSetup:
     rate_estimator: str = FILTERED
     rate_filter_tau_s: float = RATE_FILTER_TAU_S
     rate_threshold_dps: float = RATE_THRESHOLD_DPS
+    #: Vent after this long without progress toward the target, s; None: never (a bag
+    #: recorded before issue 11).
+    stall_timeout_s: float | None = STALL_TIMEOUT_S
 
     @property
     def layout(self) -> str:
@@ -132,7 +135,7 @@ class ControllerSetup:
                                   follow_target=self.follow_moving_target, estimator=self.rate_estimator,
                                   rate_filter_tau_s=self.rate_filter_tau_s,
                                   rate_threshold=self.rate_threshold_dps, frame=self.guidance_frame,
-                                  rest_gaze=self.calibration.origin)
+                                  rest_gaze=self.calibration.origin, stall_timeout_s=self.stall_timeout_s)
 
     def to_dict(self) -> dict:
         return {'schema': PARAMETERS_SCHEMA, 'condition': int(self.condition), 'gain': float(self.gain),
@@ -143,6 +146,7 @@ class ControllerSetup:
                 'guidance_frame': str(self.guidance_frame), 'rate_estimator': str(self.rate_estimator),
                 'rate_filter_tau_s': float(self.rate_filter_tau_s),
                 'rate_threshold_dps': float(self.rate_threshold_dps),
+                'stall_timeout_s': None if self.stall_timeout_s is None else float(self.stall_timeout_s),
                 'calibration': self.calibration.to_dict() if self.calibration is not None else None,
                 'channel_map': channel_map_dict(self.channel_map)}
 
@@ -160,7 +164,8 @@ class ControllerSetup:
                    # Keys missing: a bag of the law before issue 11, replayed as it ran.
                    str(d.get('guidance_frame', TARGET)), str(d.get('rate_estimator', SIGN)),
                    float(d.get('rate_filter_tau_s', RATE_FILTER_TAU_S)),
-                   float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)))
+                   float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)),
+                   None if d.get('stall_timeout_s') is None else float(d['stall_timeout_s']))
 
     @classmethod
     def from_yaml(cls, text: str) -> 'ControllerSetup':
@@ -209,11 +214,13 @@ def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
     reason = why_not_guide(setup, controller, inp)
     if reason:
         if controller is not None:
-            controller.vent()
+            controller.vent(forget_stall=False)   # only a new target or a service forgets a stall
         return zeros, reason, False
     try:
         direction_pressures = controller.update(inp.direction, target_direction(inp.origin, inp.target), inp.t)
     except ValueError as exc:
-        controller.vent()
+        controller.vent(forget_stall=False)
         return zeros, f'invalid input: {exc}', True
+    if controller.stalled:
+        return zeros, controller.stalled, False
     return setup.channel_map.to_channels(direction_pressures, setup.layout), '', False

@@ -98,6 +98,57 @@ def noise_rate_threshold(noise_deg: float = TRACKER_NOISE_DEG, rate_hz: float = 
 #: The default threshold of the FILTERED estimator, deg/s.
 RATE_THRESHOLD_DPS = noise_rate_threshold()
 
+#: No-progress timeout, s: guidance whose (filtered) gaze-to-target error has not fallen by
+#: STALL_PROGRESS_DEG for this long vents. The paper's wearers found targets in seconds (speed
+#: experiment: several targets per 40 s trial; the micromanipulation objects here in 1.3-3.6 s),
+#: so 10 s without progress is a wearer who cannot or will not follow, not a slow turn.
+STALL_TIMEOUT_S = 10.0
+#: Progress that restarts the timeout, deg: above the tracker's 1.5 deg so noise cannot fake it.
+STALL_PROGRESS_DEG = 2.0
+#: Within this of the target (the paper's 5 deg acceptance) the wearer has arrived: no stall.
+STALL_NEAR_DEG = 5.0
+
+
+class StallWatch:
+    """Says when guidance has made no progress toward its target for timeout_s seconds.
+
+    Progress is a fall of the error angle (gaze to target, low-passed with RATE_FILTER_TAU_S so
+    that one noisy sample is not progress) by progress_deg below the best so far; being within
+    near_deg of the target counts as progress. A clock that jumps back restarts the watch.
+    """
+
+    def __init__(self, timeout_s: float | None = STALL_TIMEOUT_S, progress_deg: float = STALL_PROGRESS_DEG,
+                 near_deg: float = STALL_NEAR_DEG, tau_s: float = RATE_FILTER_TAU_S):
+        if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f'stall timeout must be finite and > 0 s (or None: never), got {timeout_s}')
+        for name, v in (('stall progress', progress_deg), ('stall near', near_deg)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f'{name} must be finite and >= 0 deg, got {v}')
+        self.timeout_s, self.progress_deg, self.near_deg, self.tau_s = timeout_s, progress_deg, near_deg, tau_s
+        self.reset()
+
+    def reset(self) -> None:
+        self.error: float | None = None    # filtered error, deg
+        self.best = math.inf
+        self.since: float | None = None    # time of the last progress, s
+        self.last_t: float | None = None
+
+    def update(self, error_deg: float, t: float) -> bool:
+        """Feed one sample; True when no progress came for timeout_s."""
+        if self.timeout_s is None:
+            return False
+        if self.last_t is None or t < self.last_t:
+            self.reset()
+            self.error, self.best, self.since, self.last_t = error_deg, error_deg, t, t
+            return False
+        dt = t - self.last_t
+        self.last_t = t
+        self.error += (1.0 - math.exp(-dt / self.tau_s)) * (error_deg - self.error)
+        if self.error <= self.near_deg or self.error <= self.best - self.progress_deg:
+            self.best, self.since = min(self.best, self.error), t
+            return False
+        return t - self.since > self.timeout_s
+
 
 def _finite(value: float, name: str) -> float:
     value = float(value)
@@ -213,7 +264,7 @@ class GuidanceController:
                  mode: str = ADJUSTED, rate_deadband: float = 0.0, follow_target: bool = False,
                  estimator: str = FILTERED, rate_filter_tau_s: float = RATE_FILTER_TAU_S,
                  rate_threshold: float = RATE_THRESHOLD_DPS, frame: str = REST,
-                 rest_gaze: Sequence[float] = FRONT):
+                 rest_gaze: Sequence[float] = FRONT, stall_timeout_s: float | None = None):
         if len(laws) != len(DIRECTIONS):
             raise ValueError(f'need one power law per direction {DIRECTIONS}, got {len(laws)}')
         gains = [gain] * len(DIRECTIONS) if np.ndim(gain) == 0 else list(gain)
@@ -229,17 +280,26 @@ class GuidanceController:
         self.frame = frame
         self.rest_gaze = np.asarray(rest_gaze, dtype=float)
         self.initial_gaze: np.ndarray | None = None
+        self.stall = StallWatch(stall_timeout_s)
+        #: Why guidance stopped for lack of progress ('' while it has not): it stays vented
+        #: until vent() (a new target, a service call); an interruption keeps it (vent(False)).
+        self.stalled = ''
 
     def begin(self, gaze: Sequence[float]) -> None:
         """Start guidance toward a new target with the wearer's gaze now (g0 in frame TARGET)."""
         angles_between(gaze, gaze)  # validates the vector
         self.initial_gaze = self.rest_gaze if self.frame == REST else np.asarray(gaze, dtype=float)
+        self.stall.reset()
         for d in self.directions:
             d.reset()
 
-    def vent(self) -> np.ndarray:
-        """Zero every direction; the next update starts from f(theta_t) again."""
+    def vent(self, forget_stall: bool = True) -> np.ndarray:
+        """Zero every direction; the next update starts from f(theta_t) again. forget_stall
+        False (the gaze went stale, guidance disabled for a moment) keeps a stall latched."""
         self.initial_gaze = None
+        if forget_stall:
+            self.stalled = ''
+        self.stall.reset()
         for d in self.directions:
             d.reset()
         return np.zeros(len(DIRECTIONS))
@@ -254,6 +314,9 @@ class GuidanceController:
         Raises ValueError (a GeometryError for degenerate vectors) for invalid input, with
         the state unchanged; the caller vents.
         """
+        if self.stalled:
+            angles_between(gaze, target)   # still refuses invalid input
+            return np.zeros(len(DIRECTIONS))
         if self.initial_gaze is None:
             self.begin(gaze)
         at = angles_between(self.initial_gaze, target)
@@ -262,4 +325,15 @@ class GuidanceController:
         # split_directions written out: (left, right, down, up) = (h, -h, -v, v).
         ht, vt, h, v = at.horizontal, at.vertical, a.horizontal, a.vertical
         left, right, down, up = self.directions
-        return np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t), up.step(vt, v, t)])
+        out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t), up.step(vt, v, t)])
+        if self.stall.timeout_s is not None:
+            g, tg = np.asarray(gaze, float), np.asarray(target, float)
+            g, tg = g / np.linalg.norm(g), tg / np.linalg.norm(tg)
+            error = math.degrees(math.atan2(float(np.linalg.norm(np.cross(g, tg))), float(np.dot(g, tg))))
+            if self.stall.update(error, t):
+                self.stalled = (f'no progress toward the target for {self.stall.timeout_s:g} s (error '
+                                f'{self.stall.error:.1f} deg, best {self.stall.best:.1f} deg): vented until '
+                                'the next target or a service call')
+                self.vent(forget_stall=False)
+                return np.zeros(len(DIRECTIONS))
+        return out

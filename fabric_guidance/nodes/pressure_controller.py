@@ -45,6 +45,7 @@ from std_srvs.srv import SetBool, Trigger
 from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
                     angles_between, condition, phrase, ray_direction, target_direction)
 from ..core.calibration import DONE, FAILED
+from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
                                  guidance_step, safe_command)
@@ -64,8 +65,19 @@ class PressureController(Node):
         rate = declare(self, 'control_rate_hz', 30.0, 'Eq. 5 steps per second', 'Hz', low=1.0, high=1000.0)
         self.gaze_timeout = declare(self, 'gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long',
                                     's', low=0.01, high=10.0)
-        self.deadband = declare(self, 'rate_deadband_dps', 0.0, 'de/dt must exceed this to count as growing',
-                                'deg/s', low=0.0, high=1000.0)
+        self.deadband = declare(self, 'rate_deadband_dps', 0.0, "rate_estimator sign: de/dt must exceed this "
+                                'to count as growing (0: the paper)', 'deg/s', low=0.0, high=1000.0)
+        # Issue 11 (docs/guidance.md): the frame of Eq. 5's angles, the rate estimate, the stall.
+        frame = declare(self, 'guidance_frame', REST, "origin of Eq. 5's angles: rest (the calibration's "
+                        'rest gaze) or target (the gaze when a target begins)')
+        estimator = declare(self, 'rate_estimator', FILTERED, '"the error grows": filtered (low-passed de/dt '
+                            'above rate_threshold_dps) or sign (the paper\'s literal test)')
+        tau = declare(self, 'rate_filter_tau_s', RATE_FILTER_TAU_S, 'time constant of the de/dt filter', 's',
+                      low=0.001, high=10.0)
+        threshold = declare(self, 'rate_threshold_dps', RATE_THRESHOLD_DPS, 'filtered de/dt must exceed this '
+                            '(default: 3 sd of 1.5 deg tracker noise at 30 Hz)', 'deg/s', low=0.001, high=1000.0)
+        stall = declare(self, 'stall_timeout_s', STALL_TIMEOUT_S, 'vent when the gaze made no progress toward '
+                        'the target for this long; 0 = never', 's', low=0.0, high=3600.0)
         cal_file = declare(self, 'calibration_file', '', "the wearer's calibration file (YAML); '' = none: "
                            'no guidance until calibrated')
         cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
@@ -97,7 +109,10 @@ class PressureController(Node):
         self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
         self.setup = ControllerSetup(self.condition.number, float(self.gain), float(self.p_max), float(rate),
                                      float(self.gaze_timeout), float(self.deadband), bool(self.use_wearer_gain),
-                                     bool(self.follow_target), self.calibration, self.channel_map)
+                                     bool(self.follow_target), self.calibration, self.channel_map,
+                                     str(frame), str(estimator), float(tau), float(threshold),
+                                     float(stall) if stall > 0 else None)
+        self.warn_origin(self.calibration)
         self.controller = self._make_controller()
 
         self.enabled = True
@@ -138,6 +153,10 @@ class PressureController(Node):
         self.get_logger().info(
             f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
             f'calibration: {cal_file or "none"}')
+
+    def warn_origin(self, cal: Calibration | None) -> None:
+        if cal is not None and cal.origin_warning and self.setup.guidance_frame == REST:
+            self.get_logger().warning(cal.origin_warning)
 
     def _make_controller(self) -> GuidanceController | None:
         return self.setup.make_controller()
@@ -224,8 +243,8 @@ class PressureController(Node):
 
     def on_enable(self, request, response):
         self.enabled = bool(request.data)
-        if not self.enabled:
-            self.vent_controller()
+        # Disabling vents; enabling starts afresh (and forgets a no-progress stop).
+        self.vent_controller()
         response.success, response.message = True, 'guidance enabled' if self.enabled else 'guidance disabled (vented)'
         return response
 
@@ -267,6 +286,8 @@ class PressureController(Node):
         if self.speech_due and fresh and self.target is not None:
             self.say()
         channels, reason, invalid = guidance_step(self.setup, self.controller, inp)
+        if reason != self.vent_reason and self.controller is not None and reason == self.controller.stalled:
+            self.get_logger().warning(f'guidance to {self.target_name}: {reason}')
         self.vent_reason = reason
         self.invalid_inputs += invalid
         self.publish(channels)
