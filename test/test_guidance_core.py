@@ -176,3 +176,63 @@ def test_procedure_records_the_rest_gaze():
 
 def cmd_direction(proc):
     return None if proc.phase == 'rest' else proc.direction
+
+
+# ---- refusing useless calibrations (issue 11, deliver 3)
+
+def run_procedure(angles_of_step, acceptance=None):
+    """Algorithm 1 on a wearer at the front whose left angle at step k is angles_of_step[k-1]
+    (other directions: a good wearer)."""
+    from fabric_guidance.core import CalibrationProcedure
+    from fabric_guidance.core.calibration import Acceptance
+    kwargs = {} if acceptance is None else {'acceptance': acceptance}
+    proc = CalibrationProcedure('w', steps=len(angles_of_step), dwell_s=0.2, rest_s=0.2,
+                                record_window_s=0.1, **kwargs)
+    good = [LAW.theta(p, proc.p_max) for p in proc.schedule]
+    t = 0.0
+    while proc.phase not in ('done', 'failed'):
+        if proc.phase == 'rest':
+            gaze = gaze_from_angles(0.0, 0.0)
+        else:
+            k = proc._step - 1
+            a = angles_of_step[k] if proc.direction == 'left' else good[k]
+            yaw, pitch = {'left': (a, 0.0), 'right': (-a, 0.0), 'down': (0.0, -a),
+                          'up': (0.0, a)}[proc.direction]
+            gaze = gaze_from_angles(yaw, pitch)
+        proc.tick(t, gaze)
+        t += 0.01
+    return proc
+
+
+GOOD = [LAW.theta(p, 375.0) for p in np.linspace(37.5, 375.0, 10)]
+
+
+@pytest.mark.parametrize('angles, threshold', [
+    ([10.0 + 1e-9 * k for k in range(10)], 'min_span_deg'),                 # the issue's 1e-9 deg
+    ([0, 0, 0, 0, 0, 0, 0, 10, 20, 30], 'min_r2'),                        # R^2 0.66
+    ([160, 163, 166, 168, 170, 172, 174, 175, 176, 177], 'min_r2'),      # near 180 deg
+    ([0.5, 4, 9, 16, 25, 34, 20, 56, 68, 81], 'max_reversal_deg'),        # not monotonic
+])
+def test_useless_calibrations_are_refused_naming_direction_and_threshold(angles, threshold):
+    proc = run_procedure(angles)
+    assert proc.phase == 'failed'
+    assert proc.error.startswith('left: ') and threshold in proc.error, proc.error
+    # The refused fit stays for the report.
+    assert 'left' in proc.fits and threshold in proc.refused['left']
+    attempt = proc.attempt(Calibration.from_laws('w', [LAW] * 4))
+    assert threshold in attempt.directions['left'].fit['refused']
+    from fabric_guidance.calibration_report import format_fit_report
+    assert 'REFUSED' in format_fit_report(attempt)
+
+
+def test_a_good_calibration_passes_and_thresholds_can_be_disabled():
+    assert run_procedure(GOOD).phase == 'done'
+    from fabric_guidance.core.calibration import ACCEPT_ALL
+    assert run_procedure([0, 0, 0, 0, 0, 0, 0, 10, 20, 30], ACCEPT_ALL).phase == 'done'
+
+
+def test_rmse_threshold():
+    from fabric_guidance.core.calibration import Acceptance
+    angles = [a + (3.0 if k % 2 else -3.0) for k, a in enumerate(GOOD)]
+    proc = run_procedure(angles, Acceptance(min_r2=None, max_reversal_deg=None, max_rmse_kpa=1.0))
+    assert proc.phase == 'failed' and 'max_rmse_kpa' in proc.error, proc.error

@@ -77,6 +77,55 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
 
 
 @dataclass(frozen=True)
+class Acceptance:
+    """When a direction's fit is good enough to guide with (issue 11: refuse useless ones).
+
+    min_r2 [-]: the fit explains this share of the pressure variance: 0.8 refuses a plateau
+    (the issue's R^2 0.77) and anything worse than the mean, and accepts the simulated paper
+    population with suit hysteresis and tracker noise (lowest R^2 0.87 over 30 wearers).
+    min_span_deg [deg]: the angles reached span at least this: at 5 deg (the paper's
+    acceptance angle, 3x the tracker's 1.5 deg) the wearer visibly moved with the pressure.
+    max_reversal_deg [deg]: monotonicity: no angle falls more than this below a larger angle
+    reached at a lower pressure (2 deg: above tracker noise, far below a real reversal).
+    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (375 kPa / 10 =
+    37.5 kPa): a worse fit cannot tell neighbouring steps apart.
+    None disables a threshold.
+    """
+
+    min_r2: float | None = 0.8
+    min_span_deg: float | None = 5.0
+    max_reversal_deg: float | None = 2.0
+    max_rmse_kpa: float | None = 37.5
+
+    def __post_init__(self):
+        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa'):
+            v = getattr(self, name)
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f'calibration acceptance {name} must be finite or None, got {v}')
+
+    def refusal(self, angles: Sequence[float], report: FitReport) -> str:
+        """'' when acceptable, else which threshold the fit misses, with the values."""
+        t = np.asarray(angles, dtype=float)
+        span = float(np.ptp(t)) if t.size else 0.0
+        if self.min_span_deg is not None and not span >= self.min_span_deg:
+            return f'angle span {span:.3g} deg < min_span_deg {self.min_span_deg:g} deg'
+        if self.max_reversal_deg is not None and t.size:
+            drop = float(np.max(np.maximum.accumulate(t) - t))
+            if drop > self.max_reversal_deg:
+                return (f'angles not monotonic: one falls {drop:.3g} deg below an earlier one > '
+                        f'max_reversal_deg {self.max_reversal_deg:g} deg')
+        if self.min_r2 is not None and not report.r2 >= self.min_r2:
+            return f'R^2 {report.r2:.3f} < min_r2 {self.min_r2:g}'
+        if self.max_rmse_kpa is not None and not report.rmse <= self.max_rmse_kpa:
+            return f'RMSE {report.rmse:.3g} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
+        return ''
+
+
+#: Accept every fit the solver produced (the behaviour before issue 11; for experiments).
+ACCEPT_ALL = Acceptance(None, None, None, None)
+
+
+@dataclass(frozen=True)
 class DirectionCalibration:
     law: PowerLaw
     pressures: tuple[float, ...]  # kPa
@@ -247,7 +296,8 @@ class CalibrationProcedure:
     def __init__(self, wearer: str, p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS,
                  dwell_s: float = 3.0, rest_s: float = 3.0, record_window_s: float = 0.5,
                  directions: Sequence[str] = DIRECTIONS, first_pressure: float | None = None,
-                 fit_tolerance: float = 1e-10, min_r2: float | None = None):
+                 fit_tolerance: float = 1e-10, min_r2: float | None = None,
+                 acceptance: Acceptance = Acceptance()):
         for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'{name} must be finite and >= 0 s, got {value}')
@@ -262,7 +312,10 @@ class CalibrationProcedure:
         self.dwell_s, self.rest_s, self.window_s = dwell_s, rest_s, record_window_s
         self.directions = list(directions)
         self.fit_tolerance, self.min_r2 = fit_tolerance, min_r2
+        self.acceptance = acceptance
         self.fits: dict[str, FitReport] = {}
+        #: direction -> why its fit was refused (the fit itself stays in `fits` for the report)
+        self.refused: dict[str, str] = {}
         self.points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.error: str | None = None
         self._dir_index = 0
@@ -370,6 +423,10 @@ class CalibrationProcedure:
             return self.fail(f'{direction}: {exc}')
         self.fits[direction] = report
         self.points[direction] = (self.schedule.copy(), angles)
+        why = self.acceptance.refusal(angles, report)
+        if why:
+            self.refused[direction] = why
+            return self.fail(f'{direction}: fit refused: {why}')
         self._dir_index += 1
         self._step = 0
         if self._dir_index == len(self.directions):
@@ -377,6 +434,21 @@ class CalibrationProcedure:
         else:
             self._phase = REST
         return self._command(t)
+
+    def attempt(self, base: Calibration | None = None) -> Calibration | None:
+        """What was measured so far, refused fits included (marked `refused` in their fit), for
+        the fit report of a calibration that failed; directions not fitted come from `base`;
+        None when nothing was fitted or there is no base to fill the rest."""
+        dirs = dict(base.directions) if base is not None else {}
+        for d, report in self.fits.items():
+            p, a = self.points[d]
+            fit = report.as_dict()
+            if d in self.refused:
+                fit['refused'] = self.refused[d]
+            dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)), tuple(map(float, a)), fit)
+        if not self.fits or any(d not in dirs for d in DIRECTIONS):
+            return None
+        return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})
 
     def result(self, base: Calibration | None = None) -> Calibration:
         """The calibration after DONE. Directions not calibrated now are taken from `base`."""

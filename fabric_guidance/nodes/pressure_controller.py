@@ -44,7 +44,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
                     angles_between, condition, phrase, ray_direction, target_direction)
-from ..core.calibration import DONE, FAILED
+from ..core.calibration import DONE, FAILED, Acceptance
 from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
@@ -91,6 +91,16 @@ class PressureController(Node):
                                 low=0.05, high=60.0)
         self.cal_window = declare(self, 'calibration_window_s', 0.5, 'the recorded angle is the median over '
                                   'the last part of a dwell', 's', low=0.01, high=60.0)
+        # Issue 11: a calibration that misses one of these is refused (the previous one is kept).
+        self.acceptance = Acceptance(
+            declare(self, 'calibration_min_r2', 0.8, 'refuse a direction whose fit explains less', '-',
+                    low=-1e9, high=1.0),
+            declare(self, 'calibration_min_span_deg', 5.0, 'refuse a direction whose angles span less', 'deg',
+                    low=0.0, high=180.0),
+            declare(self, 'calibration_max_reversal_deg', 2.0, 'refuse a direction whose angle falls more '
+                    'than this below an earlier one', 'deg', low=0.0, high=180.0),
+            declare(self, 'calibration_max_rmse_kpa', 37.5, 'refuse a direction whose fit RMSE is larger', 'kPa',
+                    low=0.0, high=1000.0))
         channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
         self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
         self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
@@ -231,7 +241,7 @@ class PressureController(Node):
         try:
             self.procedure = CalibrationProcedure(
                 self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
-                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest))
+                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest), acceptance=self.acceptance)
         except ValueError as exc:
             response.success, response.message = False, f'cannot calibrate: {exc}'
             return response
@@ -322,6 +332,12 @@ class PressureController(Node):
             text = f'failed: {proc.error}; the previous calibration is kept'
             self.get_logger().error(f'calibration {text}')
             self.procedure = None
+            attempt = proc.attempt(self.calibration)
+            if attempt is not None:
+                # The refused fit's report, beside (not over) the kept calibration's.
+                import dataclasses
+                self.write_report(dataclasses.replace(attempt, wearer=f'{self.wearer}-refused'),
+                                  self.cal_dir, f'refused calibration of {self.wearer}: {proc.error}')
         if text != self.last_status:
             self.last_status = text
             self.status_pub.publish(String(data=text))
@@ -337,26 +353,31 @@ class PressureController(Node):
             return f'failed: {exc}; the previous calibration is kept'
         self.calibration = cal
         self.setup.calibration = cal
+        self.warn_origin(cal)
         self.controller = self._make_controller()
         self.publish_parameters(self.step_count)   # the next step uses the new calibration
         fits = ', '.join(f'{d} R^2 {cal.directions[d].fit.get("r2", float("nan")):.3f}' for d in DIRECTIONS)
         self.get_logger().info(f'calibration written to {path} ({fits})')
-        # The fit report (text and PNG) next to the file. Drawing takes about a second, so it
-        # runs off the control loop; the calibration is saved already whatever happens to it.
+        txt, png = self.write_report(cal, path.parent, str(path))
+        return f'done: {path}; fit report {txt}, {png}'
+
+    def write_report(self, cal: Calibration, folder: Path, source: str):
+        """The fit report (text and PNG) in `folder`. Drawing takes about a second, so it runs
+        off the control loop; the calibration is saved (or kept) whatever happens to it."""
         import threading
         from ..calibration_report import report_paths, write_fit_report
-        txt, png = report_paths(cal, path.parent)
+        txt, png = report_paths(cal, folder)
         logger = self.get_logger()
 
         def write_report():
             try:
-                write_fit_report(cal, path.parent, source=str(path))
+                write_fit_report(cal, folder, source=source)
                 logger.info(f'fit report written: {txt}, {png}')
             except Exception as exc:  # noqa: BLE001 - a report failure must not touch the calibration
                 logger.error(f'fit report not written: {exc!r}')
         self.report_thread = threading.Thread(target=write_report, name='fit_report')
         self.report_thread.start()
-        return f'done: {path}; fit report {txt}, {png}'
+        return txt, png
 
     def publish_diagnostics(self) -> None:
         if self.procedure is not None:
