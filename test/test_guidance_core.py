@@ -236,3 +236,24 @@ def test_rmse_threshold():
     angles = [a + (3.0 if k % 2 else -3.0) for k, a in enumerate(GOOD)]
     proc = run_procedure(angles, Acceptance(min_r2=None, max_reversal_deg=None, max_rmse_kpa=1.0))
     assert proc.phase == 'failed' and 'max_rmse_kpa' in proc.error, proc.error
+
+
+def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_law():
+    from fabric_guidance.bag.controller_io import ControllerSetup
+    from fabric_guidance.core import ChannelMap
+    from fabric_guidance.paths import config_path
+    cmap = ChannelMap.load(config_path('channel_map.yaml'))
+    cal = Calibration.from_laws('w', [LAW] * 4)
+    new = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal, cmap)
+    d = new.to_dict()
+    assert (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s']) == ('rest', 'filtered', 10.0)
+    assert ControllerSetup.from_yaml(new.to_yaml()).to_dict() == d
+    # A bag of the law before issue 11: no such keys -> per-target frame, sign test, no stall.
+    for key in ('guidance_frame', 'rate_estimator', 'rate_filter_tau_s', 'rate_threshold_dps',
+                'stall_timeout_s'):
+        del d[key]
+    old = ControllerSetup.from_dict(d)
+    assert (old.guidance_frame, old.rate_estimator, old.stall_timeout_s) == ('target', 'sign', None)
+    ctl = old.make_controller()
+    assert ctl.frame == 'target' and ctl.directions[0].estimator == 'sign'
+    assert ctl.stall.timeout_s is None
