@@ -32,7 +32,8 @@ import numpy as np
 import yaml
 
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
-from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S, TARGET
+from ..core import feedback as law   # law.TARGET, not this module's TARGET (an input slice)
+from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S
 from ..core.geometry import DIRECTIONS
 
 CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
@@ -162,7 +163,7 @@ class ControllerSetup:
                    Calibration.from_dict(cal, 'controller_parameters.calibration') if cal else None,
                    ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'),
                    # Keys missing: a bag of the law before issue 11, replayed as it ran.
-                   str(d.get('guidance_frame', TARGET)), str(d.get('rate_estimator', SIGN)),
+                   str(d.get('guidance_frame', law.TARGET)), str(d.get('rate_estimator', SIGN)),
                    float(d.get('rate_filter_tau_s', RATE_FILTER_TAU_S)),
                    float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)),
                    None if d.get('stall_timeout_s') is None else float(d['stall_timeout_s']))

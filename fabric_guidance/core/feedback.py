@@ -327,9 +327,11 @@ class GuidanceController:
         left, right, down, up = self.directions
         out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t), up.step(vt, v, t)])
         if self.stall.timeout_s is not None:
-            g, tg = np.asarray(gaze, float), np.asarray(target, float)
-            g, tg = g / np.linalg.norm(g), tg / np.linalg.norm(tg)
-            error = math.degrees(math.atan2(float(np.linalg.norm(np.cross(g, tg))), float(np.dot(g, tg))))
+            # The full gaze-to-target angle (atan2 form), in scalar math: this runs every step.
+            ax, ay, az = (float(c) for c in gaze)
+            bx, by, bz = (float(c) for c in target)
+            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            error = math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ax * bx + ay * by + az * bz))
             if self.stall.update(error, t):
                 self.stalled = (f'no progress toward the target for {self.stall.timeout_s:g} s (error '
                                 f'{self.stall.error:.1f} deg, best {self.stall.best:.1f} deg): vented until '
