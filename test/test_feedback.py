@@ -147,7 +147,8 @@ def test_controller_rejects_invalid_gaze_and_keeps_state():
 
 
 def test_per_direction_gain():
-    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=[0.5, 0.0, 0.0, 0.0], estimator='sign', frame='target')
+    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=[0.5, 0.0, 0.0, 0.0], estimator='sign',
+                             frame='target')
     ctl.update(yawed(0.0), yawed(16.0), 0.0)
     assert ctl.update(yawed(-2.0), yawed(16.0), 1.0)[0] == 22.0
     with pytest.raises(ValueError, match='one gain per direction'):

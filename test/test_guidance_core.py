@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fabric_guidance.core import Calibration, GuidanceController, PowerLaw
-from fabric_guidance.core.feedback import (FeedbackLaw, FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS,
-                                           SIGN, noise_rate_threshold)
+from fabric_guidance.core.feedback import (FeedbackLaw, FILTERED, RATE_FILTER_TAU_S,
+                                           RATE_THRESHOLD_DPS, SIGN, noise_rate_threshold)
 from fabric_guidance.core.geometry import angles_between
 from fabric_guidance.sim.wearer import gaze_from_angles
 
@@ -79,7 +79,8 @@ def test_the_sign_test_winds_up_under_the_same_noise():
 @settings(max_examples=60, deadline=None)
 @given(theta_t=st.floats(5.0, 80.0), speed=st.floats(2.0, 6.0), seed=st.integers(0, 2**32 - 1),
        noise_sd=st.sampled_from([0.0, 0.5, 1.0]))
-def test_a_wearer_moving_away_gets_the_increment_within_stated_steps(theta_t, speed, seed, noise_sd):
+def test_a_wearer_moving_away_gets_the_increment_within_stated_steps(theta_t, speed, seed,
+                                                                     noise_sd):
     """Moving away from the target at >= 2x the threshold rate (about 29 deg/s and more): the
     pressure rises above f(theta_t) within AWAY_STEPS steps, under the scene's noise too."""
     rate = speed * RATE_THRESHOLD_DPS
@@ -168,7 +169,8 @@ def test_procedure_records_the_rest_gaze():
     while proc.phase not in ('done', 'failed'):
         cmd = proc.tick(t, rest if cmd_direction(proc) is None else gaze_from_angles(
             *{'left': (4.0 + 10 * proc._step, -2.0), 'right': (4.0 - 10 * proc._step, -2.0),
-              'down': (4.0, -2.0 - 10 * proc._step), 'up': (4.0, -2.0 + 10 * proc._step)}[proc.direction]))
+              'down': (4.0, -2.0 - 10 * proc._step),
+              'up': (4.0, -2.0 + 10 * proc._step)}[proc.direction]))
         t += 0.01
     assert proc.phase == 'done', proc.error
     assert proc.result().rest_gaze == pytest.approx(tuple(rest))
@@ -246,14 +248,16 @@ def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_l
     cal = Calibration.from_laws('w', [LAW] * 4)
     new = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal, cmap)
     d = new.to_dict()
-    assert (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s']) == ('rest', 'filtered', 10.0)
+    law = (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s'])
+    assert law == ('rest', 'filtered', 10.0)
     assert ControllerSetup.from_yaml(new.to_yaml()).to_dict() == d
     # A bag of the law before issue 11: no such keys -> per-target frame, sign test, no stall.
     for key in ('guidance_frame', 'rate_estimator', 'rate_filter_tau_s', 'rate_threshold_dps',
                 'stall_timeout_s'):
         del d[key]
     old = ControllerSetup.from_dict(d)
-    assert (old.guidance_frame, old.rate_estimator, old.stall_timeout_s) == ('target', 'sign', None)
+    law = (old.guidance_frame, old.rate_estimator, old.stall_timeout_s)
+    assert law == ('target', 'sign', None)
     ctl = old.make_controller()
     assert ctl.frame == 'target' and ctl.directions[0].estimator == 'sign'
     assert ctl.stall.timeout_s is None

@@ -48,7 +48,8 @@ def run(seed: int, frame: str) -> list:
     cal = run_calibration(sc, wearer)
     loop = ClosedLoop(sc, wearer, (20, 1, seed), 1, cal)
     loop.warm_up()
-    return sequence_loop(loop, objects(), sc.protocol.acceptance_deg, sc.protocol.dwell_s, TIMEOUT_S)
+    return sequence_loop(loop, objects(), sc.protocol.acceptance_deg, sc.protocol.dwell_s,
+                         TIMEOUT_S)
 
 
 @pytest.mark.parametrize('seed', SEEDS)

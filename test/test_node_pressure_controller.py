@@ -321,4 +321,5 @@ def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
     # ... and the next target guides again.
     upstream.activate('t2', 30.0)
     f30 = SIM_CAL.laws[0].pressure(30.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f30, 'L2': f30}), 10.0, what='guiding to the next target')
+    wait_until(lambda: channels_equal(probe, {'L1': f30, 'L2': f30}), 10.0,
+               what='guiding to the next target')

@@ -33,7 +33,8 @@ import yaml
 
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
 from ..core import feedback as law   # law.TARGET, not this module's TARGET (an input slice)
-from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S
+from ..core.feedback import (FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN,
+                             STALL_TIMEOUT_S)
 from ..core.geometry import DIRECTIONS
 
 CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
@@ -133,10 +134,12 @@ class ControllerSetup:
             gain = self.calibration.adjustment_gain
         return GuidanceController(self.calibration.laws, p_max=min(self.p_max_kpa, self.calibration.p_max),
                                   gain=gain, mode=cond.mode, rate_deadband=self.rate_deadband_dps,
-                                  follow_target=self.follow_moving_target, estimator=self.rate_estimator,
+                                  follow_target=self.follow_moving_target,
+                                  estimator=self.rate_estimator,
                                   rate_filter_tau_s=self.rate_filter_tau_s,
-                                  rate_threshold=self.rate_threshold_dps, frame=self.guidance_frame,
-                                  rest_gaze=self.calibration.origin, stall_timeout_s=self.stall_timeout_s)
+                                  rate_threshold=self.rate_threshold_dps,
+                                  frame=self.guidance_frame, rest_gaze=self.calibration.origin,
+                                  stall_timeout_s=self.stall_timeout_s)
 
     def to_dict(self) -> dict:
         return {'schema': PARAMETERS_SCHEMA, 'condition': int(self.condition), 'gain': float(self.gain),
@@ -144,10 +147,12 @@ class ControllerSetup:
                 'gaze_timeout_s': float(self.gaze_timeout_s), 'rate_deadband_dps': float(self.rate_deadband_dps),
                 'use_wearer_gain': bool(self.use_wearer_gain),
                 'follow_moving_target': bool(self.follow_moving_target),
-                'guidance_frame': str(self.guidance_frame), 'rate_estimator': str(self.rate_estimator),
+                'guidance_frame': str(self.guidance_frame),
+                'rate_estimator': str(self.rate_estimator),
                 'rate_filter_tau_s': float(self.rate_filter_tau_s),
                 'rate_threshold_dps': float(self.rate_threshold_dps),
-                'stall_timeout_s': None if self.stall_timeout_s is None else float(self.stall_timeout_s),
+                'stall_timeout_s': (None if self.stall_timeout_s is None
+                                    else float(self.stall_timeout_s)),
                 'calibration': self.calibration.to_dict() if self.calibration is not None else None,
                 'channel_map': channel_map_dict(self.channel_map)}
 

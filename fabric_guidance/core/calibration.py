@@ -152,7 +152,8 @@ class Calibration:
         """The same calibration with this wearer's own adjustment gain."""
         if gain is not None and not (math.isfinite(gain) and gain >= 0):
             raise ValueError(f'adjustment gain must be finite and >= 0, got {gain}')
-        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain, self.rest_gaze)
+        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain,
+                           self.rest_gaze)
 
     @property
     def origin(self) -> tuple[float, float, float]:
@@ -164,8 +165,8 @@ class Calibration:
         """'' when the rest gaze was recorded, else the warning to show once."""
         if self.rest_gaze is not None:
             return ''
-        return (f'calibration of {self.wearer!r} records no rest_gaze: angles are measured from the '
-                f'front of the immersive frame {list(FRONT)}; recalibrate to record it')
+        return (f'calibration of {self.wearer!r} records no rest_gaze: angles are measured '
+                f'from the front of the immersive frame {list(FRONT)}; recalibrate to record it')
 
     @property
     def laws(self) -> list[PowerLaw]:
@@ -187,7 +188,8 @@ class Calibration:
             'created': self.created,
             'p_max_kpa': float(self.p_max),
             **({'adjustment_gain': float(self.adjustment_gain)} if self.adjustment_gain is not None else {}),
-            **({'rest_gaze': [float(x) for x in self.rest_gaze]} if self.rest_gaze is not None else {}),
+            **({'rest_gaze': [float(x) for x in self.rest_gaze]}
+               if self.rest_gaze is not None else {}),
             'directions': {
                 d: {
                     'a': c.law.a, 'b': c.law.b, 'c': c.law.c,
@@ -254,13 +256,16 @@ class Calibration:
         rest = data.get('rest_gaze')
         if rest is not None:
             if (not isinstance(rest, list) or len(rest) != 3
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in rest)):
-                fail('rest_gaze', f'must be a list of 3 numbers (x, y, z) when present, got {rest!r}')
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                               for x in rest)):
+                fail('rest_gaze', f'must be a list of 3 numbers (x, y, z) when present, '
+                                  f'got {rest!r}')
             try:
                 rest = tuple(float(x) for x in unit_vector(rest, 'rest_gaze'))
             except GeometryError as exc:
                 fail('rest_gaze', f'is not a direction: {exc}')
-        return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain), rest)
+        return cls(wearer, float(p_max), out, str(created),
+                   None if gain is None else float(gain), rest)
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
@@ -445,7 +450,8 @@ class CalibrationProcedure:
             fit = report.as_dict()
             if d in self.refused:
                 fit['refused'] = self.refused[d]
-            dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)), tuple(map(float, a)), fit)
+            dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)),
+                                           tuple(map(float, a)), fit)
         if not self.fits or any(d not in dirs for d in DIRECTIONS):
             return None
         return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})

@@ -82,7 +82,8 @@ RATE_THRESHOLD_SIGMAS = 3.0
 
 
 def noise_rate_threshold(noise_deg: float = TRACKER_NOISE_DEG, rate_hz: float = TRACKER_RATE_HZ,
-                         tau_s: float = RATE_FILTER_TAU_S, sigmas: float = RATE_THRESHOLD_SIGMAS) -> float:
+                         tau_s: float = RATE_FILTER_TAU_S,
+                         sigmas: float = RATE_THRESHOLD_SIGMAS) -> float:
     """The filtered-rate threshold, deg/s, that tracker noise alone crosses rarely.
 
     For independent angle noise of sd s sampled every dt, the raw rate (e_k - e_k-1)/dt fed to
@@ -117,14 +118,17 @@ class StallWatch:
     near_deg of the target counts as progress. A clock that jumps back restarts the watch.
     """
 
-    def __init__(self, timeout_s: float | None = STALL_TIMEOUT_S, progress_deg: float = STALL_PROGRESS_DEG,
+    def __init__(self, timeout_s: float | None = STALL_TIMEOUT_S,
+                 progress_deg: float = STALL_PROGRESS_DEG,
                  near_deg: float = STALL_NEAR_DEG, tau_s: float = RATE_FILTER_TAU_S):
         if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f'stall timeout must be finite and > 0 s (or None: never), got {timeout_s}')
+            raise ValueError(f'stall timeout must be finite and > 0 s (or None: never), '
+                             f'got {timeout_s}')
         for name, v in (('stall progress', progress_deg), ('stall near', near_deg)):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be finite and >= 0 deg, got {v}')
-        self.timeout_s, self.progress_deg, self.near_deg, self.tau_s = timeout_s, progress_deg, near_deg, tau_s
+        self.timeout_s, self.progress_deg = timeout_s, progress_deg
+        self.near_deg, self.tau_s = near_deg, tau_s
         self.reset()
 
     def reset(self) -> None:
@@ -189,10 +193,12 @@ class FeedbackLaw:
         if self.estimator not in ESTIMATORS:
             raise ValueError(f'estimator must be one of {ESTIMATORS}, got {self.estimator!r}')
         if not (math.isfinite(self.rate_filter_tau_s) and self.rate_filter_tau_s > 0):
-            raise ValueError(f'rate_filter_tau_s must be finite and > 0 s, got {self.rate_filter_tau_s}')
+            raise ValueError(f'rate_filter_tau_s must be finite and > 0 s, '
+                             f'got {self.rate_filter_tau_s}')
         # > 0 strictly: a zero threshold would let a rounding-sized rate count as growth.
         if not (math.isfinite(self.rate_threshold) and self.rate_threshold > 0):
-            raise ValueError(f'rate_threshold must be finite and > 0 deg/s, got {self.rate_threshold}')
+            raise ValueError(f'rate_threshold must be finite and > 0 deg/s, '
+                             f'got {self.rate_threshold}')
         self.reset()
 
     def reset(self) -> None:
@@ -273,8 +279,8 @@ class GuidanceController:
         if frame not in FRAMES:
             raise ValueError(f'frame must be one of {FRAMES}, got {frame!r}')
         angles_between(rest_gaze, rest_gaze)  # validates the vector
-        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target, estimator,
-                                       rate_filter_tau_s, rate_threshold)
+        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target,
+                                       estimator, rate_filter_tau_s, rate_threshold)
                            for law, g in zip(laws, gains)]
         self.p_max = p_max
         self.frame = frame
@@ -325,17 +331,20 @@ class GuidanceController:
         # split_directions written out: (left, right, down, up) = (h, -h, -v, v).
         ht, vt, h, v = at.horizontal, at.vertical, a.horizontal, a.vertical
         left, right, down, up = self.directions
-        out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t), up.step(vt, v, t)])
+        out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t),
+                        up.step(vt, v, t)])
         if self.stall.timeout_s is not None:
             # The full gaze-to-target angle (atan2 form), in scalar math: this runs every step.
             ax, ay, az = (float(c) for c in gaze)
             bx, by, bz = (float(c) for c in target)
             cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-            error = math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ax * bx + ay * by + az * bz))
+            error = math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz),
+                                            ax * bx + ay * by + az * bz))
             if self.stall.update(error, t):
-                self.stalled = (f'no progress toward the target for {self.stall.timeout_s:g} s (error '
-                                f'{self.stall.error:.1f} deg, best {self.stall.best:.1f} deg): vented until '
-                                'the next target or a service call')
+                self.stalled = (f'no progress toward the target for {self.stall.timeout_s:g} s '
+                                f'(error {self.stall.error:.1f} deg, best '
+                                f'{self.stall.best:.1f} deg): vented until the next target '
+                                'or a service call')
                 self.vent(forget_stall=False)
                 return np.zeros(len(DIRECTIONS))
         return out

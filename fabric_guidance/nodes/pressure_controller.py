@@ -65,19 +65,24 @@ class PressureController(Node):
         rate = declare(self, 'control_rate_hz', 30.0, 'Eq. 5 steps per second', 'Hz', low=1.0, high=1000.0)
         self.gaze_timeout = declare(self, 'gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long',
                                     's', low=0.01, high=10.0)
-        self.deadband = declare(self, 'rate_deadband_dps', 0.0, "rate_estimator sign: de/dt must exceed this "
-                                'to count as growing (0: the paper)', 'deg/s', low=0.0, high=1000.0)
+        self.deadband = declare(self, 'rate_deadband_dps', 0.0,
+                                'rate_estimator sign: de/dt must exceed this to count as growing '
+                                '(0: the paper)', 'deg/s', low=0.0, high=1000.0)
         # Issue 11 (docs/guidance.md): the frame of Eq. 5's angles, the rate estimate, the stall.
-        frame = declare(self, 'guidance_frame', REST, "origin of Eq. 5's angles: rest (the calibration's "
-                        'rest gaze) or target (the gaze when a target begins)')
-        estimator = declare(self, 'rate_estimator', FILTERED, '"the error grows": filtered (low-passed de/dt '
-                            'above rate_threshold_dps) or sign (the paper\'s literal test)')
-        tau = declare(self, 'rate_filter_tau_s', RATE_FILTER_TAU_S, 'time constant of the de/dt filter', 's',
-                      low=0.001, high=10.0)
-        threshold = declare(self, 'rate_threshold_dps', RATE_THRESHOLD_DPS, 'filtered de/dt must exceed this '
-                            '(default: 3 sd of 1.5 deg tracker noise at 30 Hz)', 'deg/s', low=0.001, high=1000.0)
-        stall = declare(self, 'stall_timeout_s', STALL_TIMEOUT_S, 'vent when the gaze made no progress toward '
-                        'the target for this long; 0 = never', 's', low=0.0, high=3600.0)
+        frame = declare(self, 'guidance_frame', REST,
+                        "origin of Eq. 5's angles: rest (the calibration's rest gaze) or target "
+                        '(the gaze when a target begins)')
+        estimator = declare(self, 'rate_estimator', FILTERED,
+                            '"the error grows": filtered (low-passed de/dt above '
+                            "rate_threshold_dps) or sign (the paper's literal test)")
+        tau = declare(self, 'rate_filter_tau_s', RATE_FILTER_TAU_S,
+                      'time constant of the de/dt filter', 's', low=0.001, high=10.0)
+        threshold = declare(self, 'rate_threshold_dps', RATE_THRESHOLD_DPS,
+                            'filtered de/dt must exceed this (default: 3 sd of 1.5 deg tracker '
+                            'noise at 30 Hz)', 'deg/s', low=0.001, high=1000.0)
+        stall = declare(self, 'stall_timeout_s', STALL_TIMEOUT_S,
+                        'vent when the gaze made no progress toward the target for this long; '
+                        '0 = never', 's', low=0.0, high=3600.0)
         cal_file = declare(self, 'calibration_file', '', "the wearer's calibration file (YAML); '' = none: "
                            'no guidance until calibrated')
         cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
@@ -93,14 +98,15 @@ class PressureController(Node):
                                   'the last part of a dwell', 's', low=0.01, high=60.0)
         # Issue 11: a calibration that misses one of these is refused (the previous one is kept).
         self.acceptance = Acceptance(
-            declare(self, 'calibration_min_r2', 0.8, 'refuse a direction whose fit explains less', '-',
-                    low=-1e9, high=1.0),
-            declare(self, 'calibration_min_span_deg', 5.0, 'refuse a direction whose angles span less', 'deg',
-                    low=0.0, high=180.0),
-            declare(self, 'calibration_max_reversal_deg', 2.0, 'refuse a direction whose angle falls more '
-                    'than this below an earlier one', 'deg', low=0.0, high=180.0),
-            declare(self, 'calibration_max_rmse_kpa', 37.5, 'refuse a direction whose fit RMSE is larger', 'kPa',
-                    low=0.0, high=1000.0))
+            declare(self, 'calibration_min_r2', 0.8,
+                    'refuse a direction whose fit explains less', '-', low=-1e9, high=1.0),
+            declare(self, 'calibration_min_span_deg', 5.0,
+                    'refuse a direction whose angles span less', 'deg', low=0.0, high=180.0),
+            declare(self, 'calibration_max_reversal_deg', 2.0,
+                    'refuse a direction whose angle falls more than this below an earlier one',
+                    'deg', low=0.0, high=180.0),
+            declare(self, 'calibration_max_rmse_kpa', 37.5,
+                    'refuse a direction whose fit RMSE is larger', 'kPa', low=0.0, high=1000.0))
         channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
         self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
         self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
@@ -241,7 +247,8 @@ class PressureController(Node):
         try:
             self.procedure = CalibrationProcedure(
                 self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
-                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest), acceptance=self.acceptance)
+                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest),
+                acceptance=self.acceptance)
         except ValueError as exc:
             response.success, response.message = False, f'cannot calibrate: {exc}'
             return response
@@ -296,7 +303,8 @@ class PressureController(Node):
         if self.speech_due and fresh and self.target is not None:
             self.say()
         channels, reason, invalid = guidance_step(self.setup, self.controller, inp)
-        if reason != self.vent_reason and self.controller is not None and reason == self.controller.stalled:
+        stalled = self.controller is not None and reason == self.controller.stalled
+        if stalled and reason and reason != self.vent_reason:
             self.get_logger().warning(f'guidance to {self.target_name}: {reason}')
         self.vent_reason = reason
         self.invalid_inputs += invalid
@@ -337,7 +345,8 @@ class PressureController(Node):
                 # The refused fit's report, beside (not over) the kept calibration's.
                 import dataclasses
                 self.write_report(dataclasses.replace(attempt, wearer=f'{self.wearer}-refused'),
-                                  self.cal_dir, f'refused calibration of {self.wearer}: {proc.error}')
+                                  self.cal_dir,
+                                  f'refused calibration of {self.wearer}: {proc.error}')
         if text != self.last_status:
             self.last_status = text
             self.status_pub.publish(String(data=text))

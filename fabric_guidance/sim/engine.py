@@ -104,10 +104,12 @@ def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | Non
     """The controller the node builds (bag.controller_io.ControllerSetup.make_controller) from a
     scene's controller section: same law, estimator and frame; fast scalar power laws."""
     return GuidanceController(
-        [FastPowerLaw.of(law) for law in calibration.laws], p_max=min(ctl.p_max_kpa, calibration.p_max),
-        gain=ctl.gain if gain is None else gain, mode=mode, rate_deadband=ctl.rate_deadband_dps,
-        follow_target=follow_target, estimator=ctl.rate_estimator, rate_filter_tau_s=ctl.rate_filter_tau_s,
-        rate_threshold=ctl.rate_threshold_dps, frame=ctl.guidance_frame, rest_gaze=calibration.origin)
+        [FastPowerLaw.of(law) for law in calibration.laws],
+        p_max=min(ctl.p_max_kpa, calibration.p_max), gain=ctl.gain if gain is None else gain,
+        mode=mode, rate_deadband=ctl.rate_deadband_dps, follow_target=follow_target,
+        estimator=ctl.rate_estimator, rate_filter_tau_s=ctl.rate_filter_tau_s,
+        rate_threshold=ctl.rate_threshold_dps, frame=ctl.guidance_frame,
+        rest_gaze=calibration.origin)
 
 
 def yaw_pitch(direction) -> tuple[float, float]:
@@ -345,12 +347,11 @@ class ClosedLoop:
         """Run Algorithm 1 (core CalibrationProcedure) on this loop's wearer, with the scene's
         effects; the result, or CalibrationFitError with the reason."""
         cal = self.scene.calibration
+        # Scenes keep every fit (their own min_r2 aside): the node's default refusal would
+        # exclude 1 of 15 paper wearers (suit hysteresis: RMSE up to 39 kPa).
         self.procedure = CalibrationProcedure(name, p_max=self.p_max, steps=cal.steps, dwell_s=cal.dwell_s,
-                                              rest_s=cal.rest_s, record_window_s=cal.window_s, min_r2=cal.min_r2,
-                                              # Scenes keep every fit (their own min_r2 aside): the
-                                              # node's default refusal would exclude 1 of 15 paper
-                                              # wearers (suit hysteresis: RMSE up to 39 kPa).
-                                              acceptance=ACCEPT_ALL)
+                                              rest_s=cal.rest_s, record_window_s=cal.window_s,
+                                              min_r2=cal.min_r2, acceptance=ACCEPT_ALL)
         self.mode = 'front'
         self.front_visible = False
         limit = self.step_index + int(math.ceil((self.procedure.duration_s + 10.0) / self.dt))
@@ -375,5 +376,6 @@ def run_calibration(scene, wearer, name: str | None = None) -> Calibration:
     return loop.calibrate(name)
 
 
-__all__ = ['CALIBRATION_RUN', 'ClosedLoop', 'FastPowerLaw', 'scene_controller', 'yaw_pitch', 'WARMUP_S', 'angle_between_deg', 'package_channel_map',
+__all__ = ['CALIBRATION_RUN', 'ClosedLoop', 'FastPowerLaw', 'scene_controller', 'yaw_pitch',
+           'WARMUP_S', 'angle_between_deg', 'package_channel_map',
            'parse_phrase', 'run_calibration', 'trial_run']

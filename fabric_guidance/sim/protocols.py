@@ -204,8 +204,9 @@ def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol)
     return dict(presented=presented, finds=finds, unfound_s=(loop.t - appeared) if goal is target else None)
 
 
-def sequence_loop(loop: ClosedLoop, targets: Sequence[tuple[float, float]], acceptance_deg: float = 5.0,
-                  dwell_s: float = 0.3, timeout_s: float = 15.0, visible: bool = True) -> list[float | None]:
+def sequence_loop(loop: ClosedLoop, targets: Sequence[tuple[float, float]],
+                  acceptance_deg: float = 5.0, dwell_s: float = 0.3, timeout_s: float = 15.0,
+                  visible: bool = True) -> list[float | None]:
     """Targets one after another with no return to the front (the micromanipulation
     demonstration: the next object appears as soon as one is found), on a warmed-up loop.
     Found by the speed task's rule on the tracked gaze. Per target: time to find [s], or None
@@ -426,7 +427,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ['CONDITION_NAMES', 'Exclusion', 'MEASURES', 'ProtocolResults', 'TRIALS', 'TrialRecord', 'accuracy_trial',
-           'condition_order', 'format_summary', 'run_protocol', 'run_subject', 'sequence_loop', 'speed_trial',
+           'condition_order', 'format_summary', 'run_protocol', 'run_subject', 'sequence_loop',
+           'speed_trial',
            'summarize',
            'trials_frame']
 
