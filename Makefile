@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # DDS stays on this machine; tests pick their own domain ids on top of this.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv clean system-deps test-pymodbus
+.PHONY: demo test test-deep bench venv clean system-deps test-pymodbus
 
 venv: $(STAMP)
 
@@ -56,6 +56,11 @@ test-pymodbus: $(STAMP) $(PYMODBUS_VERSIONS:%=.venv-pymodbus-%/.installed)
 	echo "import site; site.addsitedir('$(SITE_PACKAGES)')" > \
 	  $$($(@D)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/zz_fabric_guidance_venv.pth
 	@touch $@
+
+# The property tests only, with many random examples (test/conftest.py, profile "deep"):
+# for people to run now and then; CI runs the fixed, derandomized examples.
+test-deep: $(STAMP)
+	HYPOTHESIS_PROFILE=deep $(PY) -m pytest -m property -p no:cacheprovider
 
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)

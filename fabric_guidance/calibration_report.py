@@ -112,6 +112,9 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
         lines.append(f'  {f.pressures.size} points, RMSE {f.rmse:.3f} kPa, R^2 '
                      + (f'{f.r2:.5f}' if math.isfinite(f.r2) else '- (all pressures equal)')
                      + f'; P_MAX is reached at theta = {reach:.1f} deg')
+        refused = calibration.directions[f.direction].fit.get('refused')
+        if refused:
+            lines.append(f'  REFUSED (not used for guidance): {refused}')
         if f.solver_message:
             lines.append(f'  solver: {f.solver_message}')
         lines.append(f'  {"step":>4} {"pressure kPa":>12} {"angle deg":>10} {"fitted kPa":>10} {"residual kPa":>12}')

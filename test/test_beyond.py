@@ -161,8 +161,10 @@ def test_a_moving_target_changes_the_pressure_with_follow_target_while_the_weare
         assert loop.controller.pressures[0] == pytest.approx(left.pressure(20.0))
         assert loop.wearer.gaze_yaw == 0.0
         before = loop.controller.pressures.copy()
-        for i in range(1, 61):                    # the target moves to end_yaw in 1 s
-            loop.move_target(20.0 + (end_yaw - 20.0) * i / 60, 0.0)
+        # The target moves to end_yaw in 0.5 s: 30 deg/s, above the filtered estimator's
+        # threshold (core.feedback.RATE_THRESHOLD_DPS, 14.6 deg/s).
+        for i in range(1, 31):
+            loop.move_target(20.0 + (end_yaw - 20.0) * i / 30, 0.0)
             loop.step()
         for _ in range(30):
             loop.step()
@@ -191,7 +193,8 @@ class CheckedLoop(BeyondLoop):
         super().__init__(*args, **kwargs)
         cal = args[4]
         self.reference = GuidanceController(cal.laws, p_max=min(self.p_max, cal.p_max), gain=self.gain,
-                                            mode=self.cond.mode, follow_target=self.follow_target)
+                                            mode=self.cond.mode, follow_target=self.follow_target,
+                                            rest_gaze=cal.origin)
         self.checked = 0
 
     def _control(self, t):

@@ -247,7 +247,7 @@ def test_theta_nonpositive_gives_c(law, theta):
        theta=finite, t=finite)
 def test_feedback_zero_when_target_nonpositive(law, mode, history, theta_target, theta, t):
     """Case 2b: the feedback law commands exactly 0 when theta_target <= 0, whatever came before."""
-    fb = FeedbackLaw(law, P_MAX, mode=mode)
+    fb = FeedbackLaw(law, P_MAX, mode=mode, estimator='sign')
     for sample in history:
         fb.step(*sample)
     assert fb.step(theta_target, theta, t) == 0.0
@@ -403,7 +403,7 @@ def test_any_accepted_law_all_functions_finite(abc, theta, pressure):
 def test_feedback_with_any_accepted_law_stays_bounded(law, gain, samples):
     """Case 6d: the feedback law stays within [0, p_max] for every law the constructor accepts."""
     assume(law is not None)  # a pinned law the constructor now refuses
-    fb = FeedbackLaw(law, P_MAX, gain)
+    fb = FeedbackLaw(law, P_MAX, gain, estimator='sign')
     for sample in samples:
         assert_pressures_bounded(fb.step(*sample), P_MAX)
 
@@ -450,7 +450,7 @@ def test_angles_with_gaze_straight_up_or_down(vertical, other, vertical_first):
 def test_controller_with_gaze_straight_up_or_down(laws, mode, g0, target, gazes, dt):
     """Case 7b: GuidanceController.update with gazes straight up/down gives finite pressures
     within [0, p_max]."""
-    ctl = GuidanceController(laws, P_MAX, mode=mode)
+    ctl = GuidanceController(laws, P_MAX, mode=mode, estimator='sign', frame='target')
     ctl.begin(g0)
     for i, g in enumerate(gazes):
         out = ctl.update(g, target, i * dt)
@@ -533,7 +533,7 @@ def test_controller_rejects_degenerate_input_and_keeps_state(laws, mode, g0, tar
                                                             which, started):
     """Case 8e: GuidanceController.update with a zero-length/NaN/inf gaze or target, or a
     non-finite time, raises ValueError and leaves its pressures unchanged."""
-    ctl = GuidanceController(laws, P_MAX, mode=mode)
+    ctl = GuidanceController(laws, P_MAX, mode=mode, estimator='sign', frame='target')
     if started:
         ctl.begin(g0)
     for i, g in enumerate(gazes):
@@ -572,7 +572,7 @@ def samples_with_repeated_times(draw):
 def test_feedback_repeated_timestamp_holds(law, mode, gain, p_max, samples):
     """Case 9: dt = 0 (a repeated timestamp) never divides by zero; while the law is active the
     sample leaves the output unchanged; the output always lies within [0, p_max]."""
-    fb = FeedbackLaw(law, p_max, gain, mode)
+    fb = FeedbackLaw(law, p_max, gain, mode, estimator='sign')
     prev = None
     for tt, th, t in samples:
         out = fb.step(tt, th, t)
@@ -593,7 +593,7 @@ def test_feedback_repeated_timestamp_holds(law, mode, gain, p_max, samples):
 def test_feedback_clock_jumping_back(law, mode, gain, samples, loops):
     """Case 10: a replay loop (arbitrary times, going back too) keeps the output within
     [0, p_max], and a jump back produces no change of output at that sample."""
-    fb = FeedbackLaw(law, P_MAX, gain, mode)
+    fb = FeedbackLaw(law, P_MAX, gain, mode, estimator='sign')
     prev = None
     for tt, th, t in samples * loops:  # replaying the sequence jumps the clock back at each loop
         out = fb.step(tt, th, t)
@@ -668,7 +668,7 @@ def test_feedback_arbitrary_finite_inputs_stay_bounded(law, mode, gain, p_max, d
     """Case 12a: for arbitrary finite (theta_target, theta, t) sequences, any gain >= 0, any
     p_max > 0 and either mode, the output always lies within [0, p_max]."""
     assume(law is not None)  # a pinned law the constructor now refuses
-    fb = FeedbackLaw(law, p_max, gain, mode, deadband)
+    fb = FeedbackLaw(law, p_max, gain, mode, deadband, estimator='sign')
     for sample in samples:
         out = fb.step(*sample)
         assert_pressures_bounded(out, p_max)
@@ -676,7 +676,7 @@ def test_feedback_arbitrary_finite_inputs_stay_bounded(law, mode, gain, p_max, d
 
 
 def _check_adjustment_direction(law, gain, p_max, samples):
-    fb = FeedbackLaw(law, p_max, gain, ADJUSTED)
+    fb = FeedbackLaw(law, p_max, gain, ADJUSTED, estimator='sign')
     prev = None
     for tt, th, t in samples:
         out = fb.step(tt, th, t)
@@ -717,7 +717,7 @@ def test_feedback_adjustment_moves_toward_the_push_any_gain(law, gain, p_max, sa
 def test_feedback_fixed_mode_is_zero_or_f_of_target(law, gain, p_max, samples):
     """Case 12b: in 'fixed' mode the output is always 0 (target <= 0) or clamp(f(theta_target)),
     theta_target being the target at the (re)activation of the law: nothing ever adds to it."""
-    fb = FeedbackLaw(law, p_max, gain, FIXED)
+    fb = FeedbackLaw(law, p_max, gain, FIXED, estimator='sign')
     anchor = None
     for tt, th, t in samples:
         out = fb.step(tt, th, t)
@@ -735,7 +735,7 @@ def test_feedback_fixed_mode_is_zero_or_f_of_target(law, gain, p_max, samples):
        samples=st.lists(st.tuples(st.booleans(), finite, finite), max_size=30))
 def test_feedback_fixed_mode_constant_target(law, gain, target, samples):
     """Case 12c: 'fixed' mode with one target (switched on and off): output in {0, clamp(f(target))}."""
-    fb = FeedbackLaw(law, P_MAX, gain, FIXED)
+    fb = FeedbackLaw(law, P_MAX, gain, FIXED, estimator='sign')
     allowed = {0.0, clamp(law.pressure(target), P_MAX)}
     for on, th, t in samples:
         assert fb.step(target if on else 0.0, th, t) in allowed

@@ -12,7 +12,7 @@ LAW = PowerLaw(2.0, 0.5, 10.0)
 
 
 def law(mode='adjusted', p_max=100.0, gain=0.5):
-    return FeedbackLaw(LAW, p_max=p_max, gain=gain, mode=mode)
+    return FeedbackLaw(LAW, p_max=p_max, gain=gain, mode=mode, estimator='sign')
 
 
 def test_starts_at_f_of_target():
@@ -92,7 +92,7 @@ def test_non_finite_input_raises_and_keeps_state():
 
 
 def test_rate_deadband():
-    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, rate_deadband=3.0)
+    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, rate_deadband=3.0, estimator='sign')
     fb.step(16.0, 0.0, 0.0)
     assert fb.step(16.0, -2.0, 1.0) == 18.0                # de/dt = 2 deg/s is inside the deadband
     assert fb.step(16.0, -6.0, 2.0) == 22.0                # 4 deg/s is not
@@ -113,7 +113,7 @@ def yawed(deg, pitch=0.0):
 
 
 def test_controller_four_directions_from_gaze():
-    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5)
+    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5, estimator='sign', frame='target')
     target = yawed(16.0)                                   # 16 deg to the left, level
     np.testing.assert_allclose(ctl.update(yawed(0.0), target, 0.0), [18.0, 0.0, 0.0, 0.0])
     # The wearer turns 2 deg right (away): the left direction's error grows.
@@ -128,7 +128,7 @@ def test_controller_four_directions_from_gaze():
 
 
 def test_controller_angles_are_measured_from_the_initial_gaze():
-    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5)
+    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5, estimator='sign', frame='target')
     ctl.begin(yawed(0.0))
     target = yawed(16.0)
     ctl.update(yawed(0.0), target, 0.0)
@@ -137,7 +137,7 @@ def test_controller_angles_are_measured_from_the_initial_gaze():
 
 
 def test_controller_rejects_invalid_gaze_and_keeps_state():
-    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5)
+    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=0.5, estimator='sign', frame='target')
     ctl.update(yawed(0.0), yawed(16.0), 0.0)
     with pytest.raises(ValueError):
         ctl.update([0.0, 0.0, 0.0], yawed(16.0), 1.0)
@@ -147,7 +147,8 @@ def test_controller_rejects_invalid_gaze_and_keeps_state():
 
 
 def test_per_direction_gain():
-    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=[0.5, 0.0, 0.0, 0.0])
+    ctl = GuidanceController([LAW] * 4, p_max=100.0, gain=[0.5, 0.0, 0.0, 0.0], estimator='sign',
+                             frame='target')
     ctl.update(yawed(0.0), yawed(16.0), 0.0)
     assert ctl.update(yawed(-2.0), yawed(16.0), 1.0)[0] == 22.0
     with pytest.raises(ValueError, match='one gain per direction'):
@@ -161,7 +162,7 @@ def test_paper_law_ignores_a_moving_target_after_the_start():
 
 
 def test_follow_target_shifts_the_feed_forward_and_keeps_the_adjustment():
-    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, follow_target=True)
+    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, follow_target=True, estimator='sign')
     assert fb.step(16.0, 0.0, 0.0) == 18.0
     assert fb.step(16.0, -2.0, 1.0) == 22.0    # Eq. 5 adds 4
     # The target moves from 16 to 9 deg while the wearer holds at -2: shift f(9) - f(16) = -2,

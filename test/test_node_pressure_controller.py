@@ -291,3 +291,35 @@ def zero_gain_calibration():
 def test_the_wearers_own_gain_replaces_the_parameter(controller):
     """This wearer's file says G = 0: turning away raises nothing, although the parameter says 0.05."""
     assert_turning_away_holds_f40(controller)
+
+
+STALL_S = 1.0
+
+
+@pytest.mark.parametrize('controller', [{'stall_timeout_s': STALL_S}], indirect=True)
+def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
+    """Issue 11: a wearer stuck (here: at the front) while guided 40 deg left is vented after
+    stall_timeout_s, /diagnostics says why, and the next target guides again."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    graph, probe, upstream, _ = controller
+    diags = probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10)
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    t0 = time.monotonic()
+    wait_until(lambda: channels_equal(probe, {}), STALL_S + 5.0, what='vented after no progress')
+    print(f'no-progress vent after {time.monotonic() - t0:.2f} s (stall_timeout_s {STALL_S} s)')
+
+    def told():
+        return any('no progress' in s.message for m in diags for s in m.status)
+    wait_until(told, 5.0, what='/diagnostics saying no progress')
+    # It stays vented while the wearer stays stuck (the stall is latched) ...
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        assert channels_equal(probe, {}) or latest(probe) is None
+        time.sleep(0.05)
+    # ... and the next target guides again.
+    upstream.activate('t2', 30.0)
+    f30 = SIM_CAL.laws[0].pressure(30.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f30, 'L2': f30}), 10.0,
+               what='guiding to the next target')

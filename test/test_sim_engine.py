@@ -76,7 +76,11 @@ class CheckedLoop(ClosedLoop):
         self.reference = GuidanceController(
             [PowerLaw(d.law.a, d.law.b, d.law.c) for d in self.controller.directions],
             p_max=self.controller.p_max, gain=self.controller.directions[0].gain,
-            mode=self.controller.directions[0].mode)
+            mode=self.controller.directions[0].mode,
+            estimator=self.controller.directions[0].estimator,
+            rate_filter_tau_s=self.controller.directions[0].rate_filter_tau_s,
+            rate_threshold=self.controller.directions[0].rate_threshold,
+            frame=self.controller.frame, rest_gaze=self.controller.rest_gaze)
         self.checked = 0
 
     def _control(self, t):

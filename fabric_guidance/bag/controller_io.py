@@ -32,6 +32,9 @@ import numpy as np
 import yaml
 
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
+from ..core import feedback as law   # law.TARGET, not this module's TARGET (an input slice)
+from ..core.feedback import (FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN,
+                             STALL_TIMEOUT_S)
 from ..core.geometry import DIRECTIONS
 
 CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
@@ -105,6 +108,17 @@ class ControllerSetup:
     follow_moving_target: bool
     calibration: Calibration | None
     channel_map: ChannelMap
+    #: Origin of Eq. 5's angles: 'rest' (the calibration's rest gaze) or 'target' (the gaze when
+    #: a target begins). A bag recorded before issue 11 has no key: 'target', as it ran then.
+    guidance_frame: str = REST
+    #: "The error grows": 'filtered' (rate filter + threshold) or 'sign' (the paper's literal
+    #: test). A bag recorded before issue 11 has no key: 'sign'.
+    rate_estimator: str = FILTERED
+    rate_filter_tau_s: float = RATE_FILTER_TAU_S
+    rate_threshold_dps: float = RATE_THRESHOLD_DPS
+    #: Vent after this long without progress toward the target, s; None: never (a bag
+    #: recorded before issue 11).
+    stall_timeout_s: float | None = STALL_TIMEOUT_S
 
     @property
     def layout(self) -> str:
@@ -120,7 +134,12 @@ class ControllerSetup:
             gain = self.calibration.adjustment_gain
         return GuidanceController(self.calibration.laws, p_max=min(self.p_max_kpa, self.calibration.p_max),
                                   gain=gain, mode=cond.mode, rate_deadband=self.rate_deadband_dps,
-                                  follow_target=self.follow_moving_target)
+                                  follow_target=self.follow_moving_target,
+                                  estimator=self.rate_estimator,
+                                  rate_filter_tau_s=self.rate_filter_tau_s,
+                                  rate_threshold=self.rate_threshold_dps,
+                                  frame=self.guidance_frame, rest_gaze=self.calibration.origin,
+                                  stall_timeout_s=self.stall_timeout_s)
 
     def to_dict(self) -> dict:
         return {'schema': PARAMETERS_SCHEMA, 'condition': int(self.condition), 'gain': float(self.gain),
@@ -128,6 +147,12 @@ class ControllerSetup:
                 'gaze_timeout_s': float(self.gaze_timeout_s), 'rate_deadband_dps': float(self.rate_deadband_dps),
                 'use_wearer_gain': bool(self.use_wearer_gain),
                 'follow_moving_target': bool(self.follow_moving_target),
+                'guidance_frame': str(self.guidance_frame),
+                'rate_estimator': str(self.rate_estimator),
+                'rate_filter_tau_s': float(self.rate_filter_tau_s),
+                'rate_threshold_dps': float(self.rate_threshold_dps),
+                'stall_timeout_s': (None if self.stall_timeout_s is None
+                                    else float(self.stall_timeout_s)),
                 'calibration': self.calibration.to_dict() if self.calibration is not None else None,
                 'channel_map': channel_map_dict(self.channel_map)}
 
@@ -141,7 +166,12 @@ class ControllerSetup:
                    float(d['gaze_timeout_s']), float(d['rate_deadband_dps']), bool(d['use_wearer_gain']),
                    bool(d['follow_moving_target']),
                    Calibration.from_dict(cal, 'controller_parameters.calibration') if cal else None,
-                   ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'))
+                   ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'),
+                   # Keys missing: a bag of the law before issue 11, replayed as it ran.
+                   str(d.get('guidance_frame', law.TARGET)), str(d.get('rate_estimator', SIGN)),
+                   float(d.get('rate_filter_tau_s', RATE_FILTER_TAU_S)),
+                   float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)),
+                   None if d.get('stall_timeout_s') is None else float(d['stall_timeout_s']))
 
     @classmethod
     def from_yaml(cls, text: str) -> 'ControllerSetup':
@@ -190,11 +220,13 @@ def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
     reason = why_not_guide(setup, controller, inp)
     if reason:
         if controller is not None:
-            controller.vent()
+            controller.vent(forget_stall=False)   # only a new target or a service forgets a stall
         return zeros, reason, False
     try:
         direction_pressures = controller.update(inp.direction, target_direction(inp.origin, inp.target), inp.t)
     except ValueError as exc:
-        controller.vent()
+        controller.vent(forget_stall=False)
         return zeros, f'invalid input: {exc}', True
+    if controller.stalled:
+        return zeros, controller.stalled, False
     return setup.channel_map.to_channels(direction_pressures, setup.layout), '', False

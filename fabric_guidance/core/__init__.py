@@ -11,7 +11,9 @@ speech       the phrase of condition 4
 from .calibration import Calibration, CalibrationFileError, CalibrationProcedure, pressure_schedule
 from .channels import ChannelMap, ChannelMapError
 from .conditions import CONDITIONS, Condition, condition
-from .feedback import ADJUSTED, FIXED, PAPER_GAIN, PAPER_P_MAX, FeedbackLaw, GuidanceController
+from .feedback import (ADJUSTED, FILTERED, FIXED, FRONT, PAPER_GAIN, PAPER_P_MAX, REST, SIGN,
+                       TARGET,
+                       FeedbackLaw, GuidanceController, noise_rate_threshold)
 from .geometry import (DIRECTIONS, GazeAngles, GeometryError, angles_between, split_directions,
                        ray_direction, ray_orientation, target_direction, unit_vector, unity_to_ros_point,
                        unity_to_ros_quaternion, wrap_deg)
@@ -19,7 +21,8 @@ from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 from .speech import phrase
 
 __all__ = [
-    'ADJUSTED', 'CONDITIONS', 'Calibration', 'CalibrationFileError', 'CalibrationFitError',
+    'ADJUSTED', 'FILTERED', 'FRONT', 'REST', 'SIGN', 'TARGET', 'noise_rate_threshold',
+    'CONDITIONS', 'Calibration', 'CalibrationFileError', 'CalibrationFitError',
     'CalibrationProcedure', 'ChannelMap', 'ChannelMapError', 'Condition', 'DIRECTIONS', 'FIXED',
     'FeedbackLaw', 'FitReport', 'GazeAngles', 'GeometryError', 'GuidanceController', 'PAPER_GAIN',
     'PAPER_P_MAX', 'PowerLaw', 'angles_between', 'condition', 'fit_power_law', 'phrase',

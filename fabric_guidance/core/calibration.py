@@ -29,7 +29,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import yaml
 
-from .feedback import PAPER_P_MAX
+from .feedback import FRONT, PAPER_P_MAX
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 
@@ -77,6 +77,55 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
 
 
 @dataclass(frozen=True)
+class Acceptance:
+    """When a direction's fit is good enough to guide with (issue 11: refuse useless ones).
+
+    min_r2 [-]: the fit explains this share of the pressure variance: 0.8 refuses a plateau
+    (the issue's R^2 0.77) and anything worse than the mean, and accepts the simulated paper
+    population with suit hysteresis and tracker noise (lowest R^2 0.87 over 30 wearers).
+    min_span_deg [deg]: the angles reached span at least this: at 5 deg (the paper's
+    acceptance angle, 3x the tracker's 1.5 deg) the wearer visibly moved with the pressure.
+    max_reversal_deg [deg]: monotonicity: no angle falls more than this below a larger angle
+    reached at a lower pressure (2 deg: above tracker noise, far below a real reversal).
+    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (375 kPa / 10 =
+    37.5 kPa): a worse fit cannot tell neighbouring steps apart.
+    None disables a threshold.
+    """
+
+    min_r2: float | None = 0.8
+    min_span_deg: float | None = 5.0
+    max_reversal_deg: float | None = 2.0
+    max_rmse_kpa: float | None = 37.5
+
+    def __post_init__(self):
+        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa'):
+            v = getattr(self, name)
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f'calibration acceptance {name} must be finite or None, got {v}')
+
+    def refusal(self, angles: Sequence[float], report: FitReport) -> str:
+        """'' when acceptable, else which threshold the fit misses, with the values."""
+        t = np.asarray(angles, dtype=float)
+        span = float(np.ptp(t)) if t.size else 0.0
+        if self.min_span_deg is not None and not span >= self.min_span_deg:
+            return f'angle span {span:.3g} deg < min_span_deg {self.min_span_deg:g} deg'
+        if self.max_reversal_deg is not None and t.size:
+            drop = float(np.max(np.maximum.accumulate(t) - t))
+            if drop > self.max_reversal_deg:
+                return (f'angles not monotonic: one falls {drop:.3g} deg below an earlier one > '
+                        f'max_reversal_deg {self.max_reversal_deg:g} deg')
+        if self.min_r2 is not None and not report.r2 >= self.min_r2:
+            return f'R^2 {report.r2:.3f} < min_r2 {self.min_r2:g}'
+        if self.max_rmse_kpa is not None and not report.rmse <= self.max_rmse_kpa:
+            return f'RMSE {report.rmse:.3g} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
+        return ''
+
+
+#: Accept every fit the solver produced (the behaviour before issue 11; for experiments).
+ACCEPT_ALL = Acceptance(None, None, None, None)
+
+
+@dataclass(frozen=True)
 class DirectionCalibration:
     law: PowerLaw
     pressures: tuple[float, ...]  # kPa
@@ -95,12 +144,29 @@ class Calibration:
     #: This wearer's own adjustment gain G (beyond the paper: its Discussion found the best G
     #: differed between subjects); None: use the controller's.
     adjustment_gain: float | None = None
+    #: The wearer's rest gaze (unit vector, immersive frame, REP 103) that Algorithm 1 measured
+    #: every angle from; the origin of Eq. 5's angles. None: not recorded (an older file).
+    rest_gaze: tuple[float, float, float] | None = None
 
     def with_gain(self, gain: float | None) -> 'Calibration':
         """The same calibration with this wearer's own adjustment gain."""
         if gain is not None and not (math.isfinite(gain) and gain >= 0):
             raise ValueError(f'adjustment gain must be finite and >= 0, got {gain}')
-        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain)
+        return Calibration(self.wearer, self.p_max, self.directions, self.created, gain,
+                           self.rest_gaze)
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        """The origin of Eq. 5's angles: the rest gaze, or the front when none was recorded."""
+        return self.rest_gaze if self.rest_gaze is not None else FRONT
+
+    @property
+    def origin_warning(self) -> str:
+        """'' when the rest gaze was recorded, else the warning to show once."""
+        if self.rest_gaze is not None:
+            return ''
+        return (f'calibration of {self.wearer!r} records no rest_gaze: angles are measured '
+                f'from the front of the immersive frame {list(FRONT)}; recalibrate to record it')
 
     @property
     def laws(self) -> list[PowerLaw]:
@@ -122,6 +188,8 @@ class Calibration:
             'created': self.created,
             'p_max_kpa': float(self.p_max),
             **({'adjustment_gain': float(self.adjustment_gain)} if self.adjustment_gain is not None else {}),
+            **({'rest_gaze': [float(x) for x in self.rest_gaze]}
+               if self.rest_gaze is not None else {}),
             'directions': {
                 d: {
                     'a': c.law.a, 'b': c.law.b, 'c': c.law.c,
@@ -185,7 +253,19 @@ class Calibration:
         if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
                                  or not (math.isfinite(gain) and gain >= 0)):
             fail('adjustment_gain', f'must be a finite number >= 0 when present, got {gain!r}')
-        return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain))
+        rest = data.get('rest_gaze')
+        if rest is not None:
+            if (not isinstance(rest, list) or len(rest) != 3
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                               for x in rest)):
+                fail('rest_gaze', f'must be a list of 3 numbers (x, y, z) when present, '
+                                  f'got {rest!r}')
+            try:
+                rest = tuple(float(x) for x in unit_vector(rest, 'rest_gaze'))
+            except GeometryError as exc:
+                fail('rest_gaze', f'is not a direction: {exc}')
+        return cls(wearer, float(p_max), out, str(created),
+                   None if gain is None else float(gain), rest)
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
@@ -221,7 +301,8 @@ class CalibrationProcedure:
     def __init__(self, wearer: str, p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS,
                  dwell_s: float = 3.0, rest_s: float = 3.0, record_window_s: float = 0.5,
                  directions: Sequence[str] = DIRECTIONS, first_pressure: float | None = None,
-                 fit_tolerance: float = 1e-10, min_r2: float | None = None):
+                 fit_tolerance: float = 1e-10, min_r2: float | None = None,
+                 acceptance: Acceptance = Acceptance()):
         for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'{name} must be finite and >= 0 s, got {value}')
@@ -236,13 +317,17 @@ class CalibrationProcedure:
         self.dwell_s, self.rest_s, self.window_s = dwell_s, rest_s, record_window_s
         self.directions = list(directions)
         self.fit_tolerance, self.min_r2 = fit_tolerance, min_r2
+        self.acceptance = acceptance
         self.fits: dict[str, FitReport] = {}
+        #: direction -> why its fit was refused (the fit itself stays in `fits` for the report)
+        self.refused: dict[str, str] = {}
         self.points: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.error: str | None = None
         self._dir_index = 0
         self._step = 0           # 0: resting before the direction's first step
         self._phase_start: float | None = None
         self._g0: np.ndarray | None = None
+        self._rests: list[np.ndarray] = []    # g0 of every direction: the rest gaze
         self._window: list[tuple[float, np.ndarray]] = []
         self._angles: list[float] = []
         self._phase = REST
@@ -315,6 +400,7 @@ class CalibrationProcedure:
                 g0 = np.mean([g for _, g in self._window], axis=0)
                 angles_between(g0, g0)
                 self._g0 = g0
+                self._rests.append(g0)
                 self._angles = []
             else:
                 k = DIRECTIONS.index(self.directions[self._dir_index])
@@ -342,6 +428,10 @@ class CalibrationProcedure:
             return self.fail(f'{direction}: {exc}')
         self.fits[direction] = report
         self.points[direction] = (self.schedule.copy(), angles)
+        why = self.acceptance.refusal(angles, report)
+        if why:
+            self.refused[direction] = why
+            return self.fail(f'{direction}: fit refused: {why}')
         self._dir_index += 1
         self._step = 0
         if self._dir_index == len(self.directions):
@@ -349,6 +439,22 @@ class CalibrationProcedure:
         else:
             self._phase = REST
         return self._command(t)
+
+    def attempt(self, base: Calibration | None = None) -> Calibration | None:
+        """What was measured so far, refused fits included (marked `refused` in their fit), for
+        the fit report of a calibration that failed; directions not fitted come from `base`;
+        None when nothing was fitted or there is no base to fill the rest."""
+        dirs = dict(base.directions) if base is not None else {}
+        for d, report in self.fits.items():
+            p, a = self.points[d]
+            fit = report.as_dict()
+            if d in self.refused:
+                fit['refused'] = self.refused[d]
+            dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)),
+                                           tuple(map(float, a)), fit)
+        if not self.fits or any(d not in dirs for d in DIRECTIONS):
+            return None
+        return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})
 
     def result(self, base: Calibration | None = None) -> Calibration:
         """The calibration after DONE. Directions not calibrated now are taken from `base`."""
@@ -361,5 +467,8 @@ class CalibrationProcedure:
         missing = [d for d in DIRECTIONS if d not in dirs]
         if missing:
             raise CalibrationFitError(f'directions {missing} were neither calibrated nor given by a base calibration')
+        rest = np.mean(self._rests, axis=0)
+        rest = tuple(float(x) for x in unit_vector(rest, 'rest gaze'))
         return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS},
-                           adjustment_gain=base.adjustment_gain if base is not None else None)
+                           adjustment_gain=base.adjustment_gain if base is not None else None,
+                           rest_gaze=rest)

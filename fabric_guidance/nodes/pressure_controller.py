@@ -44,7 +44,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
                     angles_between, condition, phrase, ray_direction, target_direction)
-from ..core.calibration import DONE, FAILED
+from ..core.calibration import DONE, FAILED, Acceptance
+from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
                                  guidance_step, safe_command)
@@ -64,8 +65,24 @@ class PressureController(Node):
         rate = declare(self, 'control_rate_hz', 30.0, 'Eq. 5 steps per second', 'Hz', low=1.0, high=1000.0)
         self.gaze_timeout = declare(self, 'gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long',
                                     's', low=0.01, high=10.0)
-        self.deadband = declare(self, 'rate_deadband_dps', 0.0, 'de/dt must exceed this to count as growing',
-                                'deg/s', low=0.0, high=1000.0)
+        self.deadband = declare(self, 'rate_deadband_dps', 0.0,
+                                'rate_estimator sign: de/dt must exceed this to count as growing '
+                                '(0: the paper)', 'deg/s', low=0.0, high=1000.0)
+        # Issue 11 (docs/guidance.md): the frame of Eq. 5's angles, the rate estimate, the stall.
+        frame = declare(self, 'guidance_frame', REST,
+                        "origin of Eq. 5's angles: rest (the calibration's rest gaze) or target "
+                        '(the gaze when a target begins)')
+        estimator = declare(self, 'rate_estimator', FILTERED,
+                            '"the error grows": filtered (low-passed de/dt above '
+                            "rate_threshold_dps) or sign (the paper's literal test)")
+        tau = declare(self, 'rate_filter_tau_s', RATE_FILTER_TAU_S,
+                      'time constant of the de/dt filter', 's', low=0.001, high=10.0)
+        threshold = declare(self, 'rate_threshold_dps', RATE_THRESHOLD_DPS,
+                            'filtered de/dt must exceed this (default: 3 sd of 1.5 deg tracker '
+                            'noise at 30 Hz)', 'deg/s', low=0.001, high=1000.0)
+        stall = declare(self, 'stall_timeout_s', STALL_TIMEOUT_S,
+                        'vent when the gaze made no progress toward the target for this long; '
+                        '0 = never', 's', low=0.0, high=3600.0)
         cal_file = declare(self, 'calibration_file', '', "the wearer's calibration file (YAML); '' = none: "
                            'no guidance until calibrated')
         cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
@@ -79,6 +96,17 @@ class PressureController(Node):
                                 low=0.05, high=60.0)
         self.cal_window = declare(self, 'calibration_window_s', 0.5, 'the recorded angle is the median over '
                                   'the last part of a dwell', 's', low=0.01, high=60.0)
+        # Issue 11: a calibration that misses one of these is refused (the previous one is kept).
+        self.acceptance = Acceptance(
+            declare(self, 'calibration_min_r2', 0.8,
+                    'refuse a direction whose fit explains less', '-', low=-1e9, high=1.0),
+            declare(self, 'calibration_min_span_deg', 5.0,
+                    'refuse a direction whose angles span less', 'deg', low=0.0, high=180.0),
+            declare(self, 'calibration_max_reversal_deg', 2.0,
+                    'refuse a direction whose angle falls more than this below an earlier one',
+                    'deg', low=0.0, high=180.0),
+            declare(self, 'calibration_max_rmse_kpa', 37.5,
+                    'refuse a direction whose fit RMSE is larger', 'kPa', low=0.0, high=1000.0))
         channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
         self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
         self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
@@ -97,7 +125,10 @@ class PressureController(Node):
         self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
         self.setup = ControllerSetup(self.condition.number, float(self.gain), float(self.p_max), float(rate),
                                      float(self.gaze_timeout), float(self.deadband), bool(self.use_wearer_gain),
-                                     bool(self.follow_target), self.calibration, self.channel_map)
+                                     bool(self.follow_target), self.calibration, self.channel_map,
+                                     str(frame), str(estimator), float(tau), float(threshold),
+                                     float(stall) if stall > 0 else None)
+        self.warn_origin(self.calibration)
         self.controller = self._make_controller()
 
         self.enabled = True
@@ -138,6 +169,10 @@ class PressureController(Node):
         self.get_logger().info(
             f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
             f'calibration: {cal_file or "none"}')
+
+    def warn_origin(self, cal: Calibration | None) -> None:
+        if cal is not None and cal.origin_warning and self.setup.guidance_frame == REST:
+            self.get_logger().warning(cal.origin_warning)
 
     def _make_controller(self) -> GuidanceController | None:
         return self.setup.make_controller()
@@ -212,7 +247,8 @@ class PressureController(Node):
         try:
             self.procedure = CalibrationProcedure(
                 self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
-                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest))
+                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest),
+                acceptance=self.acceptance)
         except ValueError as exc:
             response.success, response.message = False, f'cannot calibrate: {exc}'
             return response
@@ -224,8 +260,8 @@ class PressureController(Node):
 
     def on_enable(self, request, response):
         self.enabled = bool(request.data)
-        if not self.enabled:
-            self.vent_controller()
+        # Disabling vents; enabling starts afresh (and forgets a no-progress stop).
+        self.vent_controller()
         response.success, response.message = True, 'guidance enabled' if self.enabled else 'guidance disabled (vented)'
         return response
 
@@ -267,6 +303,9 @@ class PressureController(Node):
         if self.speech_due and fresh and self.target is not None:
             self.say()
         channels, reason, invalid = guidance_step(self.setup, self.controller, inp)
+        stalled = self.controller is not None and reason == self.controller.stalled
+        if stalled and reason and reason != self.vent_reason:
+            self.get_logger().warning(f'guidance to {self.target_name}: {reason}')
         self.vent_reason = reason
         self.invalid_inputs += invalid
         self.publish(channels)
@@ -301,6 +340,13 @@ class PressureController(Node):
             text = f'failed: {proc.error}; the previous calibration is kept'
             self.get_logger().error(f'calibration {text}')
             self.procedure = None
+            attempt = proc.attempt(self.calibration)
+            if attempt is not None:
+                # The refused fit's report, beside (not over) the kept calibration's.
+                import dataclasses
+                self.write_report(dataclasses.replace(attempt, wearer=f'{self.wearer}-refused'),
+                                  self.cal_dir,
+                                  f'refused calibration of {self.wearer}: {proc.error}')
         if text != self.last_status:
             self.last_status = text
             self.status_pub.publish(String(data=text))
@@ -316,26 +362,31 @@ class PressureController(Node):
             return f'failed: {exc}; the previous calibration is kept'
         self.calibration = cal
         self.setup.calibration = cal
+        self.warn_origin(cal)
         self.controller = self._make_controller()
         self.publish_parameters(self.step_count)   # the next step uses the new calibration
         fits = ', '.join(f'{d} R^2 {cal.directions[d].fit.get("r2", float("nan")):.3f}' for d in DIRECTIONS)
         self.get_logger().info(f'calibration written to {path} ({fits})')
-        # The fit report (text and PNG) next to the file. Drawing takes about a second, so it
-        # runs off the control loop; the calibration is saved already whatever happens to it.
+        txt, png = self.write_report(cal, path.parent, str(path))
+        return f'done: {path}; fit report {txt}, {png}'
+
+    def write_report(self, cal: Calibration, folder: Path, source: str):
+        """The fit report (text and PNG) in `folder`. Drawing takes about a second, so it runs
+        off the control loop; the calibration is saved (or kept) whatever happens to it."""
         import threading
         from ..calibration_report import report_paths, write_fit_report
-        txt, png = report_paths(cal, path.parent)
+        txt, png = report_paths(cal, folder)
         logger = self.get_logger()
 
         def write_report():
             try:
-                write_fit_report(cal, path.parent, source=str(path))
+                write_fit_report(cal, folder, source=source)
                 logger.info(f'fit report written: {txt}, {png}')
             except Exception as exc:  # noqa: BLE001 - a report failure must not touch the calibration
                 logger.error(f'fit report not written: {exc!r}')
         self.report_thread = threading.Thread(target=write_report, name='fit_report')
         self.report_thread.start()
-        return f'done: {path}; fit report {txt}, {png}'
+        return txt, png
 
     def publish_diagnostics(self) -> None:
         if self.procedure is not None:

@@ -92,9 +92,14 @@ class RegisterMap:
     def p_max_counts(self) -> int:
         """Largest command count ever produced: p_max_kpa * counts_per_kpa, rounded down.
 
-        Rounded down (not to nearest) so that decode(p_max_counts) never exceeds p_max_kpa.
+        Rounded down (not to nearest) so that decode(p_max_counts) never exceeds p_max_kpa;
+        the product and the quotient round too (p_max 999.9999999999999 at 0.2 counts/kPa gives
+        floor 200, and 200 / 0.2 = 1000.0 > p_max by one ulp), so step down while it does.
         """
-        return int(math.floor(self.p_max_kpa * self.counts_per_kpa))
+        n = int(math.floor(self.p_max_kpa * self.counts_per_kpa))
+        while n > 0 and n / self.counts_per_kpa > self.p_max_kpa:
+            n -= 1
+        return n
 
     def __len__(self) -> int:
         return len(self.channels)

@@ -63,10 +63,10 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from ..core.calibration import Calibration
-from ..core.feedback import PAPER_GAIN, GuidanceController
+from ..core.feedback import PAPER_GAIN
 from ..core.geometry import wrap_deg
 from .effects import generator
-from .engine import ClosedLoop, FastPowerLaw, package_channel_map, trial_run
+from .engine import ClosedLoop, FastPowerLaw, package_channel_map, scene_controller, trial_run
 from .population import calibrate_wearer, sample_wearer, subject_indices
 from .protocols import _draw_target, _targets, speed_loop, speed_measures
 from .scene import Scene
@@ -114,10 +114,8 @@ class BeyondLoop(ClosedLoop):
             self.gain = calibration.adjustment_gain
         if self.controller is not None:
             # As ClosedLoop builds it (and as the node does), with the gain and the option.
-            self.controller = GuidanceController(
-                [FastPowerLaw.of(law) for law in calibration.laws], p_max=min(ctl.p_max_kpa, calibration.p_max),
-                gain=self.gain, mode=self.cond.mode, rate_deadband=ctl.rate_deadband_dps,
-                follow_target=self.follow_target)
+            self.controller = scene_controller(ctl, self.cond.mode, calibration, self.gain,
+                                               self.follow_target)
 
     def move_target(self, yaw: float, pitch: float) -> None:
         """The active target is now at (yaw, pitch): no vent, no new guidance (the node's

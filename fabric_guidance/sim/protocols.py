@@ -36,7 +36,7 @@ import os
 from pathlib import Path
 import sys
 import time
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -202,6 +202,38 @@ def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol)
             loop.present(*target, visible=True)
             goal = target
     return dict(presented=presented, finds=finds, unfound_s=(loop.t - appeared) if goal is target else None)
+
+
+def sequence_loop(loop: ClosedLoop, targets: Sequence[tuple[float, float]],
+                  acceptance_deg: float = 5.0, dwell_s: float = 0.3, timeout_s: float = 15.0,
+                  visible: bool = True) -> list[float | None]:
+    """Targets one after another with no return to the front (the micromanipulation
+    demonstration: the next object appears as soon as one is found), on a warmed-up loop.
+    Found by the speed task's rule on the tracked gaze. Per target: time to find [s], or None
+    when not found within timeout_s (the sequence stops there). visible False: the wearer
+    cannot see the objects (the suit alone guides: no visual capture)."""
+    acc_hav = hav_limit(acceptance_deg)
+    times: list[float | None] = []
+    for target in targets:
+        loop.present(*target, visible=visible)
+        appeared, inside_since, found = loop.t, None, None
+        while loop.t - appeared < timeout_s:
+            loop.step()
+            if not loop.new_sample:
+                continue
+            s = loop.last_sample
+            if haversine(s[2], s[3], target[0], target[1]) > acc_hav:
+                inside_since = None
+                continue
+            inside_since = loop.t if inside_since is None else inside_since
+            if loop.t - inside_since >= dwell_s:
+                found = loop.t - appeared
+                break
+        times.append(found)
+        if found is None:
+            break
+    loop.withdraw(front_visible=True)
+    return times
 
 
 def speed_measures(detail: dict) -> dict:
@@ -395,7 +427,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ['CONDITION_NAMES', 'Exclusion', 'MEASURES', 'ProtocolResults', 'TRIALS', 'TrialRecord', 'accuracy_trial',
-           'condition_order', 'format_summary', 'run_protocol', 'run_subject', 'speed_trial', 'summarize',
+           'condition_order', 'format_summary', 'run_protocol', 'run_subject', 'sequence_loop',
+           'speed_trial',
+           'summarize',
            'trials_frame']
 
 

@@ -37,7 +37,8 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from ..core.conditions import CONDITIONS
-from ..core.feedback import PAPER_GAIN, PAPER_P_MAX
+from ..core.feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX,
+                             RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST)
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
 from ..paths import config_path
@@ -55,6 +56,10 @@ class SceneError(ValueError):
 def _num(default, unit: str, lo=None, hi=None, lo_open=False, integer=False, optional=False):
     return field(default=default, metadata={'unit': unit, 'lo': lo, 'hi': hi, 'lo_open': lo_open,
                                             'integer': integer, 'optional': optional})
+
+
+def _choice(default: str, choices: Sequence[str]):
+    return field(default=default, metadata={'choices': tuple(choices)})
 
 
 @dataclass(frozen=True)
@@ -110,7 +115,11 @@ class ControllerSpec:
     control_rate_hz: float = _num(30.0, 'Hz', lo=0.0, lo_open=True)     # the node's default
     p_max_kpa: float = _num(PAPER_P_MAX, 'kPa', lo=0.0, lo_open=True)   # the paper: 375 kPa
     gaze_timeout_s: float = _num(0.3, 's', lo=0.0, lo_open=True)        # the node's default
-    rate_deadband_dps: float = _num(0.0, 'deg/s', lo=0.0)               # 0: the paper's law
+    rate_deadband_dps: float = _num(0.0, 'deg/s', lo=0.0)               # sign estimator only
+    guidance_frame: str = _choice(REST, FRAMES)            # rest: the calibration's rest gaze
+    rate_estimator: str = _choice(FILTERED, ESTIMATORS)    # sign: the paper's literal test
+    rate_filter_tau_s: float = _num(RATE_FILTER_TAU_S, 's', lo=0.0, lo_open=True)
+    rate_threshold_dps: float = _num(RATE_THRESHOLD_DPS, 'deg/s', lo=0.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -222,7 +231,12 @@ def _section(cls, data, source: str, where: str, **extra):
         if f.name in extra or f.name not in data:
             continue
         value = data[f.name]
-        if f.type in ('bool', bool):
+        if 'choices' in f.metadata:
+            if value not in f.metadata['choices']:
+                choices = list(f.metadata['choices'])
+                _fail(source, f'{where}.{f.name}', f'must be one of {choices}, got {value!r}')
+            kwargs[f.name] = value
+        elif f.type in ('bool', bool):
             if not isinstance(value, bool):
                 _fail(source, f'{where}.{f.name}', f'must be true or false, got {value!r}')
             kwargs[f.name] = value
