@@ -81,15 +81,14 @@ def test_metadata_lists_the_offered_qos_profiles():
     assert qos['/speech']['depth'] == 50
 
 
-def test_offline_replay_reproduces_the_demo_exactly_and_fast():
+def test_offline_replay_reproduces_the_demo_exactly():
     bag = recorded_demo_bag()
-    # Best of three: the measure of the replay, not of whatever else the machine runs meanwhile.
-    result = max((offline.replay(offline.load(bag)) for _ in range(3)), key=lambda r: r.speedup)
+    result = offline.replay(offline.load(bag))
     assert result.compared > 100 and result.unmatched == 0 and result.step_gaps == 0
     assert result.exact, result.worst
     print(f'offline replay: {result.compared} steps, {result.bag_duration_s:.2f} s of session in '
-          f'{result.read_s + result.run_s:.3f} s: {result.speedup:.0f}x real time')
-    assert result.speedup >= 100.0
+          f'{result.read_s + result.run_s:.3f} s: {result.speedup:.0f}x real time '
+          '(printed, not asserted: the speed goal lives in `make bench`)')
     # The CLI as the user runs it.
     out = subprocess.run([sys.executable, '-m', 'fabric_guidance.replay', str(bag), '--offline'],
                          capture_output=True, text=True, timeout=60)
