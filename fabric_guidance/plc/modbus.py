@@ -292,6 +292,7 @@ class MockPlcServer:
         self._cond = threading.Condition()
         self._listening = False
         self._error: BaseException | None = None
+        self._server: ModbusTcpServer | None = None
 
     # ---- life cycle
     @property
@@ -338,6 +339,23 @@ class MockPlcServer:
         self._thread = None
         self.save_records()
 
+    @property
+    def client_count(self) -> int:
+        """Clients connected now (read from another thread: a snapshot)."""
+        server = self._server
+        return len(server.active_connections) if server is not None and self.running else 0
+
+    def wait_until_vented(self, timeout_s: float, poll_s: float = 0.02) -> bool:
+        """Wait until no client is connected and every command register is 0, at most
+        timeout_s; True if so. A PLC going away under a client that is still venting would
+        leave the last command as the PLC's last state."""
+        deadline = time.monotonic() + timeout_s
+        while self.client_count or np.any(self.commands_kpa()):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(poll_s)
+        return True
+
     def __enter__(self) -> 'MockPlcServer':
         return self.start()
 
@@ -364,6 +382,7 @@ class MockPlcServer:
     async def _serve(self) -> None:
         self._stop_event = asyncio.Event()
         server = ModbusTcpServer(self._context, address=(self.host, self._port))
+        self._server = server
         await server.serve_forever(background=True)
         listener = server.transport  # an asyncio.Server; pymodbus leaves it None if bind failed
         if listener is None:
