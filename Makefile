@@ -8,7 +8,16 @@ STAMP  := $(VENV)/.installed
 # DDS stays on this machine; tests pick their own domain ids on top of this.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv clean
+# The upstream launch wheels (launch, launch_ros, launch_pytest...; not on the package index),
+# beside the clone in CI and on developers' machines.
+ROS_TOOLING ?= ../shared/ros-tooling
+LVENV   := .venv-launch
+LPY     := $(LVENV)/bin/python
+LSTAMP  := $(LVENV)/.installed
+LBUILD  := build-launch
+SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
+
+.PHONY: demo test test-launch test-py312 bench venv clean
 
 venv: $(STAMP)
 
@@ -23,10 +32,33 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch; else \
+	  echo "SKIPPED launch_pytest tests and colcon build check: $(ROS_TOOLING) is absent (docs/launch.md)"; fi
+
+# .venv-launch: its own pytest 7.4.4, colcon and the launch wheels; everything else (rclpy, the
+# pinned wheels, the package) from .venv through a .pth file, which site processes after the
+# venv's own site-packages: the venv's pytest wins.
+$(LSTAMP): $(STAMP) requirements/launch.txt
+	@test -x $(LPY) || $(PYTHON) -m venv $(LVENV)
+	$(PY) test/launch_venv_pth.py > "$$($(LPY) -c "$(SITE)")/zz_fabric_guidance_venv.pth"
+	$(LPY) -m pip install --quiet --disable-pip-version-check -r requirements/launch.txt
+	$(LPY) -m pip install --quiet --disable-pip-version-check --no-deps $(ROS_TOOLING)/*.whl
+	@touch $(LSTAMP)
+
+# colcon build of the package into $(LBUILD)/ as a lab builds it, then the launch_pytest tests
+# against that install tree (share/, the ament index and lib/fabric_guidance/ from there).
+test-launch: $(LSTAMP)
+	rm -rf $(LBUILD)
+	$(LVENV)/bin/colcon --log-base $(LBUILD)/log build --paths $(CURDIR) \
+	  --build-base $(LBUILD)/build --install-base $(LBUILD)/install
+	AMENT_PREFIX_PATH=$(abspath $(LBUILD))/install/fabric_guidance \
+	  PYTHONPATH=$$(ls -d $(abspath $(LBUILD))/install/fabric_guidance/lib/python3*/site-packages) \
+	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install \
+	  $(LVENV)/bin/pytest test/test_launch.py -p no:cacheprovider $(PYTEST_ARGS)
 
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)
 	$(VENV)/bin/fabric-guidance bench --out bench/results.json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis *.egg-info
+	rm -rf $(VENV) $(LVENV) $(VENV312) $(LBUILD) .pytest_cache .hypothesis *.egg-info

@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import tempfile
@@ -22,7 +23,8 @@ MOCK_PLC_LISTENING = 'mock PLC listening on'
 
 class NodeOverrides:
     """One parameter file per node, keyed by the node's fully qualified name, in a directory of
-    this launch that an OnShutdown handler removes (the nodes read their files at start-up)."""
+    this launch that an OnShutdown handler (or, failing that, the launch process's exit) removes; the nodes
+    read their files at start-up."""
 
     def __init__(self, context):
         self._context = context
@@ -31,6 +33,9 @@ class NodeOverrides:
     def file(self, node_name: str, parameters: dict) -> str:
         if self._dir is None:
             self._dir = tempfile.mkdtemp(prefix='fabric_guidance_launch_')
+            # OnShutdown removes it with the launch; atexit when `ros2 launch` itself exits (a
+            # launch interrupted twice can end before its shutdown handlers ran).
+            atexit.register(shutil.rmtree, self._dir, True)
         namespace = self._context.launch_configurations.get('ros_namespace') or ''
         fqn = '/'.join(part for part in (namespace.strip('/'), node_name) if part)
         path = os.path.join(self._dir, f'{node_name}.yaml')
