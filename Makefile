@@ -15,6 +15,16 @@ LVENV   := .venv-launch
 LPY     := $(LVENV)/bin/python
 LSTAMP  := $(LVENV)/.installed
 LBUILD  := build-launch
+# Python 3.12 as on Ubuntu 24.04 (with pyenv: PYTHON312=$$(pyenv prefix 3.12.1)/bin/python3.12).
+PYTHON312 ?= python3.12
+VENV312 := .venv-py312
+# The core and node tests (no graph of several processes): what 3.12 could break.
+PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py \
+  test/test_feedback.py test/test_channels.py test/test_calibration.py test/test_gaze_wire.py \
+  test/test_core_properties.py test/test_speech_task_conditions.py test/test_plc_register_map.py \
+  test/test_plc_sequence.py test/test_plc_modbus.py test/test_node_pressure_controller.py \
+  test/test_node_target_selector.py test/test_node_gaze_bridge.py test/test_node_plc.py \
+  test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
 .PHONY: demo test test-launch test-py312 bench venv clean
@@ -55,6 +65,19 @@ test-launch: $(LSTAMP)
 	  PYTHONPATH=$$(ls -d $(abspath $(LBUILD))/install/fabric_guidance/lib/python3*/site-packages) \
 	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install \
 	  $(LVENV)/bin/pytest test/test_launch.py -p no:cacheprovider $(PYTEST_ARGS)
+
+# Not part of `make test` (a second full venv takes a few minutes on a cold pip cache).
+# --no-build-isolation: the package is installed by the venv's own setuptools 68, as on the lab PC.
+$(VENV312)/.installed: requirements/standalone.txt requirements/py312.txt setup.py
+	@test -x $(VENV312)/bin/python || $(PYTHON312) -m venv $(VENV312)
+	$(VENV312)/bin/python -m pip install --quiet --disable-pip-version-check \
+	  -r requirements/standalone.txt -r requirements/py312.txt
+	$(VENV312)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
+	  --no-build-isolation -e .
+	@touch $@
+
+test-py312: $(VENV312)/.installed
+	$(VENV312)/bin/python -m pytest -p no:cacheprovider $(PY312_TESTS)
 
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)

@@ -53,7 +53,7 @@ class Watch:
     """Every process of a launch: pid, output and return code, by process name (node-1...)."""
 
     def __init__(self):
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()
         self.pids, self.output, self.returncodes = {}, {}, {}
 
     def actions(self):
@@ -243,15 +243,42 @@ def micromanipulation_graph(sim_ports):
 
 @pytest.mark.launch(fixture=micromanipulation_graph)
 def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(micromanipulation_graph):
+    import numpy as np
+    import yaml
+    from geometry_msgs.msg import PointStamped, PoseStamped
     _, watch, domain_id, before = micromanipulation_graph
-    wait_until(lambda: len(watch.found()) >= 3, SESSION_DEADLINE_S, what='three objects found')
-    assert watch.found() == list(OBJECTS)
+    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'micromanipulation.yaml')))
+    selector = params['target_selector']['ros__parameters']
+    stack = params['micromanipulator_sim']['ros__parameters']
+    micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])
+             for i, n in enumerate(stack['object_names'])}
+    scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \
+        stack['drift_amplitude_m']
     with Probe(domain_id) as probe:
+        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', common.SENSOR_QOS)
+                 for n in OBJECTS}
+        targets = probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS)
+        wait_until(lambda: len(watch.found()) >= 3, SESSION_DEADLINE_S, what='three objects found')
+        assert watch.found() == list(OBJECTS)
         for name in OBJECTS:  # the selector listens on the stack's topics, not its defaults
             topic = f'/stack/{name}/pose'
             wait_until(lambda: probe.node.count_subscribers(topic) >= 1
-                       and probe.node.count_publishers(topic) >= 1, 30.0, what=topic)
+                       and probe.node.count_publishers(topic) >= 1 and poses[name], 30.0,
+                       what=topic)
             assert probe.node.count_subscribers(f'/live_targets/{name}') == 0
+        wait_until(lambda: targets, 30.0, what='a target from target_selector')
+        # The stack speaks in the microscope frame at micro scale, drifting by at most its
+        # amplitude; every target the selector published is one of them mapped x1000 + offset.
+        for name in OBJECTS:
+            assert {m.header.frame_id for m in poses[name]} == {'microscope'}
+            xyz = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
+                            for m in poses[name]])
+            assert np.max(np.linalg.norm(xyz - micro[name], axis=1)) <= drift * 1.0001
+        for m in targets:
+            assert m.header.frame_id == common.IMMERSIVE_FRAME
+            p = np.array([m.point.x, m.point.y, m.point.z])
+            assert min(np.linalg.norm(p - (q * scale + offset)) for q in micro.values()) \
+                <= drift * scale * 1.0001 + 1e-9
     # plc_output started after the mock PLC listened: its first connection went through.
     plc_output = watch.log('plc_output')
     assert 'connected to the PLC' in plc_output

@@ -51,3 +51,28 @@ def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
             proc.wait()
     assert 'vented' in out.read_text()
     assert proc.returncode == 0, out.read_text()
+
+
+def test_the_mock_plc_waits_for_its_client_to_vent_and_leave():
+    """mock_plc's shutdown (sim.launch.py: one Ctrl-C reaches every process) waits until its
+    clients have vented and disconnected, and gives up at its deadline."""
+    import threading
+
+    from fabric_guidance.core import ChannelMap
+    from fabric_guidance.plc import MockPlcServer, PlcClient, RegisterMap
+    from rosgraph import CONFIG
+    channels = ChannelMap.load(CONFIG / 'channel_map.yaml').channels
+    regmap = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=channels)
+    with MockPlcServer(regmap, watchdog_s=60.0) as server:  # no watchdog vent meanwhile
+        client = PlcClient(regmap, '127.0.0.1', server.port)
+        assert client.connect()
+        client.write_pressures([100.0] * len(regmap))
+        wait_until(lambda: server.commands_kpa().any(), 5.0, what='the command written')
+        assert not server.wait_until_vented(0.3)  # commanding and connected: not vented
+
+        def vent_then_leave():
+            client.vent()
+            client.close()
+        threading.Timer(0.2, vent_then_leave).start()
+        assert server.wait_until_vented(10.0)
+        assert server.client_count == 0 and not server.commands_kpa().any()
