@@ -43,7 +43,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch; else \
-	  echo "SKIPPED launch_pytest tests and colcon build check: $(ROS_TOOLING) is absent (docs/launch.md)"; fi
+	  echo "SKIPPED launch_pytest tests and colcon build check:" \
+	    "$(ROS_TOOLING) is absent (docs/launch.md)"; fi
 
 # .venv-launch: its own pytest 7.4.4, colcon and the launch wheels; everything else (rclpy, the
 # pinned wheels, the package) from .venv through a .pth file, which site processes after the

@@ -23,8 +23,8 @@ MOCK_PLC_LISTENING = 'mock PLC listening on'
 
 class NodeOverrides:
     """One parameter file per node, keyed by the node's fully qualified name, in a directory of
-    this launch that an OnShutdown handler (or, failing that, the launch process's exit) removes; the nodes
-    read their files at start-up."""
+    this launch that an OnShutdown handler (or, failing that, the launch process's exit)
+    removes; the nodes read their files at start-up."""
 
     def __init__(self, context):
         self._context = context

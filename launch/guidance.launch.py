@@ -46,7 +46,8 @@ def argument_value(name: str, kind, text: str):
             return [str(v) for v in value]
         return kind(text)
     except (ValueError, yaml.YAMLError) as exc:
-        raise ValueError(f'launch argument {name}:={text!r} is not a {kind.__name__} ({exc})') from None
+        raise ValueError(f'launch argument {name}:={text!r} is not a {kind.__name__} '
+                         f'({exc})') from None
 
 
 def _nodes(context, *args, **kwargs):

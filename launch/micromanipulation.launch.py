@@ -68,7 +68,8 @@ def _graph(context, *args, **kwargs):
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
                     output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)])
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
-                  output='screen', parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)])
+                  output='screen',
+                  parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)])
     return [mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
             ports.cleanup_action()]
 
@@ -81,7 +82,8 @@ def generate_launch_description():
                               description='parameters of the lab graph'),
         DeclareLaunchArgument('micromanipulation_params_file',
                               default_value=os.path.join(config, 'micromanipulation.yaml'),
-                              description='live targets, scale, offset and sequence (loaded after base_params_file: its values win)'),
+                              description='live targets, scale, offset and sequence (loaded '
+                                          'after base_params_file: its values win)'),
         *[DeclareLaunchArgument(f'{name}_topic', default_value=f'live_targets/{name}',
                                 description=f"the stack's PoseStamped topic of the {name.replace('_', ' ')} "
                                             '(microscope frame, m)') for name in OBJECTS],

@@ -43,7 +43,8 @@ def _graph(context, *args, **kwargs):
                     parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})])
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
                   output='screen',
-                  parameters=[sim_params, ports.file('wearer_sim', {'bridge_port': int(gaze_port)})])
+                  parameters=[sim_params,
+                              ports.file('wearer_sim', {'bridge_port': int(gaze_port)})])
     return [mock_plc, wearer, after_mock_plc_listens(mock_plc, [lab]), ports.cleanup_action()]
 
 

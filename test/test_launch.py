@@ -12,21 +12,21 @@ import signal
 import socket
 import tempfile
 import threading
-import time
 
 import pytest
 
 launch_pytest = pytest.importorskip(
-    'launch_pytest', reason='launch_pytest is not installed here: `make test` runs the launch tests '
-                            'in .venv-launch when ../shared/ros-tooling/ is present (docs/launch.md)')
+    'launch_pytest',
+    reason='launch_pytest is not installed here: `make test` runs the launch tests in '
+           '.venv-launch when ../shared/ros-tooling/ is present (docs/launch.md)')
 INSTALL = os.environ.get('FABRIC_GUIDANCE_INSTALL')
 if not INSTALL:
     pytest.skip('FABRIC_GUIDANCE_INSTALL is not set: run through `make test-launch` (a colcon '
                 'build first)', allow_module_level=True)
 
 import launch  # noqa: E402
-from launch.actions import (GroupAction, IncludeLaunchDescription, RegisterEventHandler,  # noqa: E402
-                            SetEnvironmentVariable)
+from launch.actions import GroupAction, IncludeLaunchDescription  # noqa: E402
+from launch.actions import RegisterEventHandler, SetEnvironmentVariable  # noqa: E402
 from launch.event_handlers import OnProcessExit, OnProcessIO, OnProcessStart  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
 from launch_ros.actions import SetParameter  # noqa: E402
@@ -36,7 +36,8 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from fabric_guidance.core import ChannelMap  # noqa: E402
 from fabric_guidance.nodes import common  # noqa: E402
 from fabric_guidance.plc import MockPlcServer, RegisterMap  # noqa: E402
-from fabric_guidance.process_graph import Probe, free_port, fresh_domain_id, wait_until  # noqa: E402
+from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
+                                           wait_until)
 
 PREFIX = os.path.join(INSTALL, 'fabric_guidance')
 SHARE = os.path.join(PREFIX, 'share', 'fabric_guidance')
@@ -113,8 +114,8 @@ def test_colcon_build_installed_the_package():
     """colcon build's install tree: the ament index marker, share/ and every executable; this
     process imports the package from there."""
     import fabric_guidance
-    assert os.path.isfile(os.path.join(PREFIX, 'share', 'ament_index', 'resource_index', 'packages',
-                                       'fabric_guidance'))
+    assert os.path.isfile(os.path.join(PREFIX, 'share', 'ament_index', 'resource_index',
+                                       'packages', 'fabric_guidance'))
     assert os.path.isfile(os.path.join(SHARE, 'package.xml'))
     assert sorted(os.listdir(os.path.join(SHARE, 'launch'))) == [
         'guidance.launch.py', 'micromanipulation.launch.py', 'sim.launch.py']
@@ -145,7 +146,8 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
     assert watch.found() == ['front_left', 'up_right', 'down_left', 'down_right']
     with Probe(domain_id) as probe:
         # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
-        written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', common.COMMAND_QOS)
+        written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
+                                  common.COMMAND_QOS)
         wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
         assert max(written[-1].data) <= P_MAX
         assert max(written[-1].data) > 50.0  # guided, not found by luck
@@ -159,7 +161,8 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
     for name, pid in list(watch.pids.items()):
         if not name.startswith('mock_plc'):
             os.kill(pid, signal.SIGINT)
-    wait_until(lambda: len(watch.returncodes) == len(watch.pids), 20.0, what='every process exited')
+    wait_until(lambda: len(watch.returncodes) == len(watch.pids), 20.0,
+               what='every process exited')
     plc_output = watch.log('plc_output')
     assert VENTED.search(plc_output), plc_output[-2000:]
     assert 'could not vent' not in plc_output
@@ -242,7 +245,8 @@ def micromanipulation_graph(sim_ports):
 
 
 @pytest.mark.launch(fixture=micromanipulation_graph)
-def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(micromanipulation_graph):
+def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
+        micromanipulation_graph):
     import numpy as np
     import yaml
     from geometry_msgs.msg import PointStamped, PoseStamped
