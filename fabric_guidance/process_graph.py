@@ -73,9 +73,12 @@ class Graph:
         """Words put before a node's command (e.g. `ip netns exec NAME`); none here."""
         return []
 
-    def start(self, node: str, params_files=('guidance.yaml',), **overrides) -> subprocess.Popen:
+    def start(self, node: str, params_files=('guidance.yaml',), as_name: str | None = None,
+              **overrides) -> subprocess.Popen:
         """Start fabric_guidance.nodes.<node> with the package's parameter files (in order) and
-        `-p name:=value` overrides."""
+        `-p name:=value` overrides. ``as_name``: the key of the process and its log (default: the
+        node), so that a graph can run two of a node (two mock PLCs)."""
+        proc_key = as_name or node
         if node == 'mock_plc' and 'records_file' not in overrides:
             overrides['records_file'] = str(self.log_dir / f'mock_plc-{len(self.records_files)}.records.json')
             self.records_files.append(Path(overrides['records_file']))
@@ -84,9 +87,9 @@ class Graph:
             cmd += ['--params-file', str(CONFIG / f)]
         for key, value in overrides.items():
             cmd += ['-p', f'{key}:={_param_text(value)}']
-        log = open(self.log_dir / f'{node}.log', 'w')
+        log = open(self.log_dir / f'{proc_key}.log', 'w')
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=ROOT)
-        self.processes[node] = proc
+        self.processes[proc_key] = proc
         return proc
 
     def log(self, node: str) -> str:

@@ -32,7 +32,7 @@ def test_a_landing_is_the_latest_sample_of_its_level_and_counted_once():
     writes = [Write(5, 0, (0, 100)),                        # register 1: sample 0
               Write(15, 0, (0, 100)),                       # re-sent: not a new landing
               Write(33, 1, (300,)),                         # sample 2, written on its own
-              Write(34, 100, (7,)),                         # the heartbeat: not this register
+              Write(34, 19, (7,)),                          # the heartbeat: not this register
               Write(45, 0, (0, 0)),                         # a vent: no sample
               Write(66, 0, (0, 200))]                       # level 1, latest sent before: sample 5
     landed = landings(sent, writes, register=1, level_of=level_of, levels=levels)

@@ -46,7 +46,8 @@ EXECUTABLES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_out
 P_MAX = 375.0
 #: Seven processes' start-up plus four guided turns of a few seconds each on a loaded machine.
 SESSION_DEADLINE_S = 90.0
-VENTED = re.compile(r'vented all \d+ channels on shutdown')
+VENTED = re.compile(r'vented all \d+ channels (of PLC \S+ )?on shutdown')
+LINK_UP = re.compile(r'connected to the PLC|PLC \S+ at \S+ up')
 FOUND = re.compile(r"target found: '(\w+)'")
 
 
@@ -285,7 +286,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
                 <= drift * scale * 1.0001 + 1e-9
     # plc_output started after the mock PLC listened: its first connection went through.
     plc_output = watch.log('plc_output')
-    assert 'connected to the PLC' in plc_output
+    assert LINK_UP.search(plc_output), plc_output
     assert '[ERROR]' not in plc_output, plc_output
     yield
     # After shutdown: the per-launch files are gone.

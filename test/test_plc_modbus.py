@@ -8,11 +8,12 @@ import time
 
 import numpy as np
 import pytest
-from pymodbus.client import ModbusTcpClient
 
 from fabric_guidance.paths import config_path
 from fabric_guidance.plc import FirstOrderLag, RegulatorSim, Watchdog
-from fabric_guidance.plc.modbus import MockPlcServer, PlcClient, PlcLinkError
+from fabric_guidance.plc import pymodbus_compat as compat
+from fabric_guidance.plc.modbus import (MockPlcServer, PlcClient, PlcLinkError, PlcNoAnswerError,
+                                        PlcRefusedError)
 from fabric_guidance.plc.register_map import RegisterMap
 
 WATCHDOG_S = 0.3
@@ -63,6 +64,15 @@ def plc(reg_map):
     server.start()
     yield server
     server.stop()
+
+
+@pytest.fixture
+def steady_plc(reg_map):
+    """A mock PLC whose watchdog, once armed, holds for a minute: no race with a trip."""
+    with MockPlcServer(reg_map, regulator_tau_s=TAU_S, watchdog_s=60.0, update_hz=200) as server:
+        with PlcClient(reg_map, '127.0.0.1', server.port, timeout_s=0.5) as c:
+            Controller(c).arm(server)
+        yield server
 
 
 @pytest.fixture
@@ -224,31 +234,83 @@ def test_max_written_is_recorded(plc, client):
     assert plc.over_limit_writes == [] and plc.out_of_map_writes == []
 
 
-def test_raw_writes_outside_map_and_over_limit_are_recorded(reg_map, plc):
-    raw = ModbusTcpClient('127.0.0.1', port=plc.port, timeout=1.0, retries=0)
+def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_map, steady_plc):
+    """A pymodbus client (whatever its version) sees the contract's answers: exception 02 outside
+    the map, nothing stored there; a count above p_max stored as p_max, and both recorded."""
+    raw = compat.make_client('127.0.0.1', steady_plc.port, 1.0)
     assert raw.connect()
     try:
-        assert not raw.write_register(200, 1234, slave=reg_map.unit_id).isError()
-        # Starts on the last command register and spills over the end of the block: 18 is the
-        # sequence register (mapped), 19 is outside the map.
-        assert not raw.write_registers(17, [1, 2, 3], slave=reg_map.unit_id).isError()
-        assert not raw.write_register(0, 5000, slave=reg_map.unit_id).isError()
+        refused = compat.request(raw, 'write_register', 200, 1234, unit_id=reg_map.unit_id)
+        assert compat.exception_code(refused) == 2
+        # Starts on the last command register and runs past the end of the map (19 is the
+        # heartbeat, 20 is outside): refused whole.
+        refused = compat.request(raw, 'write_registers', 17, [1, 2, 3, 4], unit_id=reg_map.unit_id)
+        assert compat.exception_code(refused) == 2
+        seq = compat.request(raw, 'read_holding_registers', N, unit_id=reg_map.unit_id,
+                             count=1).registers[0] + 1
+        answer = compat.request(raw, 'write_registers', 0, [5000] + [0] * (N - 1) + [seq],
+                                unit_id=reg_map.unit_id)
+        assert not answer.isError()
+        stored = compat.request(raw, 'read_holding_registers', 0, unit_id=reg_map.unit_id,
+                                count=N + 2)
+        assert stored.registers[0] == reg_map.p_max_counts and stored.registers[N] == seq
+        assert compat.exception_code(compat.request(raw, 'read_input_registers', N,
+                                                    unit_id=reg_map.unit_id, count=1)) == 2
     finally:
         raw.close()
-    assert plc.out_of_map_writes == [(200, 1234), (19, 3)]
-    assert plc.over_limit_writes == [(0, 5000)]
-    assert plc.max_written_kpa()['F1'] == 500.0
+    assert steady_plc.out_of_map_writes == [(200, 1234), (20, 4)]
+    assert steady_plc.over_limit_writes == [(0, 5000)]
+    assert steady_plc.max_written_kpa()['F1'] == 500.0
 
 
-def test_wrong_unit_id_is_a_link_error(reg_map, plc):
-    other = PlcClient(dataclasses.replace(reg_map, unit_id=reg_map.unit_id + 1), '127.0.0.1', plc.port,
-                      timeout_s=0.5)
+def test_an_unsequenced_command_write_is_answered_and_undone(reg_map, steady_plc):
+    plc = steady_plc
+    client = PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=0.5)
+    client.write_pressures(ramp(50.0))
+    raw = compat.make_client('127.0.0.1', plc.port, 1.0)
+    assert raw.connect()
     try:
-        with pytest.raises(PlcLinkError, match='PLC 127.0.0.1'):  # pymodbus answers an unknown unit with fc 0x80
-            other.write_pressures(ramp(10.0))
+        answer = compat.request(raw, 'write_register', 0, 1000, unit_id=reg_map.unit_id)
+        assert not answer.isError()   # the library answers; the program restores
+    finally:
+        raw.close()
+    assert np.allclose(client.read_commands_kpa(), 50.0)
+    client.close()
+    assert plc.stale_writes[-1][0] is None
+
+
+def test_an_illegal_address_names_the_register_and_the_map(reg_map, plc):
+    wrong = dataclasses.replace(reg_map, heartbeat_register=100)
+    with PlcClient(wrong, '127.0.0.1', plc.port, timeout_s=0.5) as c:
+        with pytest.raises(PlcRefusedError) as info:
+            c.write_heartbeat(1)
+        c.read_measured_kpa()   # the connection is still good: a refusal is not a dead link
+    err = info.value
+    assert err.state == 'refused' and err.code == 2
+    assert 'holding register 100' in str(err) and reg_map.source in str(err)
+    assert 'register map' in str(err) and 'PLC program' in str(err)
+
+
+def test_wrong_unit_id_says_check_the_unit_id(reg_map, plc):
+    other = PlcClient(dataclasses.replace(reg_map, unit_id=reg_map.unit_id + 1), '127.0.0.1', plc.port,
+                      timeout_s=0.3)
+    try:
+        for _ in range(2):   # the second time too: silence is not taken for a dead link
+            with pytest.raises(PlcNoAnswerError,
+                               match=f'unit id {reg_map.unit_id + 1}.*check unit_id'):
+                other.write_pressures(ramp(10.0))
     finally:
         other.close()
     assert not plc.commands_kpa().any()
+
+
+def test_a_stopped_plc_is_down_not_silent(reg_map, plc):
+    with PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=0.3) as c:
+        c.write_heartbeat(1)
+        plc.stop()
+        with pytest.raises(PlcLinkError) as info:
+            c.write_heartbeat(2)
+    assert info.value.state == 'down'
 
 
 def test_link_error_while_stopped_and_recovery_after_restart(plc, client):
@@ -289,3 +351,17 @@ def test_start_fails_loudly_when_the_port_is_taken(reg_map, plc):
     with pytest.raises(RuntimeError, match='did not start'):
         second.start()
     assert not second.running
+
+
+def test_package_xml_states_the_supported_pymodbus_range_and_this_one_is_in_it():
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    (dep,) = [e for e in ET.parse(root / 'package.xml').getroot().findall('exec_depend')
+              if e.text == 'python3-pymodbus']
+    assert (dep.get('version_gte'), dep.get('version_lt')) == compat.SUPPORTED
+
+    def version(text):
+        return tuple(int(part) for part in text.split('.')[:3] if part.isdigit())
+    low, high = (version(v) for v in compat.SUPPORTED)
+    assert low <= version(compat.PYMODBUS_VERSION) < high

@@ -1,8 +1,10 @@
 """mock_plc: a simulated pressure PLC on Modbus TCP, for tests and the demo.
 
-Runs fabric_guidance.plc.MockPlcServer (same register map as the real PLC, regulator lag,
-heartbeat watchdog) and reports what was written to it: the largest pressure ever written per
-channel and, on /diagnostics, every write above p_max or outside the register map.
+Runs fabric_guidance.plc.MockPlcServer (the PLC contract of docs/plc.md: same register map as
+the real PLC, regulator lag, heartbeat watchdog, sequence gate, clamp) for one endpoint of the
+register map (`endpoint`; one mock_plc per PLC) and reports what was written to it: the
+largest pressure ever written per channel and, on /diagnostics, every write above p_max or
+outside the register map.
 
 Publishes: mock_plc/max_written_kpa (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
 
@@ -22,7 +24,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, declare, publish_diagnostics, run, status
 from fabric_guidance.paths import resolve
-from fabric_guidance.plc import MockPlcServer, RegisterMap
+from fabric_guidance.plc import MockPlcServer, PlcLayout
 
 MAX_WRITTEN = 'mock_plc/max_written_kpa'
 
@@ -37,6 +39,9 @@ class MockPlc(Node):
         register_map_file = declare(self, 'register_map_file', '',
                                     "register map (YAML); '' = the package's config/plc_register_map.yaml",
                                     read_only=True)
+        endpoint = declare(self, 'endpoint', '',
+                           "which PLC of a register map with endpoints to play; '' = the only one",
+                           read_only=True)
         tau_s = declare(self, 'regulator_tau_s', 0.15, 'first-order lag of each electro-pneumatic regulator',
                         's', 0.0, 10.0, read_only=True)
         watchdog_s = declare(self, 'watchdog_s', 0.5, 'vent all channels when the heartbeat stops for this long',
@@ -58,7 +63,8 @@ class MockPlc(Node):
                                  "append every holding-register write with its CLOCK_MONOTONIC time [ns] to this "
                                  "file (benchmarks); '' = off", read_only=True)
 
-        self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'))
+        layout = PlcLayout.load(resolve(register_map_file, 'plc_register_map.yaml'))
+        self.register_map = layout.endpoint(endpoint).map
         self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
                                     update_hz=update_hz, records_path=records_file or None,
                                     time_writes=bool(write_log_file)).start()

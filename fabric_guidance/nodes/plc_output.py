@@ -6,6 +6,14 @@ within command_timeout_s or the latest one was invalid; then it bumps the heartb
 watchdog watches, reads the measured pressures back and publishes them. A lost link is retried
 with an exponential backoff, and the latest fresh command is written again once it is back.
 On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
+
+Several PLCs (a register map with `endpoints`): each serves some channels and has its own
+link. Commands are written only while every link is up; a fault on any link vents all the
+others at once, and each link is retried on its own backoff with a vent, a heartbeat and a
+read (never the command) until it passes; then commands flow again. /diagnostics has one
+status per link besides the overall one: a link is "down" (no connection), "refused" (the
+PLC answers with a Modbus exception: the register map or the PLC program is wrong) or
+"no answer" (silence on an open connection: check the unit id).
 With write_on_command (the default) each command is also written the moment it arrives, so it
 does not wait for the next cycle; the cycle keeps the heartbeat, the re-send and the read-back.
 
@@ -27,10 +35,30 @@ from fabric_guidance.core.channels import ChannelMap
 from fabric_guidance.nodes.common import (COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND,
                                           declare, publish_diagnostics, run, status)
 from fabric_guidance.paths import resolve
-from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
+from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError
+from fabric_guidance.plc.pymodbus_compat import PYMODBUS_VERSION
 
 #: Errors about bad commands or an unreachable PLC are logged at most this often [s].
 LOG_THROTTLE_S = 1.0
+UP = 'up'
+
+
+class _Link:
+    """One PLC endpoint: its client, its channels' places in the command vector, its state."""
+
+    def __init__(self, endpoint: PlcEndpoint, client: PlcClient, reconnect_min_s: float):
+        self.name, self.client, self.indices = endpoint.name, client, list(endpoint.indices)
+        self.state = 'down'          # UP, or PlcLinkError.state: 'down', 'refused', 'no answer'
+        self.last_error = 'not connected yet'
+        self.backoff_s = reconnect_min_s
+        self.next_attempt_s = time.monotonic()
+        self.ever_up = False
+        self.failures = self.reconnects = 0
+        self.last_round_trip_s: float | None = None
+
+    @property
+    def up(self) -> bool:
+        return self.state == UP
 
 
 class PlcOutput(Node):
@@ -39,8 +67,14 @@ class PlcOutput(Node):
         super().__init__('plc_output')
         # Every parameter is read once, here; read-only so that `ros2 param set` cannot appear
         # to change a value (a pressure limit above all) that the running node does not use.
-        self.plc_host = declare(self, 'plc_host', '127.0.0.1', "the PLC's address (Modbus TCP)", read_only=True)
-        self.plc_port = declare(self, 'plc_port', 1502, "the PLC's Modbus TCP port", '', 1, 65535, read_only=True)
+        self.plc_host = declare(self, 'plc_host', '127.0.0.1',
+                                "the PLC's address (Modbus TCP); a register map with endpoints "
+                                'names its own',
+                                read_only=True)
+        self.plc_port = declare(self, 'plc_port', 1502,
+                                "the PLC's Modbus TCP port; a register map with endpoints names "
+                                'its own',
+                                '', 1, 65535, read_only=True)
         register_map_file = declare(self, 'register_map_file', '',
                                     "register map (YAML); '' = the package's config/plc_register_map.yaml",
                                     read_only=True)
@@ -71,8 +105,8 @@ class PlcOutput(Node):
 
         channel_path = resolve(channel_map_file, 'channel_map.yaml')
         channel_map = ChannelMap.load(channel_path)
-        self.register_map = RegisterMap.load(resolve(register_map_file, 'plc_register_map.yaml'),
-                                             expected_channels=channel_map.channels)
+        self.layout = PlcLayout.load(resolve(register_map_file, 'plc_register_map.yaml'),
+                                     expected_channels=channel_map.channels)
         # The channel order, read-only like ros2_controllers' `joints`: it comes from the channel map.
         channels = declare(self, 'channels', list(channel_map.channels),
                            'channel order of pressure_command and measured_pressure (from channel_map_file)',
@@ -80,24 +114,22 @@ class PlcOutput(Node):
         if list(channels) != list(channel_map.channels):
             raise ValueError(f'parameter "channels" {list(channels)} does not match the channel order of '
                              f'{channel_path}: {list(channel_map.channels)}')
-        self.p_max_kpa = min(p_max_param, self.register_map.p_max_kpa)
-        self.n = len(self.register_map)
-        self.plc_address = f'{self.plc_host}:{self.plc_port}'
+        self.p_max_kpa = min(p_max_param, self.layout.p_max_kpa)
+        self.n = len(self.layout)
+        self._links = []
+        for e in self.layout.endpoints:
+            host, port = (self.plc_host, self.plc_port) if e.host is None else (e.host, e.port)
+            self._links.append(_Link(e, PlcClient(e.map, host, port, timeout_s=modbus_timeout_s),
+                                     self.reconnect_min_s))
+        self.plc_address = ', '.join(link.client.address for link in self._links)
 
         self._zeros = np.zeros(self.n)
         self._command = self._zeros        # latest valid command, already clamped [kPa]
         self._command_s: float | None = None  # time.monotonic() of its arrival
         self._invalid = False              # the latest message was invalid: vent until a valid one
         self._vent_reason = ''
-        self._client = PlcClient(self.register_map, self.plc_host, self.plc_port, timeout_s=modbus_timeout_s)
-        self._link_up = False
-        self._ever_connected = False
-        self._backoff_s = self.reconnect_min_s
-        self._next_attempt_s = time.monotonic()
-        self._last_error = 'not connected yet'
         self._heartbeat = 0
-        self._writes = self._link_failures = self._reconnects = self._invalid_commands = 0
-        self._last_round_trip_s: float | None = None
+        self._writes = self._invalid_commands = 0
 
         self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -109,7 +141,14 @@ class PlcOutput(Node):
         self.get_logger().info(
             f'writing {self.n} channels {list(channel_map.channels)} to the PLC at {self.plc_address} '
             f'at {write_rate_hz:g} Hz, p_max {self.p_max_kpa:g} kPa (parameter {p_max_param:g}, register map '
-            f'{self.register_map.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s')
+            f'{self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s, '
+            f'pymodbus {PYMODBUS_VERSION}')
+        if len(self._links) > 1 or self.layout.endpoints[0].host is not None:
+            listed = '; '.join(f'{link.name} at {link.client.address} unit id '
+                               f'{link.client.map.unit_id}: {list(link.client.map.names)}'
+                               for link in self._links)
+            self.get_logger().info(f'PLC endpoints from the register map (plc_host and plc_port '
+                                   f'unused): {listed}')
 
     # ---------------------------------------------------------------- commands
     def _on_command(self, msg: Float64MultiArray) -> None:
@@ -121,7 +160,7 @@ class PlcOutput(Node):
             self._invalid, self._command = True, self._zeros
             self.get_logger().error(f'invalid pressure_command ({why}): venting all channels',
                                     throttle_duration_sec=LOG_THROTTLE_S)
-            if self.write_on_command and self._link_up:
+            if self.write_on_command and self._all_up():
                 self._write_now()
             return
         if np.any(p > self.p_max_kpa):
@@ -130,15 +169,21 @@ class PlcOutput(Node):
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
         self._command_s = time.monotonic()
-        if self.write_on_command and self._link_up:
+        if self.write_on_command and self._all_up():
             self._write_now()
+
+    def _all_up(self) -> bool:
+        return all(link.up for link in self._links)
 
     def _write_now(self) -> None:
         """Write what the cycle would write (the latest command, or zeros) at once."""
-        try:
-            self._client.write_pressures(self._target(time.monotonic())[0])
-        except PlcLinkError as exc:
-            self._link_lost(exc)
+        target = self._target(time.monotonic())[0]
+        for link in self._links:
+            try:
+                link.client.write_pressures(target[link.indices])
+            except PlcLinkError as exc:
+                self._link_lost(link, exc)
+                return
 
     def _target(self, now_s: float) -> tuple[np.ndarray, str]:
         """What to write now, and why it is zeros ('' when it is the command)."""
@@ -153,104 +198,168 @@ class PlcOutput(Node):
     # ------------------------------------------------------------------- cycle
     def _on_write_timer(self) -> None:
         now = time.monotonic()
-        if not self._link_up:
-            # A connection attempt is this cycle's only blocking call (at most modbus_timeout_s).
-            if now >= self._next_attempt_s:
-                self._connect()
-            return
+        healthy = self._all_up()
         target, reason = self._target(now)
+        if not healthy:
+            target, reason = self._zeros, 'a PLC link is not up'
         if reason != self._vent_reason:
             if reason:
                 self.get_logger().warning(f'venting all channels: {reason}')
             else:
                 self.get_logger().info('writing commands')
             self._vent_reason = reason
+        measured = np.zeros(self.n)
+        complete = True
+        for link in self._links:
+            if not link.up:
+                complete = False
+                # A retry is this cycle's only blocking call for the link (at most one timeout).
+                if now >= link.next_attempt_s:
+                    self._retry(link)
+                continue
+            try:
+                # The first failing request ends the link's cycle: one timeout at most.
+                link.last_round_trip_s = link.client.write_pressures(target[link.indices])
+                link.client.write_heartbeat(self._heartbeat + 1)
+                measured[link.indices] = link.client.read_measured_kpa()
+            except PlcLinkError as exc:
+                self._link_lost(link, exc)
+                return
+            link.backoff_s = self.reconnect_min_s  # a whole cycle went through: the link is good
+        self._heartbeat += 1
+        if complete:
+            self._writes += 1
+            self._measured_pub.publish(Float64MultiArray(data=[float(v) for v in measured]))
+
+    def _retry(self, link: _Link) -> None:
+        """Reconnect and prove the link with a vent, a heartbeat and a read (never the command)."""
+        if link.state == 'down':
+            link.client.close()  # always a fresh socket after a broken connection
+            if not link.client.connect():
+                link.last_error = f'cannot connect to {link.client.address}'
+                self._schedule_retry(link)
+                self.get_logger().error(f'PLC {link.name} at {link.client.address} unreachable; '
+                                        f'next attempt in '
+                                        f'{link.next_attempt_s - time.monotonic():.1f} s',
+                                        throttle_duration_sec=LOG_THROTTLE_S)
+                return
         try:
-            # The first failing request ends the cycle: one timeout at most per cycle.
-            round_trip_s = self._client.write_pressures(target)
-            self._heartbeat += 1
-            self._client.write_heartbeat(self._heartbeat)
-            measured = self._client.read_measured_kpa()
+            link.client.vent()
+            link.client.write_heartbeat(self._heartbeat + 1)
+            link.client.read_measured_kpa()
         except PlcLinkError as exc:
-            self._link_lost(exc)
+            self._link_lost(link, exc)
             return
-        self._writes += 1
-        self._last_round_trip_s = round_trip_s
-        self._backoff_s = self.reconnect_min_s  # a whole cycle went through: the link is good
-        self._measured_pub.publish(Float64MultiArray(data=[float(v) for v in measured]))
+        if link.ever_up:
+            link.reconnects += 1
+        link.ever_up = True
+        link.state, link.backoff_s = UP, self.reconnect_min_s
+        self.get_logger().info(f'PLC {link.name} at {link.client.address} up')
 
-    def _connect(self) -> None:
-        self._client.close()  # always a fresh socket
-        if self._client.connect():
-            self._link_up = True
-            if self._ever_connected:
-                self._reconnects += 1
-            self._ever_connected = True
-            self.get_logger().info(f'connected to the PLC at {self.plc_address}')
-            return
-        self._last_error = f'cannot connect to {self.plc_address}'
-        self._schedule_reconnect()
-        self.get_logger().error(f'PLC at {self.plc_address} unreachable; next attempt in '
-                                f'{self._next_attempt_s - time.monotonic():.1f} s',
+    def _link_lost(self, link: _Link, exc: PlcLinkError) -> None:
+        """A link failed: vent every other link now, retry this one on its backoff."""
+        was = link.state
+        link.state, link.last_error = exc.state, str(exc)
+        if was == UP:
+            link.failures += 1
+        if exc.state == 'down':
+            link.client.close()
+        self._schedule_retry(link)
+        what = {'down': 'link lost', 'refused': 'refuses',
+                'no answer': 'does not answer'}[exc.state]
+        self.get_logger().error(f'PLC {link.name} {what}: {exc}; venting all PLCs, retrying '
+                                '(the PLC watchdog vents meanwhile)',
                                 throttle_duration_sec=LOG_THROTTLE_S)
+        for other in self._links:
+            if other is not link and other.up:
+                try:
+                    other.client.vent()
+                except PlcLinkError as other_exc:
+                    self._link_lost(other, other_exc)
 
-    def _link_lost(self, exc: PlcLinkError) -> None:
-        self._link_up = False
-        self._link_failures += 1
-        self._last_error = str(exc)
-        self._client.close()
-        self._schedule_reconnect()
-        self.get_logger().error(f'PLC link lost: {exc}; reconnecting (the PLC watchdog vents meanwhile)')
-
-    def _schedule_reconnect(self) -> None:
-        self._next_attempt_s = time.monotonic() + self._backoff_s
-        self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
+    def _schedule_retry(self, link: _Link) -> None:
+        link.next_attempt_s = time.monotonic() + link.backoff_s
+        link.backoff_s = min(2.0 * link.backoff_s, self.reconnect_max_s)
 
     # ------------------------------------------------------------- diagnostics
     def _on_diagnostics_timer(self) -> None:
         _, reason = self._target(time.monotonic())
-        if not self._link_up:
-            level, message = DiagnosticStatus.ERROR, f'PLC link down: {self._last_error}'
+        faulty = [link for link in self._links if not link.up]
+        if faulty:
+            level = DiagnosticStatus.ERROR
+            message = '; '.join(self._link_message(link) for link in faulty)
+            if len(self._links) > 1:
+                message = f'venting all PLCs: {message}'
         elif reason:
             level, message = DiagnosticStatus.WARN, f'venting: {reason}'
         else:
             level, message = DiagnosticStatus.OK, 'writing commands'
         age = 'never' if self._command_s is None else f'{time.monotonic() - self._command_s:.3f}'
-        rtt = 'none' if self._last_round_trip_s is None else f'{1e3 * self._last_round_trip_s:.2f}'
-        values = {'connected': self._link_up, 'last round trip ms': rtt, 'writes': self._writes,
-                  'link failures': self._link_failures, 'reconnects': self._reconnects,
+        rtts = [link.last_round_trip_s for link in self._links
+                if link.last_round_trip_s is not None]
+        rtt = 'none' if not rtts else f'{1e3 * max(rtts):.2f}'
+        values = {'connected': not faulty, 'last round trip ms': rtt, 'writes': self._writes,
+                  'link failures': sum(link.failures for link in self._links),
+                  'reconnects': sum(link.reconnects for link in self._links),
                   'invalid commands': self._invalid_commands, 'command age s': age,
                   'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}'}
-        publish_diagnostics(self, self._diagnostics_pub, [status(self, 'PLC output', level, message, values)])
+        statuses = [status(self, 'PLC output', level, message, values)]
+        for link in self._links:
+            link_level = DiagnosticStatus.OK if link.up else DiagnosticStatus.ERROR
+            statuses.append(status(self, f'PLC link {link.name}', link_level,
+                                   'up' if link.up else self._link_message(link),
+                                   {'state': link.state, 'address': link.client.address,
+                                    'unit id': link.client.map.unit_id,
+                                    'channels': ' '.join(link.client.map.names),
+                                    'link failures': link.failures,
+                                    'reconnects': link.reconnects}))
+        publish_diagnostics(self, self._diagnostics_pub, statuses)
+
+    @staticmethod
+    def _link_message(link: _Link) -> str:
+        # "down" only for a link that is: a PLC that answers but refuses, or a unit id that
+        # gets no answer, is a configuration fault with its own words.
+        if link.state == 'refused':
+            return f'PLC {link.name} refuses (link up, commands not written): {link.last_error}'
+        if link.state == 'no answer':
+            return (f'PLC {link.name} does not answer its unit id (commands not written): '
+                    f'{link.last_error}')
+        return f'PLC link down ({link.name}): {link.last_error}'
 
     # ---------------------------------------------------------------- shutdown
     def safe_shutdown(self) -> None:
-        """Vent every channel and confirm it by reading the command registers back."""
+        """Vent every channel of every PLC and confirm it by reading the command registers back."""
         for timer in self._timers:
             timer.cancel()
-        log = self.get_logger()
+        for link in self._links:
+            self._vent_on_shutdown(link)
+
+    def _vent_on_shutdown(self, link: _Link) -> None:
+        log, client = self.get_logger(), link.client
         error = None
         # Two tries: the second on a fresh connection, in case the signal cut a request short.
         for attempt in range(2):
             try:
-                if attempt > 0 or not self._link_up:
-                    self._client.close()
-                    if not self._client.connect():
-                        error = f'cannot connect to {self.plc_address}'
+                if attempt > 0 or link.state == 'down':
+                    client.close()
+                    if not client.connect():
+                        error = f'cannot connect to {client.address}'
                         break  # one quick attempt only: do not hold the shutdown up
-                round_trip_s = self._client.vent()
-                left = self._client.read_commands_kpa()
+                round_trip_s = client.vent()
+                left = client.read_commands_kpa()
             except PlcLinkError as exc:
                 error = str(exc)
                 continue
             if not np.any(left):
-                log.info(f'vented all {self.n} channels on shutdown (round trip {1e3 * round_trip_s:.1f} ms)')
+                log.info(f'vented all {len(client.map)} channels of PLC {link.name} on shutdown '
+                         f'(round trip {1e3 * round_trip_s:.1f} ms)')
                 error = None
                 break
             error = f'command registers read back {list(left)} after venting'
         if error is not None:
-            log.error(f'could not vent on shutdown: {error}; the PLC watchdog vents once the heartbeat stops')
-        self._client.close()
+            log.error(f'could not vent PLC {link.name} on shutdown: {error}; its watchdog vents '
+                      'once the heartbeat stops')
+        client.close()
 
 
 def main(args=None):

@@ -2,18 +2,21 @@
 
 register_map  which register carries which channel; kPa <-> counts, clamped to p_max
 regulator     the PLC's regulator lag and heartbeat watchdog, simulated in plain Python
-modbus        PlcClient and MockPlcServer, the only module that imports pymodbus
+modbus        PlcClient and MockPlcServer (the PLC contract, served without pymodbus)
+pymodbus_compat  the only module that imports pymodbus: every version difference
 
 The pymodbus-backed names are imported lazily, so the register map and the simulation can
 be used (and tested) where pymodbus is not installed.
 """
-from .register_map import ChannelRegisters, RegisterMap, RegisterMapError
+from .register_map import ChannelRegisters, PlcEndpoint, PlcLayout, RegisterMap, RegisterMapError
 from .regulator import FirstOrderLag, RegulatorSim, ScanResult, Watchdog
 
-_MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError')
+_MODBUS_NAMES = ('MockPlcServer', 'PlcClient', 'PlcLinkError', 'PlcNoAnswerError',
+                 'PlcRefusedError')
 
-__all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcLinkError',
-           'RegisterMap', 'RegisterMapError', 'RegulatorSim', 'ScanResult', 'Watchdog']
+__all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'PlcEndpoint',
+           'PlcLayout', 'PlcLinkError', 'PlcNoAnswerError', 'PlcRefusedError', 'RegisterMap',
+           'RegisterMapError', 'RegulatorSim', 'ScanResult', 'Watchdog']
 
 
 def __getattr__(name: str):

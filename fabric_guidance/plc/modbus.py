@@ -1,43 +1,75 @@
 """Modbus TCP to the PLC: the client the package drives the suit with, and a mock PLC for tests.
 
-This is the only module of the package that imports pymodbus (pinned to 3.9.2: classic
-datastore API, ``slave=`` keyword). Everything else talks kPa and a :class:`RegisterMap`.
-
 - :class:`PlcClient` writes only registers of the map, always through
   :meth:`RegisterMap.encode` (clamp to [0, p_max], non-finite -> vent), numbers every command
-  write when the map has a sequence register (sequence.py), and turns every failure into
-  :class:`PlcLinkError`.
-- :class:`MockPlcServer` is a pymodbus TCP server in a background thread that behaves like the
-  PLC (regulator lag, heartbeat watchdog, write sequence gate; see regulator.py, sequence.py)
-  and records every write it gets, optionally to a file (records.py), so tests can assert
-  what left the package.
+  write when the map has a sequence register (sequence.py), and turns every failure into a
+  :class:`PlcLinkError` whose ``state`` says what kind: the link is down, the PLC refused
+  (an exception response: :class:`PlcRefusedError`, naming the register), or nothing answered
+  for this unit id on an open connection (:class:`PlcNoAnswerError`).
+- :class:`MockPlcServer` is a Modbus TCP server of its own (asyncio, in a background thread)
+  that keeps the PLC contract (docs/plc.md) exactly as the PLC program does: the register map's
+  addresses only (exception 02 elsewhere), function codes 3, 4, 6, 16 (01 for others), the
+  quantity limits (03), silence for another unit id, the write sequence gate (a stale or
+  unnumbered command write is answered normally and undone), the clamp to p_max counts, the
+  heartbeat watchdog and the regulator lag (regulator.py). It records every write it gets,
+  optionally to a file (records.py), so tests can assert what left the package.
+
+pymodbus is used for the client only, through pymodbus_compat.py (the one module that knows
+the differences between the supported pymodbus versions).
 """
 from __future__ import annotations
 
 import asyncio
+import struct
 import threading
 import time
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from pymodbus.client import ModbusTcpClient
-from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext
-from pymodbus.server import ModbusTcpServer
 
+from . import pymodbus_compat as compat
 from .records import MAX_LISTED, write_records
 from .register_map import REGISTER_MAX, RegisterMap
 from .regulator import RegulatorSim
 from .sequence import SEQ_MODULUS, SequenceGate, resync
 
+#: The states of a link that is not up, as PlcLinkError.state and plc_output's /diagnostics say.
+DOWN, REFUSED, NO_ANSWER = 'down', 'refused', 'no answer'
+
+#: Modbus exception codes and what each means for this package.
+EXCEPTION_NAMES = {1: 'ILLEGAL FUNCTION', 2: 'ILLEGAL DATA ADDRESS', 3: 'ILLEGAL DATA VALUE',
+                   4: 'SERVER DEVICE FAILURE', 6: 'SERVER DEVICE BUSY'}
+_TABLE = {'read_holding_registers': 'holding', 'write_register': 'holding',
+          'write_registers': 'holding', 'read_input_registers': 'input'}
+
 
 class PlcLinkError(RuntimeError):
-    """The PLC could not be reached, did not answer, or answered with an error."""
+    """The PLC could not be reached, did not answer, or answered with an error.
+
+    ``state``: DOWN (no connection, or it broke), REFUSED (the PLC answered with a Modbus
+    exception) or NO_ANSWER (silence on an open connection: typically a wrong unit id).
+    """
+    state = DOWN
+
+
+class PlcRefusedError(PlcLinkError):
+    """The PLC answered with a Modbus exception: the link works, the request does not."""
+    state = REFUSED
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
+class PlcNoAnswerError(PlcLinkError):
+    """No answer within the timeout although the connection stayed open."""
+    state = NO_ANSWER
 
 
 # --------------------------------------------------------------------------- client
 class PlcClient:
-    """Synchronous Modbus TCP client for the pressure PLC.
+    """Synchronous Modbus TCP client for one pressure PLC (one endpoint of the register map).
 
     pymodbus reconnects on the next request by itself, so after a PlcLinkError the caller
     just keeps calling; ``connect()`` is only needed to find out early whether the PLC is there.
@@ -48,11 +80,14 @@ class PlcClient:
             raise ValueError(f'timeout_s must be > 0, got {timeout_s!r}')
         self.map = register_map
         self.host, self.port, self.timeout_s = host, port, timeout_s
-        # retries=0: a command retried after a timeout would arrive late and out of order;
-        # the caller's next cycle sends a fresh one instead.
-        self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+        self._client = compat.make_client(host, port, timeout_s)
         self._seq: int | None = None  # last sequence number sent (kept across reconnects)
         self._synced = False          # the PLC's last applied number read on this connection
+        self._answered = False        # the PLC has answered this unit id at least once
+
+    @property
+    def address(self) -> str:
+        return f'{self.host}:{self.port}'
 
     def connect(self) -> bool:
         """Open the TCP connection; False if the PLC is not reachable."""
@@ -142,121 +177,242 @@ class PlcClient:
         return [self._call(method, method, a, count=1).registers[0] for a in addresses]
 
     def _call(self, what: str, method: str, *args, count: int | None = None):
-        """Run one pymodbus request; every way it can fail becomes PlcLinkError."""
-        kwargs = {'slave': self.map.unit_id}
-        if count is not None:
-            kwargs['count'] = count
+        """Run one pymodbus request; every way it can fail becomes a PlcLinkError that says why."""
+        where = f'PLC {self.address} (unit id {self.map.unit_id})'
+        # Connect here rather than inside the request, so that a timeout below is known to be
+        # silence on an open connection (pymodbus 3.6 closes the socket on a timeout itself).
+        if not compat.is_open(self._client) and not self._client.connect():
+            self.close()
+            raise PlcLinkError(f'{what} to {where} failed: cannot connect')
+        t0 = time.monotonic()
         try:
-            response = getattr(self._client, method)(*args, **kwargs)
+            response = compat.request(self._client, method, *args, unit_id=self.map.unit_id,
+                                      count=count)
         except Exception as exc:  # noqa: BLE001
             # Broad on purpose: besides ModbusException and OSError, pymodbus can let decoding
             # errors through on a garbled frame; the control loop must see one error type.
-            # Drop the socket: a late answer to this request must not be taken as the answer
-            # to the next one (the sync client does not match transaction ids).
-            self.close()
-            raise PlcLinkError(f'{what} to PLC {self.host}:{self.port} failed: {exc}') from exc
-        if response is None or response.isError():
-            self.close()
-            raise PlcLinkError(f'{what} to PLC {self.host}:{self.port}: error response {response}')
+            raise self._failed(what, where, str(exc), t0) from exc
+        if response is None:
+            raise self._failed(what, where, 'no response', t0)
+        if response.isError():
+            code = compat.exception_code(response)
+            if code is not None:
+                self._answered = True
+            if code is None:  # pymodbus 3.6 returns a timeout instead of raising it
+                raise self._failed(what, where, f'error response {response}', t0)
+            explained = self._explain(code, method, args, count)
+            raise PlcRefusedError(f'{what} to {where} refused: {explained}', code)
+        self._answered = True
         if count is not None and len(getattr(response, 'registers', ())) != count:
             self.close()
-            raise PlcLinkError(f'{what} to PLC {self.host}:{self.port}: asked for {count} registers, '
+            raise PlcLinkError(f'{what} to {where}: asked for {count} registers, '
                                f'got {len(getattr(response, "registers", ()))}')
         return response
 
+    def _failed(self, what: str, where: str, detail: str, t0: float) -> PlcLinkError:
+        """The error for a request that got no valid answer; drops the connection."""
+        # Silence for the whole timeout on an open connection from a PLC that never answered
+        # this client: it is there but ignores this unit id (a wrong unit_id). Once it has
+        # answered, the unit id is right and a timeout is a link fault.
+        silent = not self._answered and time.monotonic() - t0 >= 0.9 * self.timeout_s
+        # Drop the socket: a late answer to this request must not be taken as the answer
+        # to the next one (the sync client does not match transaction ids).
+        self.close()
+        if silent:
+            return PlcNoAnswerError(
+                f'{what}: no answer from unit id {self.map.unit_id} at PLC {self.address} within '
+                f'{self.timeout_s:g} s on an open connection: check unit_id in {self.map.source} '
+                f'(a PLC stays silent for a unit id that is not its own)')
+        return PlcLinkError(f'{what} to {where} failed: {detail}')
+
+    def _explain(self, code: int, method: str, args: tuple, count: int | None) -> str:
+        """One line on a Modbus exception: which registers, and what must be wrong."""
+        name = EXCEPTION_NAMES.get(code, 'unknown exception')
+        table = _TABLE.get(method, '?')
+        first = int(args[0]) if args else 0
+        n = count if count is not None else (len(args[1]) if method == 'write_registers' else 1)
+        span = f'{first}' if n == 1 else f'{first}..{first + n - 1}'
+        if code == 2:
+            plural = 's' if n > 1 else ''
+            return (f'exception 02 {name} for {table} register{plural} {span}: the PLC has no '
+                    f'such register, so the register map ({self.map.source}) or the PLC program '
+                    f'is wrong (they must agree: docs/plc.md)')
+        if code == 1:
+            return (f'exception 01 {name} ({method}): the PLC program does not implement this '
+                    f'Modbus function; it must answer function codes 3, 4, 6 and 16')
+        if code == 3:
+            return (f'exception 03 {name} for {table} registers {span}: the PLC program refuses '
+                    f'this quantity or value')
+        return f'exception {code:02d} {name} for {table} registers {span}'
+
 
 # ------------------------------------------------------------------------ mock PLC
-# pymodbus' ModbusSlaveContext adds 1 to every protocol address before it reaches the data
-# block, so a block starting at 1 puts protocol address a at index a.
-_BLOCK_START = 1
-_N_ADDRESSES = REGISTER_MAX + 1
 #: The records file lags the records by at most this [s] (plus one scan).
 RECORDS_PERIOD_S = 0.1
+#: Quantity limits of the Modbus specification: read 1..125 registers, write 1..123.
+MAX_READ, MAX_WRITE = 125, 123
+_MBAP = struct.Struct('>HHHB')   # transaction id, protocol id, length (unit id + PDU), unit id
+#: Largest PDU of Modbus TCP (a 260-byte ADU less the 7-byte MBAP header).
+MAX_PDU = 253
 
 
-class _RecordingHoldingBlock(ModbusSequentialDataBlock):
-    """Holding registers (full 16-bit address space) that record every write from a client.
+class _Registers:
+    """The PLC's registers and what the PLC program does with a request (the contract).
 
-    Writes by the simulated PLC itself (the watchdog venting) go through ``force()`` and are
-    not recorded: the records are about what the package sent.
+    Only the map's registers exist: holding = the command registers, the sequence register and
+    the heartbeat register; input = the measured registers (with the contract's layout, the
+    arrays 0..N+1 and 0..N-1). Thread-safe through ``lock``; no sockets here.
     """
 
     def __init__(self, register_map: RegisterMap, lock: threading.RLock):
-        super().__init__(_BLOCK_START, [0] * _N_ADDRESSES)
-        self._map = register_map
-        self._lock = lock
-        self._channel_of = {c.command_register: c.name for c in register_map.channels}
+        m = register_map
+        self._map, self.lock = m, lock
+        self.commands = tuple(m.command_registers)
+        self.holding_addresses = frozenset(self.commands) | {m.heartbeat_register} | (
+            {m.sequence_register} if m.sequence_register is not None else set())
+        self.input_addresses = frozenset(m.measured_registers)
+        # The gate works on the request that carries commands and number together; a map
+        # without that block has no sequencing (its client writes the commands alone).
+        self.sequence = m.sequence_register if m.sequenced_block() is not None else None
+        self._channel_of = {c.command_register: c.name for c in m.channels}
+        self.holding: dict[int, int] = {}
+        self.input: dict[int, int] = {}
+        self.gate = SequenceGate()
         self.max_written_counts: dict[str, int] = {}
         self.out_of_map_writes: list[tuple[int, int]] = []
         self.over_limit_writes: list[tuple[int, int]] = []
-        self.gate = SequenceGate()
-        self.stale_writes: list[tuple[int, int]] = []  # (sequence number, last applied) of refused writes
-        self.writes = 0    # client write requests to holding registers
+        #: (sequence number or None when the request had none, last applied) of undone writes
+        self.stale_writes: list[tuple[int | None, int | None]] = []
+        self.writes = 0    # client write requests that reached the registers
         self.version = 0   # bumped on every change of the records
-        #: (time.monotonic_ns(), first address, values) per applied client write, when timing is
-        #: on (the benchmarks' landing times); None: off, nothing is recorded.
+        #: (time.monotonic_ns(), first address, values) per client write, when timing is on
+        #: (the benchmarks' landing times); None: off, nothing is recorded.
         self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
+        self.power_up()
 
-    def _check(self, address: int, count: int) -> int:
-        start = address - _BLOCK_START
-        if start < 0 or start + count > _N_ADDRESSES:
-            # Raising makes pymodbus answer with an exception response instead of growing the list.
-            raise ValueError(f'registers {start}..{start + count - 1} outside 0..{REGISTER_MAX}')
-        return start
+    def power_up(self) -> None:
+        """All registers 0, the gate without a reference; the records are kept."""
+        with self.lock:
+            self.holding = dict.fromkeys(self.holding_addresses, 0)
+            self.input = dict.fromkeys(self.input_addresses, 0)
+            self.gate.reset()
 
-    def getValues(self, address, count=1):
-        with self._lock:
-            self._check(address, count)
-            return super().getValues(address, count)
+    # ---- one request (PDU in, PDU out; None: no answer)
+    def handle(self, pdu: bytes) -> bytes:
+        fc = pdu[0]
+        try:
+            if fc in (3, 4):
+                if len(pdu) != 5:
+                    return _exception(fc, 3)
+                start, quantity = struct.unpack('>HH', pdu[1:5])
+                if not 1 <= quantity <= MAX_READ:
+                    return _exception(fc, 3)
+                table = self.holding if fc == 3 else self.input
+                with self.lock:
+                    if not self._mapped(table, start, quantity):
+                        return _exception(fc, 2)
+                    values = [table[a] for a in range(start, start + quantity)]
+                return struct.pack(f'>BB{quantity}H', fc, 2 * quantity, *values)
+            if fc == 6:
+                if len(pdu) != 5:
+                    return _exception(fc, 3)
+                address, value = struct.unpack('>HH', pdu[1:5])
+                if not self._mapped(self.holding, address, 1):
+                    self._record_out_of_map(address, [value])
+                    return _exception(fc, 2)
+                self.write(address, [value])
+                return pdu[:5]
+            if fc == 16:
+                if len(pdu) < 6:
+                    return _exception(fc, 3)
+                start, quantity, byte_count = struct.unpack('>HHB', pdu[1:6])
+                if (not 1 <= quantity <= MAX_WRITE or byte_count != 2 * quantity
+                        or len(pdu) != 6 + byte_count):
+                    return _exception(fc, 3)
+                values = list(struct.unpack(f'>{quantity}H', pdu[6:]))
+                if not self._mapped(self.holding, start, quantity):
+                    self._record_out_of_map(start, values)
+                    return _exception(fc, 2)
+                self.write(start, values)
+                return pdu[:5]
+        except struct.error:
+            return _exception(fc, 3)
+        return _exception(fc, 1)
 
-    def setValues(self, address, values):
-        values = list(values) if isinstance(values, (list, tuple)) else [values]
-        with self._lock:
-            start = self._check(address, len(values))
+    @staticmethod
+    def _mapped(table: dict, start: int, quantity: int) -> bool:
+        return all(a in table for a in range(start, start + quantity))
+
+    def _record_out_of_map(self, start: int, values: list[int]) -> None:
+        # Refused with exception 02 and never stored, but recorded: the package must not try.
+        with self.lock:
+            self.out_of_map_writes.extend((a, v) for a, v in enumerate(values, start)
+                                          if a not in self.holding)
+            self.version += 1
+
+    def write(self, start: int, values: list[int]) -> None:
+        """A client write to mapped holding registers, as the PLC program applies it."""
+        m = self._map
+        with self.lock:
             self.writes += 1
             self.version += 1
-            # Recorded before the sequence check: the records are about what was sent.
+            landed_ns = time.monotonic_ns()
+            before = dict(self.holding)
             for a, v in enumerate(values, start):
                 name = self._channel_of.get(a)
                 if name is not None:
+                    # Recorded as sent (before the clamp and the gate): the records are about
+                    # what the package wrote.
                     self.max_written_counts[name] = max(v, self.max_written_counts.get(name, 0))
-                    if v > self._map.p_max_counts:
+                    if v > m.p_max_counts:
                         self.over_limit_writes.append((a, v))
-                elif a != self._map.heartbeat_register and a != self._map.sequence_register:
-                    self.out_of_map_writes.append((a, v))
-            seq_at = self._map.sequence_register
-            if seq_at is not None and start <= seq_at < start + len(values):
-                seq, last = values[seq_at - start], self.gate.last
-                if not self.gate.accept(seq):
-                    self.stale_writes.append((seq, last))
-                    # Refused whole, with an exception response (the registers keep the newer
-                    # command); its sender is normally gone already.
-                    raise ValueError(f'stale write: sequence {seq} is not newer than {last}')
+                    v = min(v, m.p_max_counts)   # stored clamped: never reaches an output
+                self.holding[a] = v
+            if self._undo_unless_sequenced(before, start, values):
+                return
             if self.write_times is not None:
                 # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
-                # process. Taken under the lock, so a take_write_times() never misses an earlier one.
-                self.write_times.append((time.monotonic_ns(), start, tuple(values)))
-            super().setValues(address, values)
+                # process. Taken under the lock, so a take_write_times() never misses one.
+                self.write_times.append((landed_ns, start, tuple(values)))
 
-    def read(self, address: int) -> int:
-        with self._lock:
-            return self.values[address]
+    def _undo_unless_sequenced(self, before: dict[int, int], start: int,
+                               values: list[int]) -> bool:
+        """The sequence gate on a write just stored; True when it was undone."""
+        seq = self.sequence
+        if seq is None:
+            return False
+        commands_changed = any(self.holding[a] != before[a] for a in self.commands)
+        seq_changed = self.holding[seq] != before[seq]
+        if not (commands_changed or seq_changed):
+            return False
+        last = self.gate.last
+        if seq_changed and self.gate.accept(self.holding[seq]):
+            return False
+        # Not newer, or no number at all: answered normally but undone (the library the PLC
+        # program runs on writes first and offers no hook; the program restores).
+        for a in self.commands + (seq,):
+            self.holding[a] = before[a]
+        written_seq = values[seq - start] if start <= seq < start + len(values) else None
+        self.stale_writes.append((written_seq, last))
+        return True
 
-    def force(self, address: int, value: int) -> None:
-        with self._lock:
-            self.values[address] = value
+    def force_commands_zero(self) -> None:
+        """The watchdog's vent: done by the PLC itself, not a client write (not recorded)."""
+        with self.lock:
+            for a in self.commands:
+                self.holding[a] = 0
 
-    def clear(self) -> None:
-        """Registers to 0 (PLC power-up); the write records are kept across restarts."""
-        with self._lock:
-            self.values = [0] * _N_ADDRESSES
-            self.gate.reset()
+
+def _exception(fc: int, code: int) -> bytes:
+    """An exception response PDU: the function code with its high bit set, then the code."""
+    return bytes([(fc | 0x80) & 0xFF, code])
 
 
 class MockPlcServer:
     """A simulated pressure PLC on Modbus TCP, for tests and the demo.
 
-    Runs a pymodbus ``ModbusTcpServer`` on its own asyncio loop in a daemon thread, plus a scan
+    Runs a Modbus TCP server (asyncio streams, the contract in :class:`_Registers`) on its own
+    loop in a daemon thread, plus a scan
     task at ``update_hz`` that runs :class:`RegulatorSim` (watchdog + first-order lag) and
     writes the measured pressures into the input registers. Restartable: ``stop()`` then
     ``start()`` listens on the same port again (a fresh PLC boot: registers 0, watchdog
@@ -277,14 +433,9 @@ class MockPlcServer:
         self._port = port
         self.update_hz = float(update_hz)
         self._lock = threading.RLock()
-        self._holding = _RecordingHoldingBlock(register_map, self._lock)
+        self._holding = _Registers(register_map, self._lock)
         if time_writes:
             self._holding.write_times = []
-        self._input = ModbusSequentialDataBlock(_BLOCK_START, [0] * _N_ADDRESSES)
-        slave = ModbusSlaveContext(di=ModbusSequentialDataBlock.create(), co=ModbusSequentialDataBlock.create(),
-                                   hr=self._holding, ir=self._input)
-        # single=False: requests for another unit id get an error, as from a real PLC.
-        self._context = ModbusServerContext(slaves={register_map.unit_id: slave}, single=False)
         self._sim = RegulatorSim(len(register_map), register_map.p_max_kpa, regulator_tau_s, watchdog_s)
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -292,7 +443,7 @@ class MockPlcServer:
         self._cond = threading.Condition()
         self._listening = False
         self._error: BaseException | None = None
-        self._server: ModbusTcpServer | None = None
+        self._writers: set[asyncio.StreamWriter] = set()
 
     # ---- life cycle
     @property
@@ -309,8 +460,7 @@ class MockPlcServer:
         if self.running:
             raise RuntimeError('MockPlcServer already running')
         with self._lock:
-            self._holding.clear()
-            self._input.values = [0] * _N_ADDRESSES
+            self._holding.power_up()
             self._sim.reset()
         self._listening, self._error, self._stop_event = False, None, None
         self._thread = threading.Thread(target=self._run, name=f'mock-plc-{self._port}', daemon=True)
@@ -342,8 +492,7 @@ class MockPlcServer:
     @property
     def client_count(self) -> int:
         """Clients connected now (read from another thread: a snapshot)."""
-        server = self._server
-        return len(server.active_connections) if server is not None and self.running else 0
+        return len(self._writers) if self.running else 0
 
     def wait_until_vented(self, timeout_s: float, poll_s: float = 0.02) -> bool:
         """Wait until no client is connected and every command register is 0, at most
@@ -381,12 +530,7 @@ class MockPlcServer:
 
     async def _serve(self) -> None:
         self._stop_event = asyncio.Event()
-        server = ModbusTcpServer(self._context, address=(self.host, self._port))
-        self._server = server
-        await server.serve_forever(background=True)
-        listener = server.transport  # an asyncio.Server; pymodbus leaves it None if bind failed
-        if listener is None:
-            raise OSError(f'cannot listen on {self.host}:{self._port} (see pymodbus log)')
+        listener = await asyncio.start_server(self._serve_connection, self.host, self._port)
         # With port=0 the OS picked one; remember it so a restart comes back on the same port.
         self._port = listener.sockets[0].getsockname()[1]
         scan = asyncio.create_task(self._scan_loop())
@@ -395,7 +539,9 @@ class MockPlcServer:
             await self._stop_event.wait()
         finally:
             scan.cancel()
-            await server.shutdown()  # closes the listener and every client connection
+            listener.close()
+            for writer in list(self._writers):
+                writer.close()
             others = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
             for task in others:
                 task.cancel()
@@ -403,6 +549,30 @@ class MockPlcServer:
             # sockets are closed before the loop is.
             await asyncio.gather(*others, return_exceptions=True)
             await asyncio.sleep(0)
+
+    async def _serve_connection(self, reader: asyncio.StreamReader,
+                                writer: asyncio.StreamWriter) -> None:
+        """One client connection: request, answer, in order (Modbus TCP, MBAP framing)."""
+        self._writers.add(writer)
+        try:
+            while True:
+                header = await reader.readexactly(_MBAP.size)
+                tid, protocol, length, unit = _MBAP.unpack(header)
+                if protocol != 0 or not 2 <= length <= MAX_PDU + 1:
+                    return  # not Modbus TCP: drop the connection, as a device does
+                pdu = await reader.readexactly(length - 1)
+                if unit != self.map.unit_id:
+                    continue  # another unit id: no answer at all; the connection stays open
+                answer = self._holding.handle(pdu)
+                writer.write(_MBAP.pack(tid, 0, len(answer) + 1, unit) + answer)
+                await writer.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            return  # the client went away
+        except asyncio.CancelledError:
+            return  # stop(): the connection is closed below
+        finally:
+            self._writers.discard(writer)
+            writer.close()
 
     async def _scan_loop(self) -> None:
         period = 1.0 / self.update_hz
@@ -423,14 +593,12 @@ class MockPlcServer:
         """One PLC scan: watchdog, vent if tripped, regulator step, measured -> input registers."""
         m, h = self.map, self._holding
         with self._lock:
-            counts = [h.read(a) for a in m.command_registers]
-            result = self._sim.scan(list(m.decode(counts)), h.read(m.heartbeat_register), now_s)
+            counts = [h.holding[a] for a in m.command_registers]
+            result = self._sim.scan(list(m.decode(counts)), h.holding[m.heartbeat_register], now_s)
             if result.vent:
-                for a, c in zip(m.command_registers, counts):
-                    if c:
-                        h.force(a, 0)
+                h.force_commands_zero()
             for a, p in zip(m.measured_registers, result.measured_kpa):
-                self._input.values[a] = min(max(int(round(p * m.counts_per_kpa)), 0), REGISTER_MAX)
+                h.input[a] = min(max(int(round(p * m.counts_per_kpa)), 0), REGISTER_MAX)
 
     # ---- records
     def records(self) -> dict:
@@ -460,8 +628,9 @@ class MockPlcServer:
         self._records_written = version
 
     @property
-    def stale_writes(self) -> list[tuple[int, int]]:
-        """(sequence number, last applied) of every write refused as older than the last applied."""
+    def stale_writes(self) -> list[tuple[int | None, int | None]]:
+        """(sequence number, last applied) of every command write answered but undone: its number
+        was not newer than the last applied one, or it had none (None)."""
         with self._lock:
             return list(self._holding.stale_writes)
 
@@ -469,12 +638,12 @@ class MockPlcServer:
     def commands_kpa(self) -> np.ndarray:
         """The command holding registers as they are now."""
         with self._lock:
-            return self.map.decode([self._holding.read(a) for a in self.map.command_registers])
+            return self.map.decode([self._holding.holding[a] for a in self.map.command_registers])
 
     def measured_kpa(self) -> np.ndarray:
         """The measured-pressure input registers as they are now."""
         with self._lock:
-            return self.map.decode([self._input.values[a] for a in self.map.measured_registers])
+            return self.map.decode([self._holding.input[a] for a in self.map.measured_registers])
 
     def take_write_times(self) -> list[tuple[int, int, tuple[int, ...]]]:
         """The (time.monotonic_ns(), first address, values) of every client write since the last
@@ -487,7 +656,8 @@ class MockPlcServer:
             return taken
 
     def heartbeat_value(self) -> int:
-        return self._holding.read(self.map.heartbeat_register)
+        with self._lock:
+            return self._holding.holding[self.map.heartbeat_register]
 
     def max_written_kpa(self) -> dict[str, float]:
         """Largest value ever written by a client to each command channel (kPa); unwritten: 0."""
@@ -497,13 +667,15 @@ class MockPlcServer:
 
     @property
     def out_of_map_writes(self) -> list[tuple[int, int]]:
-        """(address, value) of every client write to a holding register that is not in the map."""
+        """(address, value) of every client write to a holding register that is not in the map
+        (each refused with exception 02)."""
         with self._lock:
             return list(self._holding.out_of_map_writes)
 
     @property
     def over_limit_writes(self) -> list[tuple[int, int]]:
-        """(address, counts) of every client write above p_max counts to a command register."""
+        """(address, counts) of every client write above p_max counts to a command register
+        (stored clamped to p_max counts; still a violation of the package's invariant)."""
         with self._lock:
             return list(self._holding.over_limit_writes)
 

@@ -12,6 +12,11 @@ count above ``p_max_counts`` can be produced whatever the caller passes.
 
 Addresses are 0-based protocol addresses (what goes into the Modbus frame), not the
 1-based "40001"-style register numbers of some PLC manuals.
+
+Several PLCs: a file with ``endpoints`` names each PLC (host, port, unit id) and the channels
+it serves, each with its own register layout (by default the PLC contract's: commands 0..n-1,
+sequence n, heartbeat n+1). :class:`PlcLayout` reads either form; a file without
+``endpoints`` is one endpoint whose address the node's parameters give (the original form).
 """
 from __future__ import annotations
 
@@ -35,6 +40,11 @@ _TOP_FIELDS = ('unit_id', 'p_max_kpa', 'counts_per_kpa', 'heartbeat_register', '
 #: Fields a map may leave out (a PLC program without write sequencing).
 _OPTIONAL_FIELDS = ('sequence_register',)
 _CHANNEL_FIELDS = ('name', 'command_register', 'measured_register')
+#: The fields of a file with several PLCs, and of each of its endpoints.
+_LAYOUT_FIELDS = ('p_max_kpa', 'counts_per_kpa', 'endpoints')
+_ENDPOINT_FIELDS = ('name', 'host', 'port', 'unit_id', 'heartbeat_register', 'sequence_register',
+                    'channels')
+_ENDPOINT_REQUIRED = ('name', 'host', 'unit_id', 'channels')
 
 
 class RegisterMapError(ValueError):
@@ -160,6 +170,14 @@ class RegisterMap:
         def fail(field: str, reason: str) -> RegisterMapError:
             return RegisterMapError(f'{source}: field "{field}" {reason}')
 
+        if isinstance(data, Mapping) and 'endpoints' in data:
+            layout = PlcLayout.from_dict(data, source, expected_channels)
+            if len(layout.endpoints) != 1:
+                names = [e.name for e in layout.endpoints]
+                raise fail('endpoints', f'names {len(names)} PLCs {names}: this reader takes one; '
+                                        'name the endpoint (PlcLayout.endpoint, mock_plc '
+                                        'parameter "endpoint")')
+            return layout.endpoints[0].map
         if not isinstance(data, Mapping):
             raise RegisterMapError(f'{source}: expected a mapping with the fields {list(_TOP_FIELDS)}, '
                                    f'got {type(data).__name__}')
@@ -228,6 +246,134 @@ class RegisterMap:
                 raise fail('channels', f'names {names} do not match the expected channels, in order, '
                                        f'{list(expected_channels)}')
         return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source, sequence_register=sequence)
+
+
+@dataclass(frozen=True)
+class PlcEndpoint:
+    """One PLC: where it is, and its register map (the channels it serves, its own layout).
+
+    ``host``/``port`` are None for the single-PLC form of the file: the node's parameters say.
+    ``indices``: where its channels sit in the command vector (the channel map's order).
+    """
+    name: str
+    host: str | None
+    port: int | None
+    map: RegisterMap
+    indices: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class PlcLayout:
+    """Every PLC of a register map file, and which channels each serves."""
+    endpoints: tuple[PlcEndpoint, ...]
+    names: tuple[str, ...]   #: channel order of the whole command vector
+    p_max_kpa: float
+    source: str = 'register map'
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def endpoint(self, name: str = '') -> PlcEndpoint:
+        """The endpoint called ``name``; '' = the only one (an error when there are several)."""
+        if not name:
+            if len(self.endpoints) == 1:
+                return self.endpoints[0]
+            raise RegisterMapError(f'{self.source}: names {len(self.endpoints)} PLCs '
+                                   f'{[e.name for e in self.endpoints]}: say which one')
+        for e in self.endpoints:
+            if e.name == name:
+                return e
+        raise RegisterMapError(f'{self.source}: no endpoint named {name!r} '
+                               f'(known: {[e.name for e in self.endpoints]})')
+
+    @classmethod
+    def load(cls, path: str | Path, expected_channels: Sequence[str] | None = None) -> 'PlcLayout':
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise RegisterMapError(f'cannot read register map {path}: {exc}') from None
+        return cls.from_dict(data, str(path), expected_channels)
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = 'register map',
+                  expected_channels: Sequence[str] | None = None) -> 'PlcLayout':
+        """Either form: with ``endpoints`` (several PLCs) or the single-PLC fields."""
+        def fail(field: str, reason: str) -> RegisterMapError:
+            return RegisterMapError(f'{source}: field "{field}" {reason}')
+
+        if not (isinstance(data, Mapping) and 'endpoints' in data):
+            m = RegisterMap.from_dict(data, source, expected_channels)
+            only = PlcEndpoint('plc', None, None, m, tuple(range(len(m))))
+            return cls((only,), m.names, m.p_max_kpa, source)
+        for field in data:
+            if field not in _LAYOUT_FIELDS:
+                raise fail(field, f'is not a known field next to "endpoints" (known: '
+                                  f'{list(_LAYOUT_FIELDS)}; unit_id, registers and channels go '
+                                  'into each endpoint)')
+        for field in ('p_max_kpa', 'counts_per_kpa'):
+            if field not in data:
+                raise fail(field, 'is missing')
+        raw = data['endpoints']
+        if not isinstance(raw, list) or not raw:
+            raise fail('endpoints', 'must be a non-empty list of '
+                                    '{name, host, port, unit_id, channels}')
+        maps, seen_names, seen_addresses = [], {}, {}
+        for i, entry in enumerate(raw):
+            where = f'endpoints[{i}]'
+            if not isinstance(entry, Mapping):
+                raise fail(where, f'must be a mapping with {list(_ENDPOINT_FIELDS)}, '
+                                  f'got {entry!r}')
+            for field in entry:
+                if field not in _ENDPOINT_FIELDS:
+                    raise fail(f'{where}.{field}',
+                               f'is not a known field (known: {list(_ENDPOINT_FIELDS)})')
+            for field in _ENDPOINT_REQUIRED:
+                if field not in entry:
+                    raise fail(f'{where}.{field}', 'is missing')
+            name, host = entry['name'], entry['host']
+            if not isinstance(name, str) or not name:
+                raise fail(f'{where}.name', f'must be a non-empty string, got {name!r}')
+            if name in seen_names:
+                raise fail(f'{where}.name',
+                           f'{name!r} duplicates endpoints[{seen_names[name]}].name')
+            seen_names[name] = i
+            if not isinstance(host, str) or not host:
+                raise fail(f'{where}.host',
+                           f'must be a non-empty string (address of the PLC), got {host!r}')
+            port = _integer(entry.get('port', 502), 1, 65535, fail, f'{where}.port')
+            unit_id = _integer(entry['unit_id'], *UNIT_ID_RANGE, fail, f'{where}.unit_id')
+            if (host, port, unit_id) in seen_addresses:
+                raise fail(f'{where}', f'{host}:{port} unit id {unit_id} is also '
+                                       f'endpoints[{seen_addresses[(host, port, unit_id)]}]')
+            seen_addresses[(host, port, unit_id)] = i
+            channels = entry['channels']
+            n = len(channels) if isinstance(channels, list) else 0
+            sub = {'unit_id': unit_id, 'p_max_kpa': data['p_max_kpa'],
+                   'counts_per_kpa': data['counts_per_kpa'], 'channels': channels,
+                   # The PLC contract's layout unless stated: sequence n, heartbeat n + 1.
+                   'heartbeat_register': entry.get('heartbeat_register', n + 1),
+                   'sequence_register': entry.get('sequence_register', n)}
+            m = RegisterMap.from_dict(sub, f'{source}: {where} ({name})')
+            maps.append((name, host, port, m))
+        all_names = [c for *_, m in maps for c in m.names]
+        owner: dict[str, str] = {}
+        for name, *_, m in maps:
+            for c in m.names:
+                if c in owner:
+                    raise fail('endpoints',
+                               f'channel {c!r} is served by both {owner[c]!r} and {name!r}')
+                owner[c] = name
+        order = tuple(all_names) if expected_channels is None else tuple(expected_channels)
+        if sorted(order) != sorted(all_names):
+            missing = sorted(set(order) - set(all_names))
+            extra = sorted(set(all_names) - set(order))
+            raise fail('endpoints', f'channels do not match the expected channels {list(order)}: '
+                                    f'missing {missing}, unknown {extra}')
+        index = {c: i for i, c in enumerate(order)}
+        endpoints = tuple(PlcEndpoint(name, host, port, m, tuple(index[c] for c in m.names))
+                          for name, host, port, m in maps)
+        return cls(endpoints, order, maps[0][3].p_max_kpa, source)
 
 
 # ------------------------------------------------------------------- helpers

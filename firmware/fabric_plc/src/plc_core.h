@@ -1,0 +1,115 @@
+// The PLC program's logic, portable: no Arduino header, no socket, no clock of its own.
+// Register arrays, the Modbus TCP frame handler (function codes 3, 4, 6, 16 and the exception
+// replies), the sequence gate, the clamp to p_max counts and the heartbeat watchdog, exactly as
+// docs/plc.md ("The contract") states them. The sketch (fabric_plc.ino) and the host build
+// (host/plc_host.cpp) feed it frames and the time and move output_counts() to the outputs.
+// C++11 (avr-g++ 5.4 of Debian's gcc-avr); no heap, fixed-size arrays only.
+#ifndef FABRIC_PLC_CORE_H
+#define FABRIC_PLC_CORE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+namespace plc {
+
+// Channels one endpoint can serve at most (the default map has 18 on one endpoint).
+const uint8_t kMaxChannels = 32;
+// Largest Modbus TCP frame: 7 bytes MBAP header + 253 bytes PDU.
+const size_t kMaxAdu = 260;
+const size_t kMbapLength = 7;
+// Entries kept per record list (the counts are always complete).
+const uint8_t kMaxListed = 8;
+
+enum Exception : uint8_t {
+  kIllegalFunction = 0x01,
+  kIllegalDataAddress = 0x02,
+  kIllegalDataValue = 0x03,
+};
+
+struct Config {
+  uint8_t unit_id;        // Modbus unit id this endpoint answers to (1..247)
+  uint8_t channels;       // N: command registers 0..N-1, sequence N, heartbeat N+1
+  uint16_t p_max_counts;  // p_max_kpa * counts_per_kpa of the register map
+  uint32_t watchdog_ms;   // heartbeat unchanged this long -> vent
+};
+
+// True when seq is 1..32767 ahead of last modulo 65536 (fabric_guidance/plc/sequence.py).
+inline bool is_newer(uint16_t seq, uint16_t last) {
+  uint16_t ahead = static_cast<uint16_t>(seq - last);
+  return ahead != 0 && ahead < 0x8000u;
+}
+
+// What clients sent, for the records file of the host build and for the unit tests.
+struct Records {
+  uint32_t writes;               // write requests to holding registers that were in the map
+  uint32_t over_limit;           // values above p_max counts written to a command register
+  uint32_t out_of_map;           // write requests refused with exception 02
+  uint32_t stale;                // sequenced writes refused as not newer
+  uint32_t unsequenced;          // command writes without a sequence number, refused
+  uint32_t watchdog_trips;       // armed -> tripped transitions
+  uint16_t max_written[kMaxChannels];  // largest count ever sent per channel (before the clamp)
+  uint16_t over_limit_list[kMaxListed][2];  // (address, value)
+  uint16_t out_of_map_list[kMaxListed][2];  // (first address, first value)
+  uint16_t stale_list[kMaxListed][2];       // (sequence number, last applied)
+};
+
+class Core {
+ public:
+  explicit Core(const Config& config);
+
+  // Power-up: every register 0, the gate with no reference, the watchdog tripped.
+  // The records are kept (a restart of the program is not a new test).
+  void power_up();
+
+  // One Modbus TCP request (MBAP header + PDU, `len` bytes) -> the answer in `out` (capacity
+  // `cap`, at least kMaxAdu). Returns the answer's length; 0 means no answer at all: another
+  // unit id, or a frame that is not Modbus TCP (the caller then drops the connection if
+  // bad_frame() says so).
+  size_t handle(const uint8_t* req, size_t len, uint8_t* out, size_t cap);
+  // True when the last handle() saw a broken MBAP header (protocol id, length): the stream
+  // cannot be re-synchronised, the connection should be closed.
+  bool bad_frame() const { return bad_frame_; }
+
+  // One PLC scan at monotonic time now_ms (wraps every 49 days; unsigned differences are used).
+  // Feeds the watchdog the heartbeat register; while it is tripped the command registers are
+  // zeroed. After scan(), output_counts() is what the outputs must show.
+  void scan(uint32_t now_ms);
+  uint16_t output_counts(uint8_t channel) const;
+  bool vented() const { return !armed_; }
+
+  // The regulators' monitor, already scaled to counts (scaling.h), into input register ch.
+  void set_measured(uint8_t channel, uint16_t counts);
+
+  uint16_t holding(uint16_t address) const;
+  uint16_t input(uint16_t address) const;
+  uint16_t holding_count() const { return static_cast<uint16_t>(config_.channels + 2); }
+  const Config& config() const { return config_; }
+  const Records& records() const { return records_; }
+  uint32_t rejected_writes() const { return records_.stale + records_.unsequenced; }
+
+ private:
+  size_t exception(uint8_t function, uint8_t code, uint8_t* pdu_out);
+  size_t read_registers(const uint8_t* pdu, size_t len, uint8_t* pdu_out, size_t cap,
+                        bool holding);
+  size_t write_single(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
+  size_t write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
+  // Applies a write that lies inside the holding registers: the gate, the clamp, the records.
+  void apply_write(uint16_t start, const uint8_t* be_values, uint16_t count);
+
+  Config config_;
+  uint16_t holding_[kMaxChannels + 2];
+  uint16_t input_[kMaxChannels];
+  uint16_t outputs_[kMaxChannels];
+  bool has_reference_;   // the gate has applied a sequence number since power-up
+  uint16_t last_seq_;
+  bool armed_;
+  bool has_baseline_;
+  uint16_t last_heartbeat_;
+  uint32_t last_change_ms_;
+  bool bad_frame_;
+  Records records_;
+};
+
+}  // namespace plc
+
+#endif  // FABRIC_PLC_CORE_H

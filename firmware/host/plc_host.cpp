@@ -1,0 +1,330 @@
+// The PLC program built for the host: the same core (fabric_plc/src) behind POSIX sockets in
+// place of the Ethernet shield, with the regulators simulated (first-order lag from the analog
+// output value to the monitor reading) and the outputs written to a state file, so tests see
+// what reached an output. A drop-in for mock_plc in the graph tests:
+//
+//   plc_host --port 1502 [--host 127.0.0.1] [--unit-id 1] [--channels 18]
+//            [--p-max-counts 3750] [--watchdog-ms 500] [--scan-ms 10] [--tau-ms 150]
+//            [--state FILE] [--names F1,F2,...]
+//
+// Prints "listening on HOST:PORT" once it accepts connections (port 0: the OS picks one).
+// SIGINT/SIGTERM: outputs vented, state file written, exit 0. The state file is JSON with the
+// fields of fabric_guidance/plc/records.py plus the outputs (see write_state()).
+#include <arpa/inet.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <string>
+#include <vector>
+
+#include "plc_core.h"
+#include "scaling.h"
+
+namespace {
+
+volatile sig_atomic_t g_stop = 0;
+void on_signal(int) { g_stop = 1; }
+
+const size_t kMaxClients = 16;
+
+struct Options {
+  std::string host = "127.0.0.1";
+  int port = 1502;
+  int unit_id = 1;
+  int channels = 18;
+  long p_max_counts = 3750;
+  long watchdog_ms = 500;
+  long scan_ms = 10;
+  double tau_ms = 150;
+  std::string state;
+  std::vector<std::string> names;
+};
+
+[[noreturn]] void usage(const char* why) {
+  fprintf(stderr, "plc_host: %s\n", why);
+  exit(2);
+}
+
+long number(const char* flag, const char* text, long lo, long hi) {
+  char* end = nullptr;
+  errno = 0;
+  long v = strtol(text, &end, 10);
+  if (errno || end == text || *end || v < lo || v > hi) {
+    fprintf(stderr, "plc_host: %s must be an integer %ld..%ld, got '%s'\n", flag, lo, hi, text);
+    exit(2);
+  }
+  return v;
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    std::string flag = argv[i];
+    if (i + 1 >= argc) usage(("missing value after " + flag).c_str());
+    const char* v = argv[++i];
+    if (flag == "--host") o.host = v;
+    else if (flag == "--port") o.port = static_cast<int>(number("--port", v, 0, 65535));
+    else if (flag == "--unit-id") o.unit_id = static_cast<int>(number("--unit-id", v, 1, 247));
+    else if (flag == "--channels")
+      o.channels = static_cast<int>(number("--channels", v, 1, plc::kMaxChannels));
+    else if (flag == "--p-max-counts")
+      o.p_max_counts = number("--p-max-counts", v, 0, plc::kFullScaleCounts);
+    else if (flag == "--watchdog-ms") o.watchdog_ms = number("--watchdog-ms", v, 1, 600000);
+    else if (flag == "--scan-ms") o.scan_ms = number("--scan-ms", v, 1, 1000);
+    else if (flag == "--tau-ms") o.tau_ms = static_cast<double>(number("--tau-ms", v, 0, 60000));
+    else if (flag == "--state") o.state = v;
+    else if (flag == "--names") {
+      std::string s = v;
+      size_t at = 0;
+      while (at <= s.size()) {
+        size_t comma = s.find(',', at);
+        if (comma == std::string::npos) comma = s.size();
+        o.names.push_back(s.substr(at, comma - at));
+        at = comma + 1;
+      }
+    } else usage(("unknown option " + flag).c_str());
+  }
+  if (!o.names.empty() && o.names.size() != static_cast<size_t>(o.channels)) {
+    usage("--names must name every channel (--channels of them)");
+  }
+  for (int ch = static_cast<int>(o.names.size()); ch < o.channels; ++ch) {
+    o.names.push_back("ch" + std::to_string(ch));
+  }
+  return o;
+}
+
+uint32_t now_ms() {
+  timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint32_t>(ts.tv_sec * 1000u + ts.tv_nsec / 1000000);
+}
+
+struct Client {
+  int fd = -1;
+  std::vector<uint8_t> buffer;
+};
+
+// The regulators: the pressure follows the analog output's set point as a first-order lag.
+struct Regulators {
+  std::vector<double> counts;
+  double tau_ms;
+  void step(const plc::Core& core, double dt_ms) {
+    for (size_t ch = 0; ch < counts.size(); ++ch) {
+      double target = plc::output_to_counts(
+          plc::counts_to_output(core.output_counts(static_cast<uint8_t>(ch))));
+      double alpha = tau_ms <= 0 ? 0.0 : exp(-dt_ms / tau_ms);
+      counts[ch] = target + (counts[ch] - target) * alpha;
+    }
+  }
+};
+
+void list_json(std::string& s, const uint16_t list[][2], uint32_t count) {
+  s += "[";
+  for (uint32_t i = 0; i < count && i < plc::kMaxListed; ++i) {
+    s += (i ? ", [" : "[") + std::to_string(list[i][0]) + ", " + std::to_string(list[i][1]) + "]";
+  }
+  s += "]";
+}
+
+// Records (records.py fields) + what reached the outputs. Written atomically (rename).
+void write_state(const Options& o, const plc::Core& core, const std::vector<uint16_t>& max_out,
+                 uint32_t scans) {
+  if (o.state.empty()) return;
+  const plc::Records& r = core.records();
+  std::string s = "{";
+  s += "\"p_max_kpa\": " +
+       std::to_string(static_cast<double>(o.p_max_counts) / plc::kCountsPerKpa);
+  s += ", \"p_max_counts\": " + std::to_string(o.p_max_counts);
+  s += ", \"counts_per_kpa\": " + std::to_string(plc::kCountsPerKpa);
+  s += ", \"writes\": " + std::to_string(r.writes);
+  s += ", \"max_written_counts\": {";
+  for (int ch = 0; ch < o.channels; ++ch) {
+    s += (ch ? ", \"" : "\"") + o.names[ch] + "\": " + std::to_string(r.max_written[ch]);
+  }
+  s += "}, \"over_limit_count\": " + std::to_string(r.over_limit) + ", \"over_limit_writes\": ";
+  list_json(s, r.over_limit_list, r.over_limit);
+  s += ", \"out_of_map_count\": " + std::to_string(r.out_of_map) + ", \"out_of_map_writes\": ";
+  list_json(s, r.out_of_map_list, r.out_of_map);
+  s += ", \"stale_count\": " + std::to_string(r.stale) + ", \"stale_writes\": ";
+  list_json(s, r.stale_list, r.stale);
+  s += ", \"unsequenced_count\": " + std::to_string(r.unsequenced);
+  s += ", \"watchdog_trips\": " + std::to_string(r.watchdog_trips);
+  s += ", \"vented\": " + std::string(core.vented() ? "true" : "false");
+  s += ", \"scans\": " + std::to_string(scans);
+  s += ", \"output_counts\": [";
+  for (int ch = 0; ch < o.channels; ++ch) {
+    s += (ch ? ", " : "") + std::to_string(core.output_counts(static_cast<uint8_t>(ch)));
+  }
+  s += "], \"max_output_counts\": [";
+  for (int ch = 0; ch < o.channels; ++ch) s += (ch ? ", " : "") + std::to_string(max_out[ch]);
+  s += "]}\n";
+  std::string tmp = o.state + ".tmp";
+  FILE* f = fopen(tmp.c_str(), "w");
+  if (!f) {
+    fprintf(stderr, "plc_host: cannot write %s: %s\n", tmp.c_str(), strerror(errno));
+    return;
+  }
+  fwrite(s.data(), 1, s.size(), f);
+  fclose(f);
+  if (rename(tmp.c_str(), o.state.c_str()) != 0) {
+    fprintf(stderr, "plc_host: cannot rename to %s: %s\n", o.state.c_str(), strerror(errno));
+  }
+}
+
+// Consumes whole frames from the client's buffer; false: close the connection.
+bool serve(plc::Core& core, Client& c) {
+  while (c.buffer.size() >= plc::kMbapLength) {
+    size_t length = (static_cast<size_t>(c.buffer[4]) << 8) | c.buffer[5];
+    if (length < 2 || length > plc::kMaxAdu - 6) return false;  // not Modbus TCP: cannot resync
+    size_t total = 6 + length;
+    if (c.buffer.size() < total) return true;
+    uint8_t out[plc::kMaxAdu];
+    size_t n = core.handle(c.buffer.data(), total, out, sizeof(out));
+    if (core.bad_frame()) return false;
+    c.buffer.erase(c.buffer.begin(), c.buffer.begin() + static_cast<long>(total));
+    size_t sent = 0;
+    while (sent < n) {
+      ssize_t k = send(c.fd, out + sent, n - sent, MSG_NOSIGNAL);
+      if (k < 0 && errno == EINTR) continue;
+      if (k <= 0) return false;
+      sent += static_cast<size_t>(k);
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o = parse(argc, argv);
+  struct sigaction sa;
+  memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = on_signal;
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+
+  int listener = socket(AF_INET, SOCK_STREAM, 0);
+  int one = 1;
+  setsockopt(listener, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one));
+  sockaddr_in addr;
+  memset(&addr, 0, sizeof(addr));
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(o.port));
+  if (inet_pton(AF_INET, o.host.c_str(), &addr.sin_addr) != 1) {
+    usage("--host: not an IPv4 address");
+  }
+  if (bind(listener, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 ||
+      listen(listener, 8) != 0) {
+    fprintf(stderr, "plc_host: cannot listen on %s:%d: %s\n", o.host.c_str(), o.port,
+            strerror(errno));
+    return 1;
+  }
+  socklen_t alen = sizeof(addr);
+  getsockname(listener, reinterpret_cast<sockaddr*>(&addr), &alen);
+
+  plc::Core core(plc::Config{static_cast<uint8_t>(o.unit_id), static_cast<uint8_t>(o.channels),
+                             static_cast<uint16_t>(o.p_max_counts),
+                             static_cast<uint32_t>(o.watchdog_ms)});
+  Regulators regs{std::vector<double>(o.channels, 0.0), o.tau_ms};
+  std::vector<uint16_t> max_out(o.channels, 0);
+  std::vector<Client> clients;
+  uint32_t scans = 0, last_scan = now_ms(), last_state = last_scan;
+  std::string written;  // the state's outputs + counters last written: rewrite only on change
+  core.scan(last_scan);
+  write_state(o, core, max_out, scans);
+  printf("listening on %s:%d\n", o.host.c_str(), ntohs(addr.sin_port));
+  fflush(stdout);
+
+  while (!g_stop) {
+    std::vector<pollfd> fds;
+    fds.push_back(pollfd{listener, POLLIN, 0});
+    for (const Client& c : clients) fds.push_back(pollfd{c.fd, POLLIN, 0});
+    uint32_t t = now_ms();
+    long wait = static_cast<long>(o.scan_ms) - static_cast<long>(t - last_scan);
+    int ready = poll(fds.data(), fds.size(), wait > 0 ? static_cast<int>(wait) : 0);
+    if (ready < 0 && errno != EINTR) {
+      perror("plc_host: poll");
+      break;
+    }
+    if (ready > 0) {
+      if (fds[0].revents & POLLIN) {
+        int fd = accept(listener, nullptr, nullptr);
+        if (fd >= 0 && clients.size() < kMaxClients) {
+          setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+          Client c;
+          c.fd = fd;
+          clients.push_back(c);
+        } else if (fd >= 0) {
+          close(fd);  // as a device with all its sockets in use
+        }
+      }
+      for (size_t i = 1; i < fds.size(); ++i) {
+        if (!(fds[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
+        Client& c = clients[i - 1];
+        uint8_t chunk[512];
+        ssize_t k = recv(c.fd, chunk, sizeof(chunk), 0);
+        bool keep_open = k > 0;
+        if (keep_open) {
+          c.buffer.insert(c.buffer.end(), chunk, chunk + k);
+          keep_open = serve(core, c);
+        } else if (k < 0 && (errno == EINTR || errno == EAGAIN)) {
+          keep_open = true;
+        }
+        if (!keep_open) {
+          close(c.fd);
+          c.fd = -1;
+        }
+      }
+      std::vector<Client> open;
+      for (Client& c : clients) {
+        if (c.fd >= 0) open.push_back(c);
+      }
+      clients.swap(open);
+    }
+    t = now_ms();
+    if (static_cast<uint32_t>(t - last_scan) >= static_cast<uint32_t>(o.scan_ms)) {
+      double dt = static_cast<double>(t - last_scan);
+      last_scan = t;
+      core.scan(t);
+      ++scans;
+      regs.step(core, dt);
+      std::string now_state;
+      for (int ch = 0; ch < o.channels; ++ch) {
+        uint16_t out = core.output_counts(static_cast<uint8_t>(ch));
+        if (out > max_out[ch]) max_out[ch] = out;
+        now_state += std::to_string(out) + ",";
+        // The monitor reading, as the PLC's analog input would give it.
+        uint16_t p = static_cast<uint16_t>(lround(regs.counts[ch]));
+        core.set_measured(static_cast<uint8_t>(ch), plc::input_to_counts(plc::counts_to_input(p)));
+      }
+      const plc::Records& r = core.records();
+      now_state += std::to_string(r.stale + r.unsequenced) + "," +
+                   std::to_string(r.watchdog_trips) + "," +
+                   std::to_string(r.out_of_map) + "," + std::to_string(r.over_limit);
+      // Outputs and counters on every change; the rest (write counts) at most every 100 ms.
+      if (now_state != written || static_cast<uint32_t>(t - last_state) >= 100) {
+        written = now_state;
+        last_state = t;
+        write_state(o, core, max_out, scans);
+      }
+    }
+  }
+  // Shutdown: the outputs vent (the device loses power the same way).
+  core.power_up();
+  core.scan(now_ms());
+  for (const Client& c : clients) close(c.fd);
+  close(listener);
+  write_state(o, core, max_out, scans);
+  return 0;
+}

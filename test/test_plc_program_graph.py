@@ -1,0 +1,263 @@
+"""The lab graph against the PLC program's host build (firmware/host) in place of mock_plc:
+the faults that matter on the PLC side, measured at the program's outputs (its state file
+shows what reached each analog output), not only at its registers.
+
+One graph for the module: plc_output talks to the program through a FaultProxy (link faults);
+gaze_bridge, target_selector and pressure_controller as in test_graph.py, the wearer guided to
+a target 40 deg left (L1, L2 at the calibrated pressure). Worst times are printed at the end
+(run with -s or -rP). The program's write records are held to the same invariants as every
+mock_plc's (plc/records.py), except the over-limit write this module injects on purpose.
+"""
+import signal
+import socket
+import struct
+import subprocess
+import threading
+import time
+
+import pytest
+
+from deadlines import DeadlineLog
+from fabric_guidance.plc.records import load_records, violations
+from faultproxy import FaultProxy, is_modbus_write_multiple
+from plc_program import PlcProgram, need_tools, wait_listening
+from rosgraph import Graph, free_port, wait_until
+from test_graph import (F_LEFT_40, REGMAP, SIM_CAL, WATCHDOG_VENT_S, HoloLensStub,
+                        RegisterWatch)
+
+FILES = ('guidance.yaml', 'sim.yaml')
+GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
+N = len(REGMAP)
+P_MAX = REGMAP.p_max_counts
+#: The program's watchdog and scan, as mock_plc's defaults (watchdog_s 0.5, 100 Hz).
+WATCHDOG_S, SCAN_S = 0.5, 0.01
+#: Heartbeat gone (plc_output killed, link lost) -> every output at 0: the watchdog, one scan,
+#: the state file written in that scan, polling slack: the same deadline as test_graph.py's.
+OUTPUT_VENT_S = WATCHDOG_VENT_S
+#: A node restarted or the link healed -> guidance back at the registers (cold start of a
+#: process on 2 loaded cores; plc_output's reconnect backoff, at most 5 s).
+RESTART_DEADLINE_S = 30.0
+EXIT_DEADLINE_S = 10.0
+POLL_S = 0.005
+#: How long the proxy holds plc_output's guidance write: longer than plc_output's reconnect plus
+#: the vent after the gaze stops, so the vent is in before the old write lands.
+HOLD_S = 3.0
+
+LOG = DeadlineLog('PLC program')
+
+
+class ProgramLab:
+    def __init__(self, log_dir):
+        self.graph = Graph(log_dir)
+        self.plc_port, self.gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
+        self.program = PlcProgram(log_dir / 'plc_program.records.json', REGMAP, port=self.plc_port,
+                                  watchdog_s=WATCHDOG_S, scan_s=SCAN_S)
+        proc = subprocess.Popen(self.program.args(), stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+        self.graph.processes['plc_program'] = self.program.proc = proc
+        wait_listening(proc, 10.0)
+        # Checked by the graph at the end like a mock_plc's records (see close()).
+        self.graph.records_files.append(self.program.state_path)
+        self.injected_over_limit: list[list[int]] = []
+        self.proxy = FaultProxy('127.0.0.1', self.plc_port)
+        self.overrides = {
+            'plc_output': dict(plc_port=self.proxy.port),
+            'gaze_bridge': dict(port=self.gaze_port),
+            'target_selector': dict(target_names=['left40'],
+                                    target_positions=[1.5321, 1.2856, 1.2], auto_advance=False),
+            'pressure_controller': dict(calibration_file=str(SIM_CAL),
+                                        calibration_dir=str(log_dir / 'cal')),
+        }
+        for node in self.overrides:
+            self.start(node)
+        self.hololens = HoloLensStub(self.gaze_port)
+        self.watch = RegisterWatch(self.plc_port)
+
+    def start(self, node):
+        return self.graph.start(node, FILES, **self.overrides[node])
+
+    def state(self) -> dict:
+        return self.program.state()
+
+    def guided(self, deadline_s=RESTART_DEADLINE_S, what='guidance at the registers'):
+        wait_until(lambda: self.watch.matches(GUIDED), deadline_s,
+                   what=f'{what}: L1, L2 at {F_LEFT_40:.1f} kPa')
+        wanted = round(F_LEFT_40 * REGMAP.counts_per_kpa)
+        at = [REGMAP.names.index(c) for c in GUIDED]
+        wait_until(lambda: all(abs(self.state()['output_counts'][i] - wanted) <= 1 for i in at),
+                   2.0, what=f'{what}: L1, L2 outputs at {wanted} counts')
+
+    def time_to_vented_outputs(self, t0, deadline_s, what) -> float:
+        while True:
+            outputs = self.state()['output_counts']
+            if not any(outputs):
+                return time.monotonic() - t0
+            if time.monotonic() - t0 > deadline_s:
+                raise AssertionError(f'{what}: outputs not vented {time.monotonic() - t0:.3f} s '
+                                     f'after the fault (deadline {deadline_s:.3f} s); '
+                                     f'outputs {outputs}')
+            time.sleep(POLL_S)
+
+    def close(self):
+        self.hololens.close()
+        self.graph.stop_all(check=False)
+        self.watch.client.close()
+        self.proxy.close()
+        # The program's records under the graphs' invariants, with the writes this module
+        # injected above p_max taken out (they must be exactly those).
+        records = load_records(self.program.state_path)
+        assert records['over_limit_writes'] == self.injected_over_limit, records
+        for address, _value in self.injected_over_limit:
+            records['max_written_counts'][REGMAP.names[address]] = 0
+        records['over_limit_count'], records['over_limit_writes'] = 0, []
+        found = violations(records, source='PLC program')
+        assert not found, '\n'.join(found)
+        assert max(records['max_output_counts']) <= P_MAX, records
+
+
+@pytest.fixture(scope='module')
+def lab(tmp_path_factory):
+    need_tools('make', 'g++')
+    lab = ProgramLab(tmp_path_factory.mktemp('plc_program_graph'))
+    try:
+        lab.guided(what='the graph up')
+        yield lab
+    finally:
+        lab.close()
+        LOG.report('worst times, graph against the PLC program')
+
+
+def raw_request(port: int, pdu: bytes) -> bytes:
+    """One Modbus TCP request on a fresh connection; the answer's PDU."""
+    with socket.create_connection(('127.0.0.1', port), timeout=2.0) as s:
+        s.sendall(struct.pack('>HHHB', 1, 0, len(pdu) + 1, REGMAP.unit_id) + pdu)
+        data = b''
+        while len(data) < 7 or len(data) < 6 + struct.unpack('>H', data[4:6])[0]:
+            chunk = s.recv(260)
+            assert chunk, 'connection closed by the PLC program'
+            data += chunk
+        return data[7:]
+
+
+def command_pdu(counts: list[int], seq: int) -> bytes:
+    values = counts + [seq]
+    return struct.pack(f'>BHHB{len(values)}H', 16, 0, len(values), 2 * len(values), *values)
+
+
+def sequence_now(lab) -> int:
+    """The last sequence number the program applied (plc_output's, in this graph)."""
+    answer = raw_request(lab.plc_port, struct.pack('>BHH', 3, REGMAP.sequence_register, 1))
+    assert answer[:2] == b'\x03\x02', answer.hex()
+    return struct.unpack('>H', answer[2:4])[0]
+
+
+def test_guidance_reaches_the_outputs_and_nothing_else_is_driven(lab):
+    lab.guided()
+    outputs = lab.state()['output_counts']
+    others = [o for name, o in zip(REGMAP.names, outputs) if name not in GUIDED]
+    assert others == [0] * (N - len(GUIDED))
+
+
+def test_sigkill_of_plc_output_vents_the_outputs_within_the_watchdog(lab):
+    lab.guided()
+    trips = lab.state()['watchdog_trips']
+    proc = lab.graph.processes['plc_output']
+    t0 = time.monotonic()
+    proc.kill()
+    seconds = lab.time_to_vented_outputs(t0, OUTPUT_VENT_S, 'SIGKILL of plc_output')
+    LOG.record('SIGKILL of plc_output -> outputs 0 (PLC watchdog)', seconds, OUTPUT_VENT_S)
+    assert proc.wait(EXIT_DEADLINE_S) == -signal.SIGKILL
+    assert lab.state()['watchdog_trips'] == trips + 1
+    assert seconds >= WATCHDOG_S - 0.1, 'vented before the watchdog could have tripped'
+    wait_until(lambda: lab.watch.matches({}), 1.0,
+               what='the command registers zeroed with the outputs')
+    lab.start('plc_output')
+    lab.guided(what='guidance back with a new plc_output')
+
+
+def test_a_stale_write_is_answered_normally_and_undone(lab):
+    lab.guided()
+    before = lab.state()['stale_count']
+    stale = (sequence_now(lab) - 100) % 65536
+    answer = raw_request(lab.plc_port, command_pdu([3000] * N, stale))
+    assert answer == struct.pack('>BHH', 16, 0, N + 1), answer.hex()
+    wait_until(lambda: lab.state()['stale_count'] >= before + 1, 2.0,
+               what='the stale write counted')
+    assert lab.watch.matches(GUIDED), lab.watch.read()
+    # F1 is never guided here: 3000 counts there would only come from the stale write.
+    assert lab.state()['max_output_counts'][REGMAP.names.index('F1')] == 0
+
+
+def test_over_limit_counts_never_reach_an_output(lab):
+    lab.guided()
+    f1 = REGMAP.names.index('F1')
+    # Newer than plc_output's next numbers, so it is applied (plc_output's next 40 writes, about
+    # half a second of them, are then stale, and its command comes back after them).
+    seq = (sequence_now(lab) + 40) % 65536
+    counts = [0] * N
+    counts[f1] = 0xFFFF
+    lab.injected_over_limit.append([f1, 0xFFFF])
+    raw_request(lab.plc_port, command_pdu(counts, seq))
+    wait_until(lambda: lab.state()['over_limit_count'] == 1, 2.0,
+               what='the over-limit write recorded')
+    # Applied, and clamped: F1's output went to p_max, not above.
+    wait_until(lambda: lab.state()['max_output_counts'][f1] == P_MAX, 2.0,
+               what='F1 output at p_max')
+    state = lab.state()
+    assert max(state['max_output_counts']) <= P_MAX, state['max_output_counts']
+    lab.guided(10.0, 'guidance back after the injected write')
+    assert max(lab.state()['max_output_counts']) <= P_MAX
+
+
+@pytest.mark.parametrize('fault', ['drop', 'disconnect'])
+def test_link_loss_vents_the_outputs_within_the_watchdog(lab, fault):
+    lab.guided()
+    t0 = time.monotonic()
+    getattr(lab.proxy, fault)()
+    seconds = lab.time_to_vented_outputs(t0, OUTPUT_VENT_S, f'link {fault}')
+    LOG.record(f'link {fault} -> outputs 0 (PLC watchdog)', seconds, OUTPUT_VENT_S)
+    assert lab.state()['vented']
+    lab.proxy.heal()
+    lab.guided(what=f'guidance back after the link {fault} healed')
+
+
+def test_a_guidance_write_delayed_past_the_vent_is_undone_by_the_program(lab):
+    """The case the sequence gate exists for: a command write held on a dead connection lands
+    after the suit was vented on a new one; the program undoes it and no output moves."""
+    lab.guided()
+    stale_before = lab.state()['stale_count']
+    lab.proxy.hold(HOLD_S, when=is_modbus_write_multiple)
+    wait_until(lambda: lab.proxy.get('held_chunks'), 2.0,
+               what="a guidance write of plc_output's held")
+    held_at = time.monotonic()
+    lab.hololens.sending.clear()   # the gaze stops: the controller vents, plc_output writes zeros
+    wait_until(lambda: lab.watch.matches({}) and not any(lab.state()['output_counts']),
+               HOLD_S - 0.5, what='registers and outputs vented on a new connection')
+    assert lab.proxy.get('held_delivered') == 0, \
+        'the held write landed before the vent: nothing shown'
+    outputs_seen = []
+    done = threading.Event()
+
+    def watch():
+        while not done.is_set():
+            outputs_seen.append(max(lab.state()['output_counts']))
+            time.sleep(0.002)
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        wait_until(lambda: lab.proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
+                   what='the held write delivered after plc_output dropped that connection')
+        wait_until(lambda: lab.state()['stale_count'] > stale_before, 2.0,
+                   what='the program undoing the late write as stale')
+        time.sleep(0.05)   # a few scans after it
+    finally:
+        done.set()
+        watcher.join(2)
+    print(f'\n[PLC program] late write landed {time.monotonic() - held_at:.2f} s after it was '
+          f'sent; '
+          f'stale writes {lab.state()["stale_writes"]}; {len(outputs_seen)} output reads all 0')
+    assert max(outputs_seen) == 0, 'an output moved after the vent'
+    assert lab.watch.matches({})
+    lab.proxy.heal()
+    lab.hololens.sending.set()
+    lab.guided(what='guidance back with the gaze')
