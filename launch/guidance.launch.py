@@ -4,8 +4,10 @@
         calibration_file:=/data/calibrations/alice.yaml condition:=1 \
         bind_address:=192.168.1.10 allowed_senders:="['192.168.1.20']"
 
-Parameters come from config/guidance.yaml (or params_file:=...); an argument given here
-overrides the file, an argument left empty keeps the file's value.
+Parameters come from config/guidance.yaml (or params_file:=...), then extra_params_file:=...
+if given (its values win); an argument given here overrides both, an argument left empty keeps
+the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
+last: a node-scoped value loaded later always wins in rcl, whatever else the launch sets.
 """
 import os
 
@@ -14,45 +16,70 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+import yaml
+
+from fabric_guidance.launch_support import NodeOverrides
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
     'plc_host': ('plc_output', 'plc_host', str, "the PLC's address (Modbus TCP)"),
     'plc_port': ('plc_output', 'plc_port', int, "the PLC's Modbus TCP port"),
-    'calibration_file': ('pressure_controller', 'calibration_file', str, "the wearer's calibration (YAML)"),
-    'condition': ('pressure_controller', 'condition', int, '1 surface adjusted, 2 surface fixed, 3 arm adjusted, 4 speech'),
+    'calibration_file': ('pressure_controller', 'calibration_file', str,
+                         "the wearer's calibration (YAML)"),
+    'condition': ('pressure_controller', 'condition', int,
+                  '1 surface adjusted, 2 surface fixed, 3 arm adjusted, 4 speech'),
     'bind_address': ('gaze_bridge', 'bind_address', str, 'UDP address the gaze bridge listens on'),
     'gaze_port': ('gaze_bridge', 'port', int, 'UDP port the gaze bridge listens on'),
-    'allowed_senders': ('gaze_bridge', 'allowed_senders', list, "HoloLens addresses accepted, e.g. \"['192.168.1.20']\""),
+    'allowed_senders': ('gaze_bridge', 'allowed_senders', list,
+                        "HoloLens addresses accepted, e.g. \"['192.168.1.20']\""),
 }
 NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output')
 
 
+def argument_value(name: str, kind, text: str):
+    """The typed value of launch argument `name`; ValueError names the argument."""
+    try:
+        if kind is list:
+            value = yaml.safe_load(text)
+            if not isinstance(value, list):
+                raise ValueError('not a list')
+            return [str(v) for v in value]
+        return kind(text)
+    except (ValueError, yaml.YAMLError) as exc:
+        raise ValueError(f'launch argument {name}:={text!r} is not a {kind.__name__} '
+                         f'({exc})') from None
+
+
 def _nodes(context, *args, **kwargs):
-    params_file = LaunchConfiguration('params_file').perform(context)
+    files = [LaunchConfiguration('params_file').perform(context)]
+    extra = LaunchConfiguration('extra_params_file').perform(context)
+    if extra:
+        files.append(extra)
     use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
     overrides = {name: {'use_sim_time': use_sim_time} for name in NODES}
     for arg, (node, parameter, kind, _) in ARGUMENTS.items():
         text = LaunchConfiguration(arg).perform(context)
-        if not text:
-            continue
-        if kind is list:
-            import yaml
-            value = [str(v) for v in yaml.safe_load(text)]
-        else:
-            value = kind(text)
-        overrides[node][parameter] = value
-    return [Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                 parameters=[params_file, overrides[name]]) for name in NODES]
+        if text:
+            overrides[node][parameter] = argument_value(arg, kind, text)
+    generated = NodeOverrides(context)
+    nodes = [Node(package='fabric_guidance', executable=name, name=name, output='screen',
+                  parameters=[*files, generated.file(name, overrides[name])]) for name in NODES]
+    return [*nodes, generated.cleanup_action()]
 
 
 def generate_launch_description():
     share = get_package_share_directory('fabric_guidance')
     return LaunchDescription([
-        DeclareLaunchArgument('params_file', default_value=os.path.join(share, 'config', 'guidance.yaml'),
+        DeclareLaunchArgument('params_file',
+                              default_value=os.path.join(share, 'config', 'guidance.yaml'),
                               description='parameter file of the four nodes'),
-        DeclareLaunchArgument('use_sim_time', default_value='false', description='use /clock (rosbag replay)'),
-        *[DeclareLaunchArgument(arg, default_value='', description=f'{desc} (empty: from params_file)')
+        DeclareLaunchArgument('extra_params_file', default_value='',
+                              description='a second parameter file, loaded after params_file '
+                                          '(its values win; empty: none)'),
+        DeclareLaunchArgument('use_sim_time', default_value='false',
+                              description='use /clock (rosbag replay)'),
+        *[DeclareLaunchArgument(arg, default_value='',
+                                description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
         OpaqueFunction(function=_nodes),
     ])

@@ -11,13 +11,13 @@ stack, whose poses (PoseStamped, microscope frame, m) are mapped x1000 into the 
     # all simulated: micromanipulator_sim, mock_plc and wearer_sim with the sim wearer's calibration
     ros2 launch fabric_guidance micromanipulation.launch.py micromanipulator_sim:=true wearer_sim:=true
 
-guidance.launch.py takes one params_file: this file merges config/guidance.yaml (or
-base_params_file:=...) with config/micromanipulation.yaml (or micromanipulation_params_file:=...),
-node by node, the second winning, into a temporary file and passes that on. The other arguments
-of guidance.launch.py (plc_host, calibration_file, condition, ...) pass through.
+guidance.launch.py loads config/guidance.yaml (or base_params_file:=...) and then
+config/micromanipulation.yaml (or micromanipulation_params_file:=...) for every node, the second
+winning (no merged copy is written). The other arguments of guidance.launch.py (plc_host,
+calibration_file, condition, ...) pass through. With wearer_sim:=true the lab graph starts once
+the mock PLC listens, and the mock PLC outlives plc_output's vent on shutdown.
 """
 import os
-import tempfile
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
@@ -26,36 +26,19 @@ from launch.conditions import IfCondition
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node, SetRemap
-import yaml
+
+from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
                 'allowed_senders', 'use_sim_time')
 
 
-def merge_params(base: dict, extra: dict) -> dict:
-    """Node by node: the parameters of `extra` over those of `base`."""
-    out = {node: {'ros__parameters': dict((section or {}).get('ros__parameters', {}))}
-           for node, section in (base or {}).items()}
-    for node, section in (extra or {}).items():
-        out.setdefault(node, {'ros__parameters': {}})['ros__parameters'].update(
-            (section or {}).get('ros__parameters', {}))
-    return out
-
-
 def _graph(context, *args, **kwargs):
     share = get_package_share_directory('fabric_guidance')
     base_file = LaunchConfiguration('base_params_file').perform(context)
     extra_file = LaunchConfiguration('micromanipulation_params_file').perform(context)
-    with open(base_file) as f:
-        base = yaml.safe_load(f)
-    with open(extra_file) as f:
-        extra = yaml.safe_load(f)
-    fd, merged = tempfile.mkstemp(prefix='fabric_guidance_micromanipulation_', suffix='.yaml')
-    with os.fdopen(fd, 'w') as f:
-        yaml.safe_dump(merge_params(base, extra), f, sort_keys=False)
-
-    arguments = {'params_file': merged}
+    arguments = {'params_file': base_file, 'extra_params_file': extra_file}
     for name in PASS_THROUGH:
         value = LaunchConfiguration(name).perform(context)
         if value:
@@ -71,14 +54,24 @@ def _graph(context, *args, **kwargs):
                                  launch_arguments=arguments.items()),
     ])
     sim_params = os.path.join(share, 'config', 'sim.yaml')
-    actions = [lab,
-               Node(package='fabric_guidance', executable='micromanipulator_sim', name='micromanipulator_sim',
-                    output='screen', parameters=[merged], condition=IfCondition(LaunchConfiguration('micromanipulator_sim')),
-                    remappings=[(f'live_targets/{name}', LaunchConfiguration(f'{name}_topic')) for name in OBJECTS])]
-    if simulated_wearer:
-        actions += [Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                         parameters=[sim_params]) for name in ('mock_plc', 'wearer_sim')]
-    return actions
+    stack = Node(package='fabric_guidance', executable='micromanipulator_sim',
+                 name='micromanipulator_sim', output='screen', parameters=[extra_file],
+                 condition=IfCondition(LaunchConfiguration('micromanipulator_sim')),
+                 remappings=[(f'live_targets/{name}', LaunchConfiguration(f'{name}_topic'))
+                             for name in OBJECTS])
+    if not simulated_wearer:
+        return [lab, stack]
+    # The simulated PLC and wearer on the ports the lab graph was given, if any.
+    ports = NodeOverrides(context)
+    mock_ports = {'port': int(arguments['plc_port'])} if 'plc_port' in arguments else {}
+    wearer_ports = {'bridge_port': int(arguments['gaze_port'])} if 'gaze_port' in arguments else {}
+    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
+                    output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)])
+    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
+                  output='screen',
+                  parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)])
+    return [mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
+            ports.cleanup_action()]
 
 
 def generate_launch_description():
@@ -89,7 +82,8 @@ def generate_launch_description():
                               description='parameters of the lab graph'),
         DeclareLaunchArgument('micromanipulation_params_file',
                               default_value=os.path.join(config, 'micromanipulation.yaml'),
-                              description='live targets, scale, offset and sequence (merged over base_params_file)'),
+                              description='live targets, scale, offset and sequence (loaded '
+                                          'after base_params_file: its values win)'),
         *[DeclareLaunchArgument(f'{name}_topic', default_value=f'live_targets/{name}',
                                 description=f"the stack's PoseStamped topic of the {name.replace('_', ' ')} "
                                             '(microscope frame, m)') for name in OBJECTS],

@@ -1,36 +1,63 @@
 """The simulated graph: the lab graph (guidance.launch.py) against a mock PLC and a simulated
-wearer, with the simulated wearer's calibration. What `make demo` runs without `launch`.
+wearer, with the simulated wearer's calibration and config/sim.yaml over config/guidance.yaml
+for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
+    ros2 launch fabric_guidance sim.launch.py plc_port:=1602 gaze_port:=5105   # a second one
+
+The lab graph starts once the mock PLC listens (plc_output's first connection then succeeds).
+On Ctrl-C the mock PLC stays up until plc_output has vented and closed its connection
+(mock_plc's shutdown_grace_s), whichever process the signal reaches first.
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, SetEnvironmentVariable
+from launch.actions import (DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction,
+                            SetEnvironmentVariable)
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 
-def generate_launch_description():
+
+def _graph(context, *args, **kwargs):
     share = get_package_share_directory('fabric_guidance')
     sim_params = os.path.join(share, 'config', 'sim.yaml')
+    plc_port = LaunchConfiguration('plc_port').perform(context)
+    gaze_port = LaunchConfiguration('gaze_port').perform(context)
     lab = IncludeLaunchDescription(
         PythonLaunchDescriptionSource(os.path.join(share, 'launch', 'guidance.launch.py')),
         launch_arguments={
+            'extra_params_file': sim_params,
             'calibration_file': os.path.join(share, 'config', 'calibrations', 'sim-wearer.yaml'),
             'condition': LaunchConfiguration('condition'),
             'plc_host': '127.0.0.1',
+            'plc_port': plc_port,
+            'gaze_port': gaze_port,
         }.items())
+    ports = NodeOverrides(context)
+    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
+                    output='screen',
+                    parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})])
+    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
+                  output='screen',
+                  parameters=[sim_params,
+                              ports.file('wearer_sim', {'bridge_port': int(gaze_port)})])
+    return [mock_plc, wearer, after_mock_plc_listens(mock_plc, [lab]), ports.cleanup_action()]
+
+
+def generate_launch_description():
     return LaunchDescription([
         # The simulated graph talks to nobody else: DDS discovery stays on this machine.
         SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
         DeclareLaunchArgument('condition', default_value='1',
-                              description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, 4 speech'),
-        Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', output='screen',
-             parameters=[sim_params]),
-        Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim', output='screen',
-             parameters=[sim_params]),
-        lab,
+                              description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
+                                          '4 speech'),
+        DeclareLaunchArgument('plc_port', default_value='1502',
+                              description="the mock PLC's Modbus TCP port"),
+        DeclareLaunchArgument('gaze_port', default_value='5005',
+                              description='UDP port of the gaze bridge'),
+        OpaqueFunction(function=_graph),
     ])

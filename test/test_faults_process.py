@@ -117,8 +117,8 @@ class Lab:
 
     def close(self):
         self.hololens.close()
+        self.watch.client.close()  # first: the mock PLC's shutdown waits for its clients to leave
         self.graph.stop_all()
-        self.watch.client.close()
 
 
 @pytest.fixture(scope='module')

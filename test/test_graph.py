@@ -98,8 +98,8 @@ def lab_graph(tmp_path):
     finally:
         probe.close()
         hololens.close()
+        watch.client.close()  # before the mock PLC's shutdown, which waits for its clients to leave
         graph.stop_all()
-        watch.client.close()
 
 
 def end_to_end(graph, hololens, watch) -> tuple[float, float]:

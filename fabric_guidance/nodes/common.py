@@ -6,7 +6,9 @@ Nodes stay thin: they parse parameters, wire topics and services, and call the c
 from __future__ import annotations
 
 import gc
+import os
 import signal
+import sys
 import threading
 from typing import Any, Callable, Sequence
 
@@ -77,6 +79,21 @@ def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStat
     publisher.publish(msg)
 
 
+#: Once a node has vented, its teardown (destroying the node, the ROS context, the interpreter's
+#: exit) gets this long before the process ends itself [s]; `ros2 launch` escalates after 5 s.
+TEARDOWN_LIMIT_S = 2.0
+
+
+def _end_process(code: int) -> None:
+    """Ends the process now: the vent is done, whatever holds the teardown is not worth waiting
+    for (a non-daemon thread, a DDS entity's destruction)."""
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        os._exit(code)
+
+
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
@@ -122,6 +139,12 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
             safe_shutdown = getattr(node, 'safe_shutdown', None)
             if safe_shutdown is not None:
                 safe_shutdown()
+        # From here on nothing is left to do that matters to the suit: bound the rest.
+        failing = sys.exc_info()[0] is not None  # an error on its way out: exit 1, not 0
+        limit = threading.Timer(TEARDOWN_LIMIT_S, _end_process, args=(1 if failing else code,))
+        limit.daemon = True
+        limit.start()
+        if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -54,6 +54,11 @@ class MockPlc(Node):
                                  'mock_plc/max_written_kpa and /diagnostics publication rate', 'Hz', 0.1, 100.0,
                                  read_only=True)
 
+        # A lab PLC outlives the PC's processes; the mock one must not leave before plc_output's
+        # vent on shutdown (one Ctrl-C reaches every process of `ros2 launch` at once).
+        self.shutdown_grace_s = declare(self, 'shutdown_grace_s', 3.0,
+                                        'on shutdown, wait up to this long for the clients '
+                                        'to vent and disconnect', 's', 0.0, 60.0, read_only=True)
         write_log_file = declare(self, 'write_log_file', '',
                                  "append every holding-register write with its CLOCK_MONOTONIC time [ns] to this "
                                  "file (benchmarks); '' = off", read_only=True)
@@ -98,6 +103,11 @@ class MockPlc(Node):
         self._write_log.flush()
 
     def safe_shutdown(self) -> None:
+        if not self.server.wait_until_vented(self.shutdown_grace_s):
+            self.get_logger().warning(
+                f'stopping with {self.server.client_count} client(s) connected and commands '
+                f'{[float(v) for v in self.server.commands_kpa()]} kPa after '
+                f'{self.shutdown_grace_s:g} s')
         self.server.stop()
         if self._write_log is not None:
             self._drain_write_log()

@@ -489,6 +489,22 @@ class MockPlcServer:
         self._thread = None
         self.save_records()
 
+    @property
+    def client_count(self) -> int:
+        """Clients connected now (read from another thread: a snapshot)."""
+        return len(self._writers) if self.running else 0
+
+    def wait_until_vented(self, timeout_s: float, poll_s: float = 0.02) -> bool:
+        """Wait until no client is connected and every command register is 0, at most
+        timeout_s; True if so. A PLC going away under a client that is still venting would
+        leave the last command as the PLC's last state."""
+        deadline = time.monotonic() + timeout_s
+        while self.client_count or np.any(self.commands_kpa()):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(poll_s)
+        return True
+
     def __enter__(self) -> 'MockPlcServer':
         return self.start()
 

@@ -1,0 +1,293 @@
+"""The launch files under the real launch system (launch 3.7.1, launch_ros 0.28.0, launch_pytest),
+run from a `colcon build` install tree, as a lab runs them.
+
+`make test` runs this module in .venv-launch (pytest 7.4.4, the wheels of ../shared/ros-tooling/,
+colcon) after building the package with colcon into build-launch/; see docs/launch.md.
+Everywhere else it is skipped with one line.
+"""
+import glob
+import os
+import re
+import signal
+import socket
+import tempfile
+import threading
+
+import pytest
+
+launch_pytest = pytest.importorskip(
+    'launch_pytest',
+    reason='launch_pytest is not installed here: `make test` runs the launch tests in '
+           '.venv-launch when ../shared/ros-tooling/ is present (docs/launch.md)')
+INSTALL = os.environ.get('FABRIC_GUIDANCE_INSTALL')
+if not INSTALL:
+    pytest.skip('FABRIC_GUIDANCE_INSTALL is not set: run through `make test-launch` (a colcon '
+                'build first)', allow_module_level=True)
+
+import launch  # noqa: E402
+from launch.actions import GroupAction, IncludeLaunchDescription  # noqa: E402
+from launch.actions import RegisterEventHandler, SetEnvironmentVariable  # noqa: E402
+from launch.event_handlers import OnProcessExit, OnProcessIO, OnProcessStart  # noqa: E402
+from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+from launch_ros.actions import SetParameter  # noqa: E402
+from rcl_interfaces.srv import GetParameters  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+
+from fabric_guidance.core import ChannelMap  # noqa: E402
+from fabric_guidance.nodes import common  # noqa: E402
+from fabric_guidance.plc import MockPlcServer, RegisterMap  # noqa: E402
+from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
+                                           wait_until)
+
+PREFIX = os.path.join(INSTALL, 'fabric_guidance')
+SHARE = os.path.join(PREFIX, 'share', 'fabric_guidance')
+EXECUTABLES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'mock_plc',
+               'wearer_sim', 'micromanipulator_sim', 'bag_recorder', 'fabric-guidance')
+P_MAX = 375.0
+#: Seven processes' start-up plus four guided turns of a few seconds each on a loaded machine.
+SESSION_DEADLINE_S = 90.0
+VENTED = re.compile(r'vented all \d+ channels (of PLC \S+ )?on shutdown')
+LINK_UP = re.compile(r'connected to the PLC|PLC \S+ at \S+ up')
+FOUND = re.compile(r"target found: '(\w+)'")
+
+
+class Watch:
+    """Every process of a launch: pid, output and return code, by process name (node-1...)."""
+
+    def __init__(self):
+        self.lock = threading.RLock()
+        self.pids, self.output, self.returncodes = {}, {}, {}
+
+    def actions(self):
+        return [RegisterEventHandler(OnProcessStart(on_start=self._started)),
+                RegisterEventHandler(OnProcessIO(on_stdout=self._io, on_stderr=self._io)),
+                RegisterEventHandler(OnProcessExit(on_exit=self._exited))]
+
+    def _started(self, event, context):
+        with self.lock:
+            self.pids[event.process_name] = event.pid
+
+    def _io(self, event):
+        with self.lock:
+            self.output[event.process_name] = (self.output.get(event.process_name, '')
+                                               + event.text.decode(errors='replace'))
+
+    def _exited(self, event, context):
+        with self.lock:
+            self.returncodes[event.process_name] = event.returncode
+
+    def name(self, node):
+        with self.lock:
+            return next((n for n in self.pids if n.rsplit('-', 1)[0] == node), None)
+
+    def log(self, node):
+        with self.lock:
+            return ''.join(text for n, text in self.output.items() if n.rsplit('-', 1)[0] == node)
+
+    def found(self):
+        """The targets target_selector logged as found, in order (its log, not DDS: a probe that
+        discovers the graph late on a loaded machine would miss the first events)."""
+        return FOUND.findall(self.log('target_selector'))
+
+    def exited(self, node):
+        with self.lock:
+            return self.name(node) in self.returncodes
+
+
+def _include(name, **arguments):
+    return IncludeLaunchDescription(
+        PythonLaunchDescriptionSource(os.path.join(SHARE, 'launch', name)),
+        launch_arguments={k: str(v) for k, v in arguments.items()}.items())
+
+
+def _graph(watch, domain_id, *entities):
+    return launch.LaunchDescription([
+        SetEnvironmentVariable('ROS_DOMAIN_ID', str(domain_id)),
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
+        *watch.actions(), *entities, launch_pytest.actions.ReadyToTest()])
+
+
+def _fabric_guidance_temp_files():
+    return set(glob.glob(os.path.join(tempfile.gettempdir(), 'fabric_guidance_*')))
+
+
+def test_colcon_build_installed_the_package():
+    """colcon build's install tree: the ament index marker, share/ and every executable; this
+    process imports the package from there."""
+    import fabric_guidance
+    assert os.path.isfile(os.path.join(PREFIX, 'share', 'ament_index', 'resource_index',
+                                       'packages', 'fabric_guidance'))
+    assert os.path.isfile(os.path.join(SHARE, 'package.xml'))
+    assert sorted(os.listdir(os.path.join(SHARE, 'launch'))) == [
+        'guidance.launch.py', 'micromanipulation.launch.py', 'sim.launch.py']
+    for name in ('guidance.yaml', 'sim.yaml', 'micromanipulation.yaml', 'channel_map.yaml',
+                 'plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
+        assert os.path.isfile(os.path.join(SHARE, 'config', name)), name
+    for exe in EXECUTABLES:
+        assert os.access(os.path.join(PREFIX, 'lib', 'fabric_guidance', exe), os.X_OK), exe
+    assert fabric_guidance.__file__.startswith(PREFIX)
+
+
+# ------------------------------------------------------------------------------- sim.launch.py
+@pytest.fixture
+def sim_ports():
+    return {'plc_port': free_port(), 'gaze_port': free_port(socket.SOCK_DGRAM)}
+
+
+@launch_pytest.fixture
+def sim_graph(sim_ports):
+    watch, domain_id = Watch(), fresh_domain_id()
+    return _graph(watch, domain_id, _include('sim.launch.py', **sim_ports)), watch, domain_id
+
+
+@pytest.mark.launch(fixture=sim_graph)
+def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
+    _, watch, domain_id = sim_graph
+    wait_until(lambda: len(watch.found()) >= 4, SESSION_DEADLINE_S, what='four targets found')
+    assert watch.found() == ['front_left', 'up_right', 'down_left', 'down_right']
+    with Probe(domain_id) as probe:
+        # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
+        written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
+                                  common.COMMAND_QOS)
+        wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
+        assert max(written[-1].data) <= P_MAX
+        assert max(written[-1].data) > 50.0  # guided, not found by luck
+    # Ctrl-C at its worst: the mock PLC gets SIGINT first and the others only later (a terminal
+    # signals the whole group at once; any order must vent). The mock must still be there.
+    os.kill(watch.pids[watch.name('mock_plc')], signal.SIGINT)
+    try:
+        wait_until(lambda: watch.exited('mock_plc'), 1.0)
+    except AssertionError:
+        pass  # still up, waiting for plc_output's vent: as it should
+    for name, pid in list(watch.pids.items()):
+        if not name.startswith('mock_plc'):
+            os.kill(pid, signal.SIGINT)
+    wait_until(lambda: len(watch.returncodes) == len(watch.pids), 20.0,
+               what='every process exited')
+    plc_output = watch.log('plc_output')
+    assert VENTED.search(plc_output), plc_output[-2000:]
+    assert 'could not vent' not in plc_output
+    assert 'stopping with' not in watch.log('mock_plc')
+    assert all(code == 0 for code in watch.returncodes.values()), watch.returncodes
+
+
+# -------------------------------------------------------------------------- guidance.launch.py
+@pytest.fixture
+def plc():
+    channels = ChannelMap.load(os.path.join(SHARE, 'config', 'channel_map.yaml')).channels
+    regmap = RegisterMap.load(os.path.join(SHARE, 'config', 'plc_register_map.yaml'),
+                              expected_channels=channels)
+    with MockPlcServer(regmap, '127.0.0.1', 0) as server:
+        yield server
+
+
+@pytest.fixture
+def lab_arguments(plc, tmp_path):
+    return {'plc_host': '127.0.0.1', 'plc_port': plc.port,
+            'calibration_file': os.path.join(SHARE, 'config', 'calibrations', 'sim-wearer.yaml'),
+            'condition': 3, 'bind_address': '127.0.0.1', 'gaze_port': free_port(socket.SOCK_DGRAM),
+            'allowed_senders': "['127.0.0.2', '127.0.0.3']", 'use_sim_time': 'false'}
+
+
+@launch_pytest.fixture
+def lab_graph(lab_arguments):
+    watch, domain_id = Watch(), fresh_domain_id()
+    # A global parameter, as a lab's bringup sets: with the arguments as a `/**` file (the old
+    # launch file) rcl applied guidance.yaml's node sections after it and ignored them all.
+    lab = GroupAction([SetParameter(name='use_sim_time', value=False),
+                       _include('guidance.launch.py', **lab_arguments)])
+    return _graph(watch, domain_id, lab), watch, domain_id
+
+
+@pytest.mark.launch(fixture=lab_graph)
+def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_arguments, plc):
+    _, watch, domain_id = lab_graph
+    expected = {
+        'plc_output': {'plc_host': '127.0.0.1', 'plc_port': lab_arguments['plc_port']},
+        'pressure_controller': {'calibration_file': lab_arguments['calibration_file'],
+                                'condition': 3},
+        'gaze_bridge': {'bind_address': '127.0.0.1', 'port': lab_arguments['gaze_port'],
+                        'allowed_senders': ['127.0.0.2', '127.0.0.3']},
+        'target_selector': {'use_sim_time': False},
+    }
+    with Probe(domain_id) as probe:
+        commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+        for node, parameters in expected.items():
+            names = list(parameters)
+            response = probe.call(GetParameters, f'/{node}/get_parameters',
+                                  GetParameters.Request(names=names), attempts=3)
+            got = {}
+            for name, value in zip(names, response.values):
+                got[name] = {1: value.bool_value, 2: value.integer_value, 4: value.string_value,
+                             9: list(value.string_array_value)}[value.type]
+            assert got == parameters, node
+        # Up and vented: plc_output on the given port, writing zeros; no command above 0.
+        wait_until(lambda: plc.client_count >= 1, 20.0, what='plc_output connected to plc_port')
+        wait_until(lambda: len(commands) >= 10, 20.0, what='pressure commands')
+        assert all(max(m.data) == 0.0 for m in commands)
+        assert not plc.commands_kpa().any()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s, pytest.raises(OSError):
+        s.bind(('127.0.0.1', lab_arguments['gaze_port']))  # the bridge listens there
+
+
+# ------------------------------------------------------------------ micromanipulation.launch.py
+OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
+
+
+@launch_pytest.fixture
+def micromanipulation_graph(sim_ports):
+    watch, domain_id = Watch(), fresh_domain_id()
+    topics = {f'{name}_topic': f'/stack/{name}/pose' for name in OBJECTS}
+    graph = _include('micromanipulation.launch.py', micromanipulator_sim='true', wearer_sim='true',
+                     **sim_ports, **topics)
+    # Before the launch starts (this function only describes it): what is in /tmp already.
+    before = _fabric_guidance_temp_files()
+    return _graph(watch, domain_id, graph), watch, domain_id, before
+
+
+@pytest.mark.launch(fixture=micromanipulation_graph)
+def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
+        micromanipulation_graph):
+    import numpy as np
+    import yaml
+    from geometry_msgs.msg import PointStamped, PoseStamped
+    _, watch, domain_id, before = micromanipulation_graph
+    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'micromanipulation.yaml')))
+    selector = params['target_selector']['ros__parameters']
+    stack = params['micromanipulator_sim']['ros__parameters']
+    micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])
+             for i, n in enumerate(stack['object_names'])}
+    scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \
+        stack['drift_amplitude_m']
+    with Probe(domain_id) as probe:
+        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', common.SENSOR_QOS)
+                 for n in OBJECTS}
+        targets = probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS)
+        wait_until(lambda: len(watch.found()) >= 3, SESSION_DEADLINE_S, what='three objects found')
+        assert watch.found() == list(OBJECTS)
+        for name in OBJECTS:  # the selector listens on the stack's topics, not its defaults
+            topic = f'/stack/{name}/pose'
+            wait_until(lambda: probe.node.count_subscribers(topic) >= 1
+                       and probe.node.count_publishers(topic) >= 1 and poses[name], 30.0,
+                       what=topic)
+            assert probe.node.count_subscribers(f'/live_targets/{name}') == 0
+        wait_until(lambda: targets, 30.0, what='a target from target_selector')
+        # The stack speaks in the microscope frame at micro scale, drifting by at most its
+        # amplitude; every target the selector published is one of them mapped x1000 + offset.
+        for name in OBJECTS:
+            assert {m.header.frame_id for m in poses[name]} == {'microscope'}
+            xyz = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
+                            for m in poses[name]])
+            assert np.max(np.linalg.norm(xyz - micro[name], axis=1)) <= drift * 1.0001
+        for m in targets:
+            assert m.header.frame_id == common.IMMERSIVE_FRAME
+            p = np.array([m.point.x, m.point.y, m.point.z])
+            assert min(np.linalg.norm(p - (q * scale + offset)) for q in micro.values()) \
+                <= drift * scale * 1.0001 + 1e-9
+    # plc_output started after the mock PLC listened: its first connection went through.
+    plc_output = watch.log('plc_output')
+    assert LINK_UP.search(plc_output), plc_output
+    assert '[ERROR]' not in plc_output, plc_output
+    yield
+    # After shutdown: the per-launch files are gone.
+    assert _fabric_guidance_temp_files() <= before

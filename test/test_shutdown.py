@@ -1,0 +1,78 @@
+"""A node's process ends in bounded time once it has vented, whatever its teardown does.
+
+plc_output once stayed up after logging its vent until `ros2 launch` killed it (issue 16);
+nodes/common.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
+leaves a non-daemon thread behind that never ends, which would hold the interpreter's exit
+forever: the process must still exit 0 after its vent.
+"""
+import signal
+import subprocess
+import sys
+import textwrap
+
+from rosgraph import fresh_domain_id, wait_until
+
+#: Far above the teardown bound (common.TEARDOWN_LIMIT_S) and a loaded machine's start-up.
+EXIT_DEADLINE_S = 30.0
+
+NODE = textwrap.dedent('''
+    import threading
+    from rclpy.node import Node
+    from fabric_guidance.nodes.common import run
+
+    class Stuck(Node):
+        def __init__(self):
+            super().__init__('stuck')
+            print('ready', flush=True)
+
+        def safe_shutdown(self):
+            print('vented', flush=True)
+            threading.Thread(target=threading.Event().wait).start()  # never ends, not a daemon
+
+    raise SystemExit(run(Stuck))
+''')
+
+
+def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
+    import os
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
+    out = tmp_path / 'out.txt'
+    with open(out, 'w') as f:
+        proc = subprocess.Popen([sys.executable, '-c', NODE], stdout=f, stderr=subprocess.STDOUT,
+                                env=env)
+    try:
+        wait_until(lambda: 'ready' in out.read_text(), EXIT_DEADLINE_S, what='the node up')
+        proc.send_signal(signal.SIGINT)
+        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S,
+                   what='the process exiting after its vent')
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert 'vented' in out.read_text()
+    assert proc.returncode == 0, out.read_text()
+
+
+def test_the_mock_plc_waits_for_its_client_to_vent_and_leave():
+    """mock_plc's shutdown (sim.launch.py: one Ctrl-C reaches every process) waits until its
+    clients have vented and disconnected, and gives up at its deadline."""
+    import threading
+
+    from fabric_guidance.core import ChannelMap
+    from fabric_guidance.plc import MockPlcServer, PlcClient, RegisterMap
+    from rosgraph import CONFIG
+    channels = ChannelMap.load(CONFIG / 'channel_map.yaml').channels
+    regmap = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=channels)
+    with MockPlcServer(regmap, watchdog_s=60.0) as server:  # no watchdog vent meanwhile
+        client = PlcClient(regmap, '127.0.0.1', server.port)
+        assert client.connect()
+        client.write_pressures([100.0] * len(regmap))
+        wait_until(lambda: server.commands_kpa().any(), 5.0, what='the command written')
+        assert not server.wait_until_vented(0.3)  # commanding and connected: not vented
+
+        def vent_then_leave():
+            client.vent()
+            client.close()
+        threading.Timer(0.2, vent_then_leave).start()
+        assert server.wait_until_vented(10.0)
+        assert server.client_count == 0 and not server.commands_kpa().any()
