@@ -31,6 +31,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import yaml
 
+from ..core.safe_input import excerpt, parse_yaml
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
 from ..core.geometry import DIRECTIONS
 
@@ -145,7 +146,7 @@ class ControllerSetup:
 
     @classmethod
     def from_yaml(cls, text: str) -> 'ControllerSetup':
-        return cls.from_dict(yaml.safe_load(text))
+        return cls.from_dict(parse_yaml(text, CONTROLLER_PARAMETERS))
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> 'ControllerSetup':
         """A copy with some parameters changed (`replay --set gain=0.1`)."""
@@ -153,7 +154,7 @@ class ControllerSetup:
         for key, value in overrides.items():
             if key not in d or key in ('schema', 'calibration', 'channel_map'):
                 settable = [k for k in d if k not in ('schema', 'calibration', 'channel_map')]
-                raise ValueError(f'unknown controller parameter {key!r}; settable: {settable}')
+                raise ValueError(f'unknown controller parameter {excerpt(key)}; settable: {settable}')
             d[key] = value
         return ControllerSetup.from_dict(d)
 

@@ -29,6 +29,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import yaml
 
+from .safe_input import WEARER_PATTERN, WEARER_RULE, InputFileError, excerpt, load_yaml
 from .feedback import PAPER_P_MAX
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
@@ -67,7 +68,7 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
     By default evenly spaced from p_max/steps; `first` sets the lowest step instead.
     """
     if not (isinstance(steps, (int, np.integer)) and steps >= 3):
-        raise ValueError(f'a calibration needs at least 3 steps, got {steps!r}')
+        raise ValueError(f'a calibration needs at least 3 steps, got {excerpt(steps)}')
     if not (math.isfinite(p_max) and p_max > 0):
         raise ValueError(f'p_max must be finite and > 0 kPa, got {p_max}')
     lo = p_max / steps if first is None else float(first)
@@ -147,20 +148,20 @@ class Calibration:
         if not isinstance(data, Mapping):
             raise CalibrationFileError(f'{source}: expected a YAML mapping at the top level')
         if data.get('schema_version') != SCHEMA_VERSION:
-            fail('schema_version', f'must be {SCHEMA_VERSION}, got {data.get("schema_version")!r}')
+            fail('schema_version', f'must be {SCHEMA_VERSION}, got {excerpt(data.get("schema_version"))}')
         units = data.get('units')
         if units != {'pressure': 'kPa', 'angle': 'deg'}:
-            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {units!r}')
+            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {excerpt(units)}')
         wearer = data.get('wearer')
-        if not isinstance(wearer, str) or not wearer:
-            fail('wearer', 'must be a non-empty string')
+        if not isinstance(wearer, str) or not WEARER_PATTERN.fullmatch(wearer):
+            fail('wearer', f'{WEARER_RULE}, got {excerpt(wearer)}')
         p_max = data.get('p_max_kpa')
         if isinstance(p_max, bool) or not isinstance(p_max, (int, float)) or not (math.isfinite(p_max) and p_max > 0):
-            fail('p_max_kpa', f'must be a finite number > 0, got {p_max!r}')
+            fail('p_max_kpa', f'must be a finite number > 0, got {excerpt(p_max)}')
         dirs = data.get('directions')
         if not isinstance(dirs, Mapping) or set(dirs) != set(DIRECTIONS):
-            got = sorted(dirs) if isinstance(dirs, Mapping) else dirs
-            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {got!r}')
+            got = sorted(map(str, dirs)) if isinstance(dirs, Mapping) else dirs
+            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {excerpt(got)}')
         out = {}
         for d in DIRECTIONS:
             entry = dirs[d]
@@ -184,16 +185,16 @@ class Calibration:
         gain = data.get('adjustment_gain')
         if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
                                  or not (math.isfinite(gain) and gain >= 0)):
-            fail('adjustment_gain', f'must be a finite number >= 0 when present, got {gain!r}')
+            fail('adjustment_gain', f'must be a finite number >= 0 when present, got {excerpt(gain)}')
         return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain))
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise CalibrationFileError(f'cannot read calibration file {path}: {exc}') from None
+            data = load_yaml(path, 'calibration file')
+        except InputFileError as exc:
+            raise CalibrationFileError(str(exc)) from None
         return cls.from_dict(data, source=str(path))
 
 
