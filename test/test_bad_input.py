@@ -139,3 +139,64 @@ def test_defect7_binary_yaml_names_the_file(tmp_path):
     f = tmp_path / 'binary.yaml'
     f.write_bytes(bytes(range(256)) * 4)
     one_line_error(cli('calibration-report', f), str(f), 'UTF-8')
+
+
+# ---- defects 2, 6 (nodes), 1 (node), 3 (node): refused at start-up, one line, no traceback
+
+NODE_EXIT_DEADLINE_S = 60.0   # every case starting at once on a loaded 2-core machine
+
+
+def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path):
+    from rosgraph import Graph, free_port
+    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
+    no_suit = {'channels': channel_map['channels'], 'layouts': {'arm': channel_map['layouts']['arm']}}
+    files = {
+        'no_suit.yaml': yaml.safe_dump(no_suit),
+        'bomb.yaml': ALIAS_BOMB,
+        'list.yaml': '- a\n- b\n',
+        'broken.yaml': 'a: [\n',
+        'binary.yaml': bytes(range(256)).decode('latin-1'),
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text, encoding='latin-1' if name == 'binary.yaml' else 'utf-8')
+    f = {name: str(tmp_path / name) for name in files}
+    guidance = ('guidance.yaml',)
+    # (case, node, parameter files, overrides, what the one line must name)
+    cases = [
+        ('defect 2: channel map without the suit layout', 'pressure_controller', guidance,
+         {'channel_map_file': f['no_suit.yaml'], 'condition': 1}, ['no_suit.yaml', '"layouts"', 'suit']),
+        ('defect 1: wearer is a path', 'pressure_controller', guidance, {'wearer': '../../victim'},
+         ['"wearer"', 'file name']),
+        ('defect 3: alias bomb channel map', 'pressure_controller', guidance,
+         {'channel_map_file': f['bomb.yaml']}, ['bomb.yaml', 'alias']),
+        ('defect 7: binary calibration file', 'pressure_controller', guidance,
+         {'calibration_file': f['binary.yaml']}, ['binary.yaml', 'UTF-8']),
+        ('defect 6: list-shaped params file', 'target_selector', (f['list.yaml'],), {},
+         ['parameters file', 'list.yaml', 'node names']),
+        ('defect 6: unparsable params file', 'gaze_bridge', (f['broken.yaml'],), {'port': free_port()},
+         ['parameters file', 'broken.yaml', 'YAML']),
+        ('defect 6: missing params file', 'plc_output', (str(tmp_path / 'missing.yaml'),), {},
+         ['parameters file', 'missing.yaml']),
+    ]
+    running = []
+    for i, (case, node, params_files, overrides, needles) in enumerate(cases):
+        graph = Graph(tmp_path / f'case{i}')
+        running.append((case, node, graph, graph.start(node, params_files, **overrides), needles))
+    failures = []
+    try:
+        for case, node, graph, proc, needles in running:
+            try:
+                code = proc.wait(NODE_EXIT_DEADLINE_S)
+            except subprocess.TimeoutExpired:
+                code = None
+            log = graph.log(node)
+            lines = [line for line in log.splitlines() if line.strip()]
+            if (code != 1 or 'Traceback' in log or len(lines) != 1 or 'cannot start' not in lines[0]
+                    or not all(n in lines[0] for n in needles)):
+                failures.append(f'{case} ({node}): exit {code}, expected 1 and one "cannot start" line '
+                                f'with {needles}; log:\n{log[-3000:]}')
+    finally:
+        for _, _, graph, _, _ in running:
+            graph.stop_all(check=False)
+    assert not failures, '\n\n'.join(failures)
+    assert not (tmp_path.parent / 'victim.yaml').exists()

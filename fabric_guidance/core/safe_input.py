@@ -64,25 +64,25 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 
 def parse_yaml(text: str | bytes, source: str):
-    """YAML text -> Python data, or InputFileError('<source>: <reason>') on one line."""
+    """YAML text -> Python data, or InputFileError('cannot read <source>: <reason>') on one line."""
     if isinstance(text, bytes):
         try:
             text = text.decode('utf-8')
         except UnicodeDecodeError as exc:
-            raise InputFileError(f'{source}: not UTF-8 text (byte {exc.start})') from None
+            raise InputFileError(f'cannot read {source}: not UTF-8 text (byte {exc.start})') from None
     if len(text) > MAX_FILE_BYTES:
-        raise InputFileError(f'{source}: larger than {MAX_FILE_BYTES} bytes')
+        raise InputFileError(f'cannot read {source}: larger than {MAX_FILE_BYTES} bytes')
     try:
         return yaml.load(text, Loader=_NoAliasLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark
         where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark is not None else ''
-        raise InputFileError(f'{source}: not valid YAML{where}: {excerpt(exc.problem, 80)}') from None
+        raise InputFileError(f'cannot read {source}: not valid YAML{where}: {excerpt(exc.problem, 80)}') from None
     except yaml.YAMLError as exc:
-        raise InputFileError(f'{source}: not valid YAML: {excerpt(str(exc), 80)}') from None
+        raise InputFileError(f'cannot read {source}: not valid YAML: {excerpt(str(exc), 80)}') from None
     except (ValueError, OverflowError, RecursionError) as exc:
         # int() refusing a huge digit string, a timestamp out of range, nesting too deep
-        raise InputFileError(f'{source}: unusable value: {excerpt(str(exc), 80)}') from None
+        raise InputFileError(f'cannot read {source}: unusable value: {excerpt(str(exc), 80)}') from None
 
 
 def load_yaml(path: str | Path, what: str = 'file'):
@@ -95,7 +95,7 @@ def load_yaml(path: str | Path, what: str = 'file'):
     except OSError as exc:
         raise InputFileError(f'cannot read {source}: {exc.strerror or exc}') from None
     if len(data) > MAX_FILE_BYTES:
-        raise InputFileError(f'{source}: larger than {MAX_FILE_BYTES} bytes')
+        raise InputFileError(f'cannot read {source}: larger than {MAX_FILE_BYTES} bytes')
     return parse_yaml(data, source)
 
 
