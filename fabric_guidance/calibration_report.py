@@ -213,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
         cal = Calibration.load(args.file)
         out = args.out if args.out is not None else args.file.parent
         txt, png = write_fit_report(cal, out, source=str(args.file))
-    except (CalibrationFileError, OSError, ValueError) as exc:
+    except (CalibrationFileError, OSError, ValueError, ArithmeticError) as exc:
+        # ArithmeticError: a value the file's checks let through that the drawing cannot take
         print(f'{PROG}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
     print(txt.read_text(), end='')

@@ -200,3 +200,161 @@ def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path)
             graph.stop_all(check=False)
     assert not failures, '\n\n'.join(failures)
     assert not (tmp_path.parent / 'victim.yaml').exists()
+
+
+# ---- defects 4, 6 (replay), 7 (replay options): a damaged bag is never called exact
+
+def write_session_bag(folder: Path, steps: int = 4000) -> Path:
+    """A bag as pressure_controller records it (parameters, then each step's input and command),
+    computed offline with the node's own step code: its offline replay is exact. Large enough
+    for several of the writer's 1 MiB chunks."""
+    import math
+    import numpy as np
+    from std_msgs.msg import Float64MultiArray as _unused  # noqa: F401 (the types are rosbags')
+    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup,
+                                                   StepInput, guidance_step, safe_command)
+    from fabric_guidance.bag.writer import BagWriter, typestore
+    from fabric_guidance.core import Calibration, ChannelMap
+    store = typestore()
+    F64 = store.types['std_msgs/msg/Float64MultiArray']
+    MAD = store.types['std_msgs/msg/MultiArrayLayout']
+    STR = store.types['std_msgs/msg/String']
+
+    def f64(values):
+        msg = F64(layout=MAD(dim=[], data_offset=0), data=np.asarray(values, dtype=float))
+        return store.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
+
+    setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, Calibration.load(SIM_CAL),
+                            ChannelMap.load(CONFIG / 'channel_map.yaml'))
+    controller = setup.make_controller()
+    params = setup.to_dict()
+    params['from_step'] = 0
+    bag = folder / 'session'
+    with BagWriter(bag) as w:
+        par, inp_t, cmd = (w.add_package_topic(n) for n in (CONTROLLER_PARAMETERS, CONTROLLER_INPUT,
+                                                            'pressure_command'))
+        w.write(par, 0, store.serialize_cdr(STR(data=yaml.safe_dump(params)), 'std_msgs/msg/String'))
+        for k in range(steps):
+            t = 1.0 + k / 30.0
+            yaw = math.radians(30.0 * math.sin(t / 3.0))
+            inp = StepInput(t, np.zeros(3), np.array([math.cos(yaw), math.sin(yaw), 0.0]),
+                            np.array([1.0, -1.0, 0.2]), True, True, True, k == 0, False, 1, k, k)
+            if inp.reset:
+                controller.vent()
+            channels, _, _ = guidance_step(setup, controller, inp)
+            ns = int(t * 1e9)
+            w.write(inp_t, ns, f64(inp.encode()))
+            w.write(cmd, ns + 1000, f64(safe_command(channels, setup.p_max_kpa)))
+    return bag
+
+
+@pytest.fixture(scope='module')
+def session_bag(tmp_path_factory):
+    return write_session_bag(tmp_path_factory.mktemp('bag'))
+
+
+def _copy_bag(bag: Path, dest: Path) -> tuple[Path, Path]:
+    import shutil
+    shutil.copytree(bag, dest)
+    return dest, next(dest.glob('*.mcap'))
+
+
+def test_defect4_offline_replay_of_an_intact_bag_is_exact(session_bag):
+    proc = cli('replay', session_bag, '--offline')
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert 'bit for bit' in proc.stdout and 'UNREADABLE' not in proc.stdout
+
+
+def test_defect4_offline_replay_of_a_bag_with_a_corrupted_chunk_is_not_exact(session_bag, tmp_path):
+    from mcap.reader import make_reader
+    bag, mcap = _copy_bag(session_bag, tmp_path / 'bag')
+    with open(mcap, 'rb') as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) >= 2
+    data = bytearray(mcap.read_bytes())
+    # Garbage over the middle of the second chunk's records (rosbags writes no chunk CRC).
+    c = chunks[1]
+    start = c.chunk_start_offset + c.chunk_length // 3
+    data[start:start + 4096] = os.urandom(4096)
+    mcap.write_bytes(bytes(data))
+    proc = cli('replay', bag, '--offline')
+    out = proc.stdout + proc.stderr
+    assert proc.returncode not in (0, 1) and 'Traceback' not in out, out
+    assert 'bit for bit' not in out or 'readable part only' in out, out
+    assert 'UNREADABLE' in out or 'damaged' in out or 'chunk' in out, out
+    # the graph replay refuses the damaged bag instead of republishing part of it in silence
+    proc = cli('replay', bag, '--wait', '0.1', '--topics', 'controller_input', 'pressure_command')
+    line = one_line_error(proc, str(mcap))
+    assert 'chunk' in line or 'summary counts' in line, line
+
+
+def _broken_bags(session_bag: Path, tmp_path: Path):
+    bag, mcap = _copy_bag(session_bag, tmp_path / 'base')
+    original = mcap.read_bytes()
+    cases = {
+        'truncated': original[:len(original) // 2],
+        'empty': b'',
+        'bad magic': b'\x00' * 8 + original[8:],
+        'random': os.urandom(4096),
+        '8 bytes': original[:8],
+    }
+    for name, content in cases.items():
+        dest, file = _copy_bag(bag, tmp_path / name.replace(' ', '_'))
+        file.write_bytes(content)
+        yield name, dest, file
+    dest, file = _copy_bag(bag, tmp_path / 'missing_file')
+    file.unlink()
+    yield 'metadata names a missing file', dest, file
+
+
+@pytest.mark.parametrize('mode', [['--offline'], ['--wait', '0.1']])
+def test_defect6_replay_of_a_broken_bag_is_one_line(session_bag, tmp_path, mode):
+    for name, bag, file in _broken_bags(session_bag, tmp_path):
+        proc = cli('replay', bag, *mode)
+        line = one_line_error(proc, file.name)
+        print(f'[{name}] {line}')
+
+
+@pytest.mark.parametrize('args, words', [
+    (['--offline', '--set', 'gain=abc'], ['gain', 'number']),
+    (['--offline', '--set', 'follow_moving_target=3'], ['follow_moving_target', 'true or false']),
+    (['--offline', '--set', 'condition=1.5'], ['condition', 'whole number']),
+    (['--rate', 'nan'], ['--rate']),
+    (['--rate', '-1'], ['--rate']),
+])
+def test_defect7_replay_options_name_the_parameter(session_bag, args, words):
+    one_line_error(cli('replay', session_bag, *args), *words)
+
+
+# ---- defect 6 and 7: calibration-report and analyze
+
+@pytest.mark.parametrize('change', [
+    {'p_max_kpa': 1e308},
+    {'directions.left.points.pressure_kpa.0': 1e308},
+    {'directions.up.points.angle_deg.3': 1e308},
+    {'directions.down.points.angle_deg.3': -1e308},
+])
+def test_defect6_calibration_report_with_extreme_values_is_one_line(tmp_path, change):
+    data = calibration_dict()
+    (path, value), = change.items()
+    *keys, last = path.split('.')
+    target = data
+    for k in keys:
+        target = target[int(k)] if isinstance(target, list) else target[k]
+    target[int(last) if isinstance(target, list) else last] = value
+    cal = tmp_path / 'cal.yaml'
+    cal.write_text(yaml.safe_dump(data))
+    one_line_error(cli('calibration-report', cal, '--out', tmp_path / 'out'), str(cal), path.split('.')[0])
+    assert not (tmp_path / 'out').exists() or not any((tmp_path / 'out').iterdir())
+
+
+def test_defect6_analyze_with_extreme_cells_is_one_line(tmp_path):
+    table = tmp_path / 'cells.csv'
+    table.write_text('subject,C1,C2,C3,C4\n1,1e308,-1e308,3,4\n2,1,2,3,4\n3,4,-1e308,2,1\n')
+    one_line_error(cli('analyze', table, '--plot', tmp_path / 'p.png'), str(table), 'C1')
+
+
+def test_defect7_analyze_refuses_a_table_without_a_header(tmp_path):
+    table = tmp_path / 'noheader.csv'
+    table.write_text('1,2,3,4,5\n2,1,2,3,4\n3,4,3,2,1\n')
+    one_line_error(cli('analyze', table), str(table), 'header')

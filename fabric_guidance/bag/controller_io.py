@@ -155,7 +155,7 @@ class ControllerSetup:
             if key not in d or key in ('schema', 'calibration', 'channel_map'):
                 settable = [k for k in d if k not in ('schema', 'calibration', 'channel_map')]
                 raise ValueError(f'unknown controller parameter {excerpt(key)}; settable: {settable}')
-            d[key] = value
+            d[key] = _override(key, d[key], value)
         return ControllerSetup.from_dict(d)
 
 
@@ -199,3 +199,22 @@ def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
         controller.vent()
         return zeros, f'invalid input: {exc}', True
     return setup.channel_map.to_channels(direction_pressures, setup.layout), '', False
+
+
+def _override(key: str, current: Any, value: Any) -> Any:
+    """An override of the current value's kind (number, whole number, true/false), or ValueError
+    naming the parameter."""
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f'--set {key}: must be true or false, got {excerpt(value)}')
+        return value
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    try:
+        ok = ok and math.isfinite(value)
+    except OverflowError:
+        ok = False
+    if isinstance(current, int) and not (ok and float(value).is_integer()):
+        raise ValueError(f'--set {key}: must be a whole number, got {excerpt(value)}')
+    if not ok:
+        raise ValueError(f'--set {key}: must be a finite number, got {excerpt(value)}')
+    return value

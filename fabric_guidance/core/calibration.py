@@ -58,6 +58,22 @@ def atomic_write(path: str | Path, write) -> Path:
     return path
 
 
+#: Bounds of a calibration file's values: the controller's own p_max_kpa range, and a gaze angle
+#: (beyond them a hand-edited file overflows the report's arithmetic).
+P_MAX_LIMIT_KPA = 1000.0
+ANGLE_LIMIT_DEG = 180.0
+
+
+def _number(x) -> bool:
+    """A finite int or float, not a bool (True is an int to Python, not a number to a file)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
 class CalibrationFileError(ValueError):
     """A calibration file that cannot be used, naming the file, the field and the reason."""
 
@@ -156,8 +172,8 @@ class Calibration:
         if not isinstance(wearer, str) or not WEARER_PATTERN.fullmatch(wearer):
             fail('wearer', f'{WEARER_RULE}, got {excerpt(wearer)}')
         p_max = data.get('p_max_kpa')
-        if isinstance(p_max, bool) or not isinstance(p_max, (int, float)) or not (math.isfinite(p_max) and p_max > 0):
-            fail('p_max_kpa', f'must be a finite number > 0, got {excerpt(p_max)}')
+        if not (_number(p_max) and 0 < p_max <= P_MAX_LIMIT_KPA):
+            fail('p_max_kpa', f'must be a number in (0, {P_MAX_LIMIT_KPA:g}] kPa, got {excerpt(p_max)}')
         dirs = data.get('directions')
         if not isinstance(dirs, Mapping) or set(dirs) != set(DIRECTIONS):
             got = sorted(map(str, dirs)) if isinstance(dirs, Mapping) else dirs
@@ -175,16 +191,17 @@ class Calibration:
             pressures = points.get('pressure_kpa', []) if isinstance(points, Mapping) else None
             angles = points.get('angle_deg', []) if isinstance(points, Mapping) else None
             if (not isinstance(pressures, list) or not isinstance(angles, list) or len(pressures) != len(angles)
-                    or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in pressures + angles)):
-                fail(f'directions.{d}.points', 'must hold equal-length lists of finite pressure_kpa and angle_deg')
+                    or not all(_number(x) and 0 <= x <= p_max for x in pressures)
+                    or not all(_number(x) and abs(x) <= ANGLE_LIMIT_DEG for x in angles)):
+                fail(f'directions.{d}.points', 'must hold equal-length lists of pressure_kpa in [0, p_max_kpa] '
+                     f'and angle_deg in [-{ANGLE_LIMIT_DEG:g}, {ANGLE_LIMIT_DEG:g}]')
             fit = entry.get('fit') or {}
             if not isinstance(fit, Mapping):
                 fail(f'directions.{d}.fit', 'must be a mapping')
             out[d] = DirectionCalibration(law, tuple(map(float, pressures)), tuple(map(float, angles)), dict(fit))
         created = data.get('created', '')
         gain = data.get('adjustment_gain')
-        if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
-                                 or not (math.isfinite(gain) and gain >= 0)):
+        if gain is not None and not (_number(gain) and 0 <= gain <= 1e6):
             fail('adjustment_gain', f'must be a finite number >= 0 when present, got {excerpt(gain)}')
         return cls(wearer, float(p_max), out, str(created), None if gain is None else float(gain))
 
