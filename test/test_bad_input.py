@@ -358,3 +358,60 @@ def test_defect7_analyze_refuses_a_table_without_a_header(tmp_path):
     table = tmp_path / 'noheader.csv'
     table.write_text('1,2,3,4,5\n2,1,2,3,4\n3,4,3,2,1\n')
     one_line_error(cli('analyze', table), str(table), 'header')
+
+
+# ---- defect 5: finite extremes of the gaze wire format
+
+def _datagram(**fields) -> bytes:
+    import json
+    huge = {k: v for k, v in fields.items() if k in ('extra', 'stamp', 'seq') and isinstance(v, str)}
+    fields.update({k: f'@{k}@' for k in huge})
+    msg = {'version': 1, 'seq': 7, 'stamp': 12.5, 'gaze_origin': [0.0, 1.6, 0.0],
+           'gaze_direction': [0.0, 0.0, 1.0], 'head_position': [0.0, 1.6, 0.0],
+           'head_orientation': [0.0, 0.0, 0.0, 1.0], 'eye_tracking_valid': True}
+    msg.update(fields)
+    text = json.dumps(msg, separators=(',', ':'))
+    for k, digits in huge.items():   # an integer json.dumps cannot write (CPython's digit limit)
+        text = text.replace(f'"@{k}@"', digits)
+    return text.encode()
+
+
+def test_defect5_finite_extreme_vectors_are_normalised():
+    import numpy as np
+    from fabric_guidance.core.gaze_wire import parse_datagram
+    s = parse_datagram(_datagram(head_orientation=[1e308] * 4))
+    assert np.allclose(np.abs(s.head_orientation), 0.5) and np.isclose(np.linalg.norm(s.head_orientation), 1.0)
+    s = parse_datagram(_datagram(gaze_direction=[-1.5e308, 1.5e308, 0.0]))
+    assert np.isclose(np.linalg.norm(s.gaze_direction), 1.0)
+    assert np.allclose(s.gaze_direction, [0.0, 2 ** -0.5, 2 ** -0.5])   # Unity (-x, y) -> REP 103 (-y, z)
+
+
+def test_defect5_tiny_vectors_are_zero_vector():
+    from fabric_guidance.core.gaze_wire import WireFormatError, parse_datagram
+    for field, value in (('gaze_direction', [5e-324, 0.0, 0.0]), ('head_orientation', [1e-300, 0, 0, 0])):
+        with pytest.raises(WireFormatError) as info:
+            parse_datagram(_datagram(**{field: value}))
+        assert info.value.reason == 'zero_vector' and field in str(info.value)
+
+
+def test_defect5_integers_beyond_the_digit_limit_are_numbers_not_json_errors():
+    from fabric_guidance.core.gaze_wire import WireFormatError, parse_datagram
+    huge = '9' * 5000
+    big = 20_000
+    sample = parse_datagram(_datagram(extra=huge), max_size=big)     # unknown fields are ignored
+    assert sample.seq == 7
+    for field, reason in (('stamp', 'non_finite'), ('seq', 'range'), ('gaze_origin', 'non_finite')):
+        if field == 'gaze_origin':
+            data = _datagram().replace(b'"gaze_origin":[0.0', b'"gaze_origin":[' + huge.encode())
+        else:
+            data = _datagram(**{field: huge})
+        with pytest.raises(WireFormatError) as info:
+            parse_datagram(data, max_size=big)
+        assert info.value.reason == reason and field in str(info.value), (field, info.value)
+
+
+def test_defect7_ipv4_mapped_allowed_sender_is_the_ipv4_address():
+    from fabric_guidance.nodes.gaze_bridge import GazeBridge
+    senders = GazeBridge._parse_senders(['::ffff:192.168.1.20', '10.0.0.1', '::1'])
+    # the receive loop strips ::ffff: from what an IPv6 socket reports for an IPv4 sender
+    assert senders == {'192.168.1.20', '10.0.0.1', '::1'}

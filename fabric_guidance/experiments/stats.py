@@ -222,7 +222,7 @@ def load_table(path: str | Path) -> pd.DataFrame:
     body = rows[1:]
     if len(body) < 2:
         raise ValueError(f'{path}: needs at least 2 subjects, got {len(body)}')
-    subjects, values, bad, missing = [], [], [], []
+    subjects, values, bad, huge, missing = [], [], [], [], []
     for line, row in enumerate(body, start=2):
         if len(row) != len(header):
             raise ValueError(f'{path}: line {line} has {len(row)} cells, the header has {len(header)}')
@@ -241,15 +241,18 @@ def load_table(path: str | Path) -> pd.DataFrame:
                 value = float(text)
             except ValueError:
                 value = math.nan
-            if not (math.isfinite(value) and abs(value) <= MAX_ABS_VALUE):
+            if not math.isfinite(value):
                 bad.append((subject, cond, text))
+            elif abs(value) > MAX_ABS_VALUE:
+                huge.append((subject, cond, text))
             parsed.append(value)
         values.append(parsed)
-    if bad:
-        raise ValueError(f'{path}: non-numeric or out-of-range value (|x| <= {MAX_ABS_VALUE:g}) at '
-                         + '; '.join(f'subject {excerpt(s)}, condition {excerpt(c)} ({excerpt(t)})'
-                                     for s, c, t in bad[:5])
-                         + (f' and {len(bad) - 5} more' if len(bad) > 5 else ''))
+    for cells, what in ((bad, 'non-numeric value'), (huge, f'value beyond +-{MAX_ABS_VALUE:g}')):
+        if cells:
+            raise ValueError(f'{path}: {what} at '
+                             + '; '.join(f'subject {s[:40]}, condition {c[:40]} ({excerpt(t)})'
+                                         for s, c, t in cells[:5])
+                             + (f' and {len(cells) - 5} more' if len(cells) > 5 else ''))
     if missing:
         raise ValueError(f'{path}: missing value at {_where(missing)}')
     table = pd.DataFrame(values, index=pd.Index(subjects, name=header[0] or 'subject'),
