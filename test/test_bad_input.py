@@ -415,3 +415,50 @@ def test_defect7_ipv4_mapped_allowed_sender_is_the_ipv4_address():
     senders = GazeBridge._parse_senders(['::ffff:192.168.1.20', '10.0.0.1', '::1'])
     # the receive loop strips ::ffff: from what an IPv6 socket reports for an IPv4 sender
     assert senders == {'192.168.1.20', '10.0.0.1', '::1'}
+
+
+# ---- defect 8: the simulated graph's DDS stays on loopback
+
+def _sockets_of(pids: set[int]) -> list[tuple[str, str, int]]:
+    """(netid, local address, pid) of every TCP/UDP socket of these processes (ss -tuanp)."""
+    out = subprocess.run(['ss', '-tuanpH'], capture_output=True, text=True, check=True).stdout
+    found = []
+    for line in out.splitlines():
+        fields = line.split()
+        for pid in pids:
+            if f'pid={pid},' in line:
+                found.append((fields[0], fields[4], pid))
+    return found
+
+
+def _local_ip(address: str) -> str:
+    host = address.rsplit(':', 1)[0].strip('[]')
+    return host.split('%', 1)[0]
+
+
+@pytest.mark.skipif(not __import__('shutil').which('ss'), reason='ss (iproute2) is not installed')
+def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path):
+    import ipaddress
+    import socket
+    from std_msgs.msg import String
+    from fabric_guidance.demo import NODES
+    from fabric_guidance.nodes.common import LATCHED_QOS
+    from rosgraph import Graph, Probe, free_port, wait_until
+    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
+    overrides = {'mock_plc': dict(port=plc_port), 'plc_output': dict(plc_port=plc_port),
+                 'gaze_bridge': dict(port=gaze_port), 'wearer_sim': dict(bridge_port=gaze_port)}
+    with Graph(tmp_path) as graph:
+        for node in NODES:
+            graph.start(node, ('guidance.yaml', 'sim.yaml'), **overrides.get(node, {}))
+        with Probe(graph.domain_id) as probe:
+            # the graph is up and discovered: the controller's latched parameters reach the probe
+            probe.subscribe(String, 'controller_parameters', LATCHED_QOS)
+            wait_until(lambda: probe.latest('controller_parameters'), 60.0, what='controller_parameters')
+            pids = {p.pid for p in graph.processes.values()}   # the nodes (not this test process)
+
+            def every_node_has_sockets():
+                found = _sockets_of(pids)
+                return found if {pid for *_, pid in found} == pids else None
+            sockets = wait_until(every_node_has_sockets, 30.0, 0.2, 'a socket of every node in ss')
+    beyond = [s for s in sockets if not ipaddress.ip_address(_local_ip(s[1])).is_loopback]
+    assert not beyond, f'sockets beyond loopback: {beyond}'
