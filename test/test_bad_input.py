@@ -462,3 +462,135 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
             sockets = wait_until(every_node_has_sockets, 30.0, 0.2, 'a socket of every node in ss')
     beyond = [s for s in sockets if not ipaddress.ip_address(_local_ip(s[1])).is_loopback]
     assert not beyond, f'sockets beyond loopback: {beyond}'
+
+
+# ---- every file reader on generated broken files (hypothesis): one line, bounded memory
+
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+#: A reader of a few-kB file stays far below this, whatever the file holds.
+PEAK_BYTES = 64 * 1024 ** 2
+_SETTINGS = settings(derandomize=True, max_examples=40, deadline=None,
+                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+_extreme = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True), st.integers(min_value=-10 ** 30, max_value=10 ** 30),
+    st.sampled_from([1e308, -1e308, 5e-324, 10 ** 400, '', 'x' * 5000, None, True, [], {}]),
+    st.text(max_size=30), st.lists(st.integers(), max_size=5))
+_yaml_value = st.recursive(_extreme, lambda inner: st.one_of(
+    st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=8), inner, max_size=4)), max_leaves=20)
+
+
+def _readers():
+    from fabric_guidance.core.calibration import Calibration
+    from fabric_guidance.core.channels import ChannelMap
+    from fabric_guidance.experiments.stats import load_table
+    from fabric_guidance.nodes.common import check_params_files
+    from fabric_guidance.plc.register_map import RegisterMap
+    from fabric_guidance.sim.scene import load_scene
+    return {
+        'calibration': (Calibration.load, SIM_CAL),
+        'channel map': (ChannelMap.load, CONFIG / 'channel_map.yaml'),
+        'register map': (RegisterMap.load, CONFIG / 'plc_register_map.yaml'),
+        'scene': (load_scene, CONFIG / 'scenes' / 'paper-accuracy.yaml'),
+        'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'guidance.yaml'),
+        'analyze table': (load_table, ROOT / 'test' / 'data' / 'table-identified-targets.csv'),
+    }
+
+
+READERS = _readers()
+
+
+def _refuses_in_one_line(reader, path: Path) -> None:
+    """The reader accepts the file or raises a ValueError of one short line naming the file;
+    anything else (another exception, a traceback's worth of text, a memory spike) fails."""
+    import tracemalloc
+    tracemalloc.start()
+    try:
+        reader(path)
+    except ValueError as exc:
+        msg = str(exc)
+        assert '\n' not in msg and len(msg) < 600, msg[:2000]
+        assert path.name in msg, msg
+    finally:
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+    assert peak < PEAK_BYTES, f'{peak / 1e6:.0f} MB'
+
+
+def _mutate(original: bytes, data) -> bytes:
+    kind = data.draw(st.sampled_from(['truncate', 'flip', 'splice', 'random']))
+    if kind == 'truncate':
+        return original[:data.draw(st.integers(0, len(original)))]
+    if kind == 'flip':
+        out = bytearray(original)
+        for _ in range(data.draw(st.integers(1, 8))):
+            i = data.draw(st.integers(0, len(out) - 1))
+            out[i] = data.draw(st.integers(0, 255))
+        return bytes(out)
+    if kind == 'splice':
+        i = data.draw(st.integers(0, len(original)))
+        return original[:i] + data.draw(st.binary(max_size=64)) + original[i:]
+    return data.draw(st.binary(max_size=2048))
+
+
+@pytest.mark.parametrize('name', sorted(READERS))
+@_SETTINGS
+@given(data=st.data())
+def test_every_file_reader_refuses_mutated_files_in_one_line(tmp_path, name, data):
+    reader, original = READERS[name]
+    path = tmp_path / f'broken{original.suffix}'
+    path.write_bytes(_mutate(original.read_bytes(), data))
+    _refuses_in_one_line(reader, path)
+
+
+@pytest.mark.parametrize('name', sorted(set(READERS) - {'analyze table'}))
+@_SETTINGS
+@given(data=st.data())
+def test_every_yaml_reader_refuses_wrong_values_in_one_line(tmp_path, name, data):
+    """The real file with a generated value in one of its fields (or as the whole document)."""
+    reader, original = READERS[name]
+    doc = yaml.safe_load(original.read_text())
+    value = data.draw(_yaml_value)
+    target = doc
+    while isinstance(target, dict) and target and data.draw(st.booleans()):
+        key = data.draw(st.sampled_from(sorted(target, key=str)))
+        if not isinstance(target[key], dict):
+            break
+        target = target[key]
+    if isinstance(target, dict) and target:
+        target[data.draw(st.sampled_from(sorted(target, key=str)))] = value
+    else:
+        doc = value
+    path = tmp_path / 'broken.yaml'
+    path.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
+    _refuses_in_one_line(reader, path)
+
+
+@_SETTINGS
+@given(data=st.data())
+def test_bag_reader_refuses_mutated_bags_in_one_line(session_bag, tmp_path_factory, data):
+    from fabric_guidance.bag.offline import load
+    bag, mcap = _copy_bag(session_bag, tmp_path_factory.mktemp('mut') / 'bag')
+    original = mcap.read_bytes()
+    # mutations anywhere, mostly in the summary at the end where one byte can mislead the index
+    if data.draw(st.booleans()):
+        out = bytearray(original)
+        for _ in range(data.draw(st.integers(1, 16))):
+            i = data.draw(st.integers(max(0, len(out) - 4096), len(out) - 1))
+            out[i] = data.draw(st.integers(0, 255))
+        content = bytes(out)
+    else:
+        content = _mutate(original, data)
+    mcap.write_bytes(content)
+    import tracemalloc
+    tracemalloc.start()
+    try:
+        rec = load(bag)
+        assert rec.problems or content == original or len(rec.inputs) == 4000, 'damage not reported'
+    except ValueError as exc:
+        assert '\n' not in str(exc) and len(str(exc)) < 2000, str(exc)[:3000]
+    finally:
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+    assert peak < 4 * PEAK_BYTES, f'{peak / 1e6:.0f} MB'

@@ -2,6 +2,10 @@
 from __future__ import annotations
 
 from collections import Counter
+import contextlib
+import io
+import mmap
+import os
 import heapq
 import itertools
 from pathlib import Path
@@ -61,13 +65,53 @@ def _one_line(exc: BaseException) -> str:
     return excerpt(f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__, 120).strip("'\"")
 
 
+@contextlib.contextmanager
+def _mapped(f):
+    """The file as a read-only memory map: a damaged record length asks read() for gigabytes,
+    which a file object allocates before it finds the end of the file; a map returns what
+    there is."""
+    if os.fstat(f.fileno()).st_size == 0:
+        yield io.BytesIO(b'')
+        return
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m:
+        yield _MapStream(m)
+
+
+class _MapStream:
+    """A seekable binary stream over a memory map (what the mcap reader needs)."""
+
+    def __init__(self, m: mmap.mmap):
+        self._m = m
+
+    def readinto(self, buffer) -> int:
+        data = self._m.read(len(buffer))
+        buffer[:len(data)] = data
+        return len(data)
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def read(self, size: int = -1) -> bytes:
+        return self._m.read(None if size is None or size < 0 else size)
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        self._m.seek(offset, whence)
+        return self._m.tell()
+
+    def tell(self) -> int:
+        return self._m.tell()
+
+
 def _mcap_messages(file: Path, wanted: set[str] | None, problems: list[str]):
     """(topic, type, log time, data) of one MCAP file in log-time order, chunk by chunk.
 
     A chunk that cannot be read (CRC, truncation, garbage) is reported in `problems` and skipped;
     so are message counts that fall short of the file's summary statistics. A file without a
     summary or whose header is unreadable raises BagReadError."""
-    with open(file, 'rb') as stream:
+    with open(file, 'rb') as f, _mapped(f) as stream:
         try:
             reader = make_reader(stream, validate_crcs=True)
             reader.get_header()
