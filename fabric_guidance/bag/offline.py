@@ -128,7 +128,8 @@ def load(path, namespace: str = '/') -> Recording:
     problems += [f'{n} {t} messages could not be decoded' for t, n in sorted(undecodable.items())]
     damage = f' (the bag is damaged: {"; ".join(problems)})' if problems else ''
     if not setups:
-        raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller published it?){damage}')
+        raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller '
+                         f'published it?){damage}')
     if not inputs:
         raise ValueError(f'{path}: no {CONTROLLER_INPUT}: nothing to replay{damage}')
     inputs_by_time = [i.command for i in inputs]

@@ -54,15 +54,18 @@ def _mcap_files(directory: Path) -> list[Path]:
     for name in names:
         file = directory / name
         if Path(name).is_absolute() or '..' in Path(name).parts:
-            raise BagReadError(f'{meta_file}: field "relative_file_paths" names {excerpt(name)} outside the bag')
+            raise BagReadError(f'{meta_file}: field "relative_file_paths" names {excerpt(name)} '
+                               'outside the bag')
         if not file.is_file():
-            raise BagReadError(f'{meta_file}: field "relative_file_paths" names {name}, which does not exist')
+            raise BagReadError(f'{meta_file}: field "relative_file_paths" names {name}, '
+                               'which does not exist')
         files.append(file)
-    return [f for f in files if f.suffix == '.mcap'] or ([] if files else sorted(directory.glob('*.mcap')))
+    return [f for f in files if f.suffix == '.mcap']
 
 
 def _one_line(exc: BaseException) -> str:
-    return excerpt(f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__, 120).strip("'\"")
+    text = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__
+    return ' '.join(text.split())[:120]
 
 
 @contextlib.contextmanager
@@ -132,7 +135,8 @@ def _mcap_messages(file: Path, wanted: set[str] | None, problems: list[str]):
         read = Counter()
         heap, order = [], itertools.count()
         for ci in summary.chunk_indexes:
-            if any(cid in channels for cid in ci.message_index_offsets) or not ci.message_index_offsets:
+            offsets = ci.message_index_offsets
+            if not offsets or any(cid in channels for cid in offsets):
                 heapq.heappush(heap, (ci.message_start_time, next(order), ci))
         while heap:
             _, _, item = heapq.heappop(heap)
@@ -140,7 +144,8 @@ def _mcap_messages(file: Path, wanted: set[str] | None, problems: list[str]):
                 channel, message = item
                 schema = summary.schemas.get(channel.schema_id)
                 read[channel.topic] += 1
-                yield channel.topic, schema.name if schema else '', message.log_time, bytes(message.data)
+                yield (channel.topic, schema.name if schema else '', message.log_time,
+                       bytes(message.data))
                 continue
             try:
                 stream.seek(item.chunk_start_offset + 1 + 8)
@@ -154,11 +159,12 @@ def _mcap_messages(file: Path, wanted: set[str] | None, problems: list[str]):
                 continue
             for record in records:
                 if isinstance(record, Message) and record.channel_id in channels:
-                    heapq.heappush(heap, (record.log_time, next(order), (channels[record.channel_id], record)))
+                    item = (channels[record.channel_id], record)
+                    heapq.heappush(heap, (record.log_time, next(order), item))
         short = {t: (read[t], n) for t, n in expected.items() if read[t] < n}
         if short:
-            problems.append(f'{file}: read ' + ', '.join(f'{r} of {n} {t}' for t, (r, n) in sorted(short.items()))
-                            + ' messages the summary counts')
+            counts = ', '.join(f'{r} of {n} {t}' for t, (r, n) in sorted(short.items()))
+            problems.append(f'{file}: read {counts} messages the summary counts')
 
 
 def raw_messages(path: str | Path, topics: Iterable[str] | None = None,
@@ -187,9 +193,7 @@ def raw_messages(path: str | Path, topics: Iterable[str] | None = None,
                 return
             for conn, timestamp, data in reader.messages(connections=conns):
                 yield conn.topic, conn.msgtype, timestamp, bytes(data)
-    except (OSError, ValueError, KeyError) as exc:  # rosbags' errors derive from these or Exception
-        raise BagReadError(f'{directory}: not a readable bag ({_one_line(exc)})') from None
-    except Exception as exc:
+    except Exception as exc:  # rosbags raises its own kinds on a damaged bag
         raise BagReadError(f'{directory}: not a readable bag ({_one_line(exc)})') from None
 
 
