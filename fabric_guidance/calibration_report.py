@@ -32,6 +32,7 @@ from . import subcommand
 from .core.calibration import Calibration, CalibrationFileError, atomic_write
 from .core.geometry import DIRECTIONS
 from .core.power_law import THETA_MAX
+from .core.safe_input import check_wearer
 
 PROG = 'fabric-guidance calibration-report'
 HELP = "write the fit report (text and PNG) of a wearer's calibration file"
@@ -174,6 +175,7 @@ def draw_fit_figure(calibration: Calibration):
 def report_paths(calibration: Calibration, folder: str | Path) -> tuple[Path, Path]:
     """Where write_fit_report writes: <folder>/<wearer>-fit.txt and <folder>/<wearer>-fit.png."""
     folder = Path(folder)
+    check_wearer(calibration.wearer, 'the calibration\'s wearer')
     return folder / f'{calibration.wearer}-fit.txt', folder / f'{calibration.wearer}-fit.png'
 
 
@@ -214,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
         cal = Calibration.load(args.file)
         out = args.out if args.out is not None else args.file.parent
         txt, png = write_fit_report(cal, out, source=str(args.file))
-    except (CalibrationFileError, OSError) as exc:
+    except (CalibrationFileError, OSError, ValueError, ArithmeticError) as exc:
+        # ArithmeticError: a value the file's checks let through that the drawing cannot take
         print(f'{PROG}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
     print(txt.read_text(), end='')

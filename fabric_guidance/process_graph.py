@@ -26,6 +26,17 @@ from .paths import share_dir
 
 ROOT = share_dir()
 CONFIG = ROOT / 'config'
+#: The Fast DDS profile that keeps the simulated graph's DDS on 127.0.0.1 (issue 14).
+LOOPBACK_DDS_PROFILE = CONFIG / 'fastdds_loopback.xml'
+
+
+def loopback_dds_env() -> dict[str, str]:
+    """Environment that confines a process's DDS to loopback: the profile decides alone
+    (SYSTEM_DEFAULT: rmw's LOCALHOST mode would add a send socket on every interface)."""
+    if not LOOPBACK_DDS_PROFILE.is_file():  # without it SYSTEM_DEFAULT would reach the network
+        raise FileNotFoundError(f'{LOOPBACK_DDS_PROFILE} is missing: DDS would not stay on loopback')
+    return {'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_DDS_PROFILE),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
 _counter = itertools.count()
 
 
@@ -66,8 +77,8 @@ class Graph:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: dict[str, subprocess.Popen] = {}
         self.records_files: list[Path] = []   # one per mock_plc started, restarts included
-        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                        PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1',
+                        RCUTILS_COLORIZED_OUTPUT='0', **loopback_dds_env())
 
     def command_prefix(self, node: str) -> list[str]:
         """Words put before a node's command (e.g. `ip netns exec NAME`); none here."""
@@ -162,7 +173,7 @@ class Probe:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        os.environ.update(loopback_dds_env())   # read by rclpy.init of this process's participant
         self._rclpy = rclpy
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)

@@ -5,15 +5,19 @@
       controller_parameters), without DDS, with the same core classes, and compares each step's
       command with the recorded pressure_command channel by channel: the largest difference,
       where it happens, and how much faster than real time the replay ran. Exit 0 when every
-      compared command is reproduced exactly, 1 when some differ (expected with --set).
+      compared command is reproduced exactly, 1 when some differ (expected with --set), 3 when
+      part of the bag could not be read (a damaged chunk, fewer messages than its summary
+      counts): what was unreadable is listed and the comparison is not called exact.
   replay BAG [--rate R] [--loop] [--topics ...]
       republishes the recorded inputs (gaze, head_pose, target, active_target) with /clock
       for nodes started with use_sim_time:=true (pressure_controller reruns live on the bag's
-      time); --loop plays again from the start, the clock jumping back.
+      time); --loop plays again from the start, the clock jumping back. A damaged bag is not
+      republished (exit 2, naming the damage).
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 
@@ -57,7 +61,10 @@ def run(args, stream=sys.stdout) -> int:
             say(f'fabric-guidance replay: {exc}')
             return 2
         offline.report(result, overrides, say)
-        return 0 if result.exact else 1
+        return 0 if result.exact else 3 if result.problems else 1
+    if not (math.isfinite(args.rate) and args.rate > 0):
+        say(f'fabric-guidance replay: --rate must be a finite number > 0, got {args.rate}')
+        return 2
     if args.set:
         say('fabric-guidance replay: --set applies to --offline; set parameters of the live nodes instead')
         return 2

@@ -52,6 +52,9 @@ def generate_launch_description():
     return LaunchDescription([
         # The simulated graph talks to nobody else: DDS discovery stays on this machine.
         SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
+        # issue 14: and its sockets on 127.0.0.1 only (config/fastdds_loopback.xml)
+        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE',
+                               os.path.join(share, 'config', 'fastdds_loopback.xml')),
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
                                           '4 speech'),

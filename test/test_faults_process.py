@@ -19,7 +19,7 @@ import pytest
 
 from deadlines import DeadlineLog
 from fabric_guidance.plc.records import load_records
-from rosgraph import Graph, free_port, wait_until
+from rosgraph import CONFIG, Graph, free_port, wait_until
 from test_graph import F_LEFT_40, GAZE_STALE_VENT_S, SIM_CAL, HoloLensStub, RegisterWatch, encode_datagram
 import socket
 
@@ -206,5 +206,5 @@ def test_every_node_of_the_graph_keeps_dds_discovery_on_localhost(lab):
     for node, proc in lab.graph.processes.items():
         environ = dict(item.split('=', 1) for item in
                        open(f'/proc/{proc.pid}/environ').read().split('\0') if '=' in item)
-        assert environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST', node
+        assert environ.get('FASTDDS_DEFAULT_PROFILES_FILE') == str(CONFIG / 'fastdds_loopback.xml'), node
         assert environ.get('ROS_DOMAIN_ID') == str(lab.graph.domain_id), node

@@ -80,6 +80,7 @@ class NetnsGraph(Graph):
         super().__init__(log_dir)
         self.hosts = hosts
         self.env.update(ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
+        self.env.pop('FASTDDS_DEFAULT_PROFILES_FILE')   # the loopback profile: not across the veth
 
     def command_prefix(self, node):
         return ['ip', 'netns', 'exec', self.hosts[node]]

@@ -42,7 +42,9 @@ def test_the_package_writes_only_mapped_registers():
 
 
 def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
-    assert Graph(tmp_path).env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    env = Graph(tmp_path).env   # the loopback profile decides alone (test_bad_input checks with ss)
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     assert "SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')" in launch
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()

@@ -31,6 +31,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import yaml
 
+from ..core.safe_input import excerpt, parse_yaml
 from ..core import Calibration, ChannelMap, GuidanceController, condition as condition_of, target_direction
 from ..core import feedback as law   # law.TARGET, not this module's TARGET (an input slice)
 from ..core.feedback import (FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN,
@@ -175,7 +176,7 @@ class ControllerSetup:
 
     @classmethod
     def from_yaml(cls, text: str) -> 'ControllerSetup':
-        return cls.from_dict(yaml.safe_load(text))
+        return cls.from_dict(parse_yaml(text, CONTROLLER_PARAMETERS))
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> 'ControllerSetup':
         """A copy with some parameters changed (`replay --set gain=0.1`)."""
@@ -183,8 +184,8 @@ class ControllerSetup:
         for key, value in overrides.items():
             if key not in d or key in ('schema', 'calibration', 'channel_map'):
                 settable = [k for k in d if k not in ('schema', 'calibration', 'channel_map')]
-                raise ValueError(f'unknown controller parameter {key!r}; settable: {settable}')
-            d[key] = value
+                raise ValueError(f'unknown controller parameter {excerpt(key)}; settable: {settable}')
+            d[key] = _override(key, d[key], value)
         return ControllerSetup.from_dict(d)
 
 
@@ -230,3 +231,22 @@ def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
     if controller.stalled:
         return zeros, controller.stalled, False
     return setup.channel_map.to_channels(direction_pressures, setup.layout), '', False
+
+
+def _override(key: str, current: Any, value: Any) -> Any:
+    """An override of the current value's kind (number, whole number, true/false), or ValueError
+    naming the parameter."""
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f'--set {key}: must be true or false, got {excerpt(value)}')
+        return value
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    try:
+        ok = ok and math.isfinite(value)
+    except OverflowError:
+        ok = False
+    if isinstance(current, int) and not (ok and float(value).is_integer()):
+        raise ValueError(f'--set {key}: must be a whole number, got {excerpt(value)}')
+    if not ok:
+        raise ValueError(f'--set {key}: must be a finite number, got {excerpt(value)}')
+    return value

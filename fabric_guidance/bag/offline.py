@@ -22,17 +22,15 @@ import time
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from .controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput, guidance_step,
                             safe_command)
+from ..core.safe_input import excerpt, parse_yaml
 from .reader import raw_messages
 from .topics import bag_topic
 from .writer import typestore
 
 PRESSURE_COMMAND = 'pressure_command'
-# libyaml's loader where PyYAML has it: the parameters hold the calibration and channel map.
-_YamlLoader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
 @dataclass
@@ -43,6 +41,7 @@ class Recording:
     commands: list[np.ndarray]            # recorded pressure_command data, in bag order
     offset: int                           # command index - position in `commands`
     read_s: float                         # wall time spent reading and decoding
+    problems: list[str] = field(default_factory=list)   # what of the bag could not be read
 
 
 @dataclass
@@ -60,6 +59,7 @@ class ReplayResult:
     bag_duration_s: float = 0.0           # ROS time the steps span
     read_s: float = 0.0
     run_s: float = 0.0
+    problems: list[str] = field(default_factory=list)   # the bag's damage: the comparison is partial
 
     @property
     def largest(self) -> float:
@@ -67,7 +67,7 @@ class ReplayResult:
 
     @property
     def exact(self) -> bool:
-        return self.compared > 0 and self.largest == 0.0
+        return self.compared > 0 and self.largest == 0.0 and not self.problems
 
     @property
     def speedup(self) -> float:
@@ -99,31 +99,44 @@ def load(path, namespace: str = '/') -> Recording:
     t0 = time.perf_counter()
     topics = {bag_topic(CONTROLLER_INPUT, namespace): 'in', bag_topic(CONTROLLER_PARAMETERS, namespace): 'par',
               bag_topic(PRESSURE_COMMAND, namespace): 'cmd'}
-    setups, inputs, commands, input_ts, command_ts = [], [], [], [], []
-    for topic, msgtype, stamp, data in raw_messages(path, topics):
+    setups, inputs, commands, input_ts, command_ts, problems = [], [], [], [], [], []
+    undecodable = Counter()
+    for topic, msgtype, stamp, data in raw_messages(path, topics, problems):
         kind = topics[topic]
-        if kind == 'par':
-            d = yaml.load(store.deserialize_cdr(data, msgtype).data, Loader=_YamlLoader)
-            setups.append((int(d.pop('from_step', 0)), d))
+        try:
+            if kind == 'par':
+                d = parse_yaml(store.deserialize_cdr(data, msgtype).data, f'{topic} message')
+                if not isinstance(d, dict):
+                    raise ValueError('not a mapping')
+                setups.append((int(d.pop('from_step', 0)), d))
+                continue
+            # The two Float64MultiArray topics are most of the bag: read them without the generic decoder.
+            values = float64_array(data)
+            if values is None:
+                values = np.asarray(store.deserialize_cdr(data, msgtype).data, dtype=float)
+            if kind == 'in':
+                step = StepInput.decode(values)
+        except Exception:  # a damaged message (the CDR decoder raises many kinds): counted, skipped
+            undecodable[topic] += 1
             continue
-        # The two Float64MultiArray topics are most of the bag: read them without the generic decoder.
-        values = float64_array(data)
-        if values is None:
-            values = np.asarray(store.deserialize_cdr(data, msgtype).data, dtype=float)
         if kind == 'in':
-            inputs.append(StepInput.decode(values))
+            inputs.append(step)
             input_ts.append(stamp)
         else:
             commands.append(np.array(values, dtype=float))
             command_ts.append(stamp)
+    problems += [f'{n} {t} messages could not be decoded' for t, n in sorted(undecodable.items())]
+    damage = f' (the bag is damaged: {"; ".join(problems)})' if problems else ''
     if not setups:
-        raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller published it?)')
+        raise ValueError(f'{path}: no {CONTROLLER_PARAMETERS} (recorded before pressure_controller '
+                         f'published it?){damage}')
     if not inputs:
-        raise ValueError(f'{path}: no {CONTROLLER_INPUT}: nothing to replay')
+        raise ValueError(f'{path}: no {CONTROLLER_INPUT}: nothing to replay{damage}')
     inputs_by_time = [i.command for i in inputs]
     inputs.sort(key=lambda i: i.step)
     setups.sort(key=lambda s: s[0])
-    rec = Recording(setups, inputs, commands, pairing_offset(inputs_by_time, input_ts, command_ts), 0.0)
+    rec = Recording(setups, inputs, commands, pairing_offset(inputs_by_time, input_ts, command_ts), 0.0,
+                    problems)
     rec.read_s = time.perf_counter() - t0
     return rec
 
@@ -155,16 +168,20 @@ def parse_overrides(items) -> dict[str, Any]:
         key, sep, value = item.partition('=')
         if not sep or not key.strip():
             raise ValueError(f'--set needs NAME=VALUE, got {item!r}')
-        out[key.strip()] = yaml.safe_load(value)
+        out[key.strip()] = parse_yaml(value, f'--set {excerpt(key.strip())}')
     return out
 
 
 def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> ReplayResult:
     """Rerun every recorded control step; compare with the recorded commands."""
     t0 = time.perf_counter()
-    first = ControllerSetup.from_dict(rec.setups[0][1])
+    try:
+        first = ControllerSetup.from_dict(rec.setups[0][1])
+    except (KeyError, TypeError, AttributeError) as exc:  # ValueErrors name their field already
+        raise ValueError(f'{CONTROLLER_PARAMETERS}: unusable parameters ({type(exc).__name__}: '
+                         f'{excerpt(str(exc))})') from None
     result = ReplayResult(first.channel_map.channels, max_diff=np.zeros(len(first.channel_map.channels)),
-                          read_s=rec.read_s)
+                          read_s=rec.read_s, problems=list(rec.problems))
     setups = [(s, ControllerSetup.from_dict(d).with_overrides(overrides or {})) for s, d in rec.setups]
     k = -1
     setup = controller = None
@@ -230,8 +247,14 @@ def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> No
     say(f'  {"channel":<8} {"max |diff| kPa":>14}')
     for name, d in zip(result.channels, result.max_diff):
         say(f'  {name:<8} {d:14.6g}')
+    for problem in result.problems:
+        say(f'  UNREADABLE: {problem}')
+    if result.problems:
+        say('  the bag is damaged: the comparison covers only what could be read, so it is not called '
+            'exact')
     if result.largest == 0.0:
-        say('  largest difference: 0 kPa: every compared command reproduced exactly (bit for bit)')
+        say('  largest difference: 0 kPa: every compared command reproduced exactly (bit for bit)'
+            + (' (of the readable part only)' if result.problems else ''))
     else:
         w = result.worst
         say(f"  largest difference: {w['diff']:.6g} kPa on {w['channel']} at step {w['step']} (t = {w['t']:.3f} s): "

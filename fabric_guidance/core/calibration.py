@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from .feedback import FRONT, PAPER_P_MAX
+from .safe_input import WEARER_PATTERN, WEARER_RULE, InputFileError, excerpt, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 
@@ -57,6 +58,22 @@ def atomic_write(path: str | Path, write) -> Path:
     return path
 
 
+#: Bounds of a calibration file's values: the controller's own p_max_kpa range, and a gaze angle
+#: (beyond them a hand-edited file overflows the report's arithmetic).
+P_MAX_LIMIT_KPA = 1000.0
+ANGLE_LIMIT_DEG = 180.0
+
+
+def _number(x) -> bool:
+    """A finite int or float, not a bool (True is an int to Python, not a number to a file)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
 class CalibrationFileError(ValueError):
     """A calibration file that cannot be used, naming the file, the field and the reason."""
 
@@ -67,7 +84,7 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
     By default evenly spaced from p_max/steps; `first` sets the lowest step instead.
     """
     if not (isinstance(steps, (int, np.integer)) and steps >= 3):
-        raise ValueError(f'a calibration needs at least 3 steps, got {steps!r}')
+        raise ValueError(f'a calibration needs at least 3 steps, got {excerpt(steps)}')
     if not (math.isfinite(p_max) and p_max > 0):
         raise ValueError(f'p_max must be finite and > 0 kPa, got {p_max}')
     lo = p_max / steps if first is None else float(first)
@@ -215,20 +232,20 @@ class Calibration:
         if not isinstance(data, Mapping):
             raise CalibrationFileError(f'{source}: expected a YAML mapping at the top level')
         if data.get('schema_version') != SCHEMA_VERSION:
-            fail('schema_version', f'must be {SCHEMA_VERSION}, got {data.get("schema_version")!r}')
+            fail('schema_version', f'must be {SCHEMA_VERSION}, got {excerpt(data.get("schema_version"))}')
         units = data.get('units')
         if units != {'pressure': 'kPa', 'angle': 'deg'}:
-            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {units!r}')
+            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {excerpt(units)}')
         wearer = data.get('wearer')
-        if not isinstance(wearer, str) or not wearer:
-            fail('wearer', 'must be a non-empty string')
+        if not isinstance(wearer, str) or not WEARER_PATTERN.fullmatch(wearer):
+            fail('wearer', f'{WEARER_RULE}, got {excerpt(wearer)}')
         p_max = data.get('p_max_kpa')
-        if isinstance(p_max, bool) or not isinstance(p_max, (int, float)) or not (math.isfinite(p_max) and p_max > 0):
-            fail('p_max_kpa', f'must be a finite number > 0, got {p_max!r}')
+        if not (_number(p_max) and 0 < p_max <= P_MAX_LIMIT_KPA):
+            fail('p_max_kpa', f'must be a number in (0, {P_MAX_LIMIT_KPA:g}] kPa, got {excerpt(p_max)}')
         dirs = data.get('directions')
         if not isinstance(dirs, Mapping) or set(dirs) != set(DIRECTIONS):
-            got = sorted(dirs) if isinstance(dirs, Mapping) else dirs
-            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {got!r}')
+            got = sorted(map(str, dirs)) if isinstance(dirs, Mapping) else dirs
+            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {excerpt(got)}')
         out = {}
         for d in DIRECTIONS:
             entry = dirs[d]
@@ -242,28 +259,27 @@ class Calibration:
             pressures = points.get('pressure_kpa', []) if isinstance(points, Mapping) else None
             angles = points.get('angle_deg', []) if isinstance(points, Mapping) else None
             if (not isinstance(pressures, list) or not isinstance(angles, list) or len(pressures) != len(angles)
-                    or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in pressures + angles)):
-                fail(f'directions.{d}.points', 'must hold equal-length lists of finite pressure_kpa and angle_deg')
+                    or not all(_number(x) and 0 <= x <= p_max for x in pressures)
+                    or not all(_number(x) and abs(x) <= ANGLE_LIMIT_DEG for x in angles)):
+                fail(f'directions.{d}.points', 'must hold equal-length lists of pressure_kpa in [0, p_max_kpa] '
+                     f'and angle_deg in [-{ANGLE_LIMIT_DEG:g}, {ANGLE_LIMIT_DEG:g}]')
             fit = entry.get('fit') or {}
             if not isinstance(fit, Mapping):
                 fail(f'directions.{d}.fit', 'must be a mapping')
             out[d] = DirectionCalibration(law, tuple(map(float, pressures)), tuple(map(float, angles)), dict(fit))
         created = data.get('created', '')
         gain = data.get('adjustment_gain')
-        if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float))
-                                 or not (math.isfinite(gain) and gain >= 0)):
-            fail('adjustment_gain', f'must be a finite number >= 0 when present, got {gain!r}')
+        if gain is not None and not (_number(gain) and 0 <= gain <= 1e6):
+            fail('adjustment_gain', f'must be a finite number >= 0 when present, got {excerpt(gain)}')
         rest = data.get('rest_gaze')
         if rest is not None:
-            if (not isinstance(rest, list) or len(rest) != 3
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                               for x in rest)):
-                fail('rest_gaze', f'must be a list of 3 numbers (x, y, z) when present, '
-                                  f'got {rest!r}')
+            if not isinstance(rest, list) or len(rest) != 3 or not all(_number(x) for x in rest):
+                fail('rest_gaze', f'must be a list of 3 finite numbers (x, y, z) when present, '
+                                  f'got {excerpt(rest)}')
             try:
                 rest = tuple(float(x) for x in unit_vector(rest, 'rest_gaze'))
             except GeometryError as exc:
-                fail('rest_gaze', f'is not a direction: {exc}')
+                fail('rest_gaze', f'is not a direction: {excerpt(str(exc))}')
         return cls(wearer, float(p_max), out, str(created),
                    None if gain is None else float(gain), rest)
 
@@ -271,9 +287,9 @@ class Calibration:
     def load(cls, path: str | Path) -> 'Calibration':
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise CalibrationFileError(f'cannot read calibration file {path}: {exc}') from None
+            data = load_yaml(path, 'calibration file')
+        except InputFileError as exc:
+            raise CalibrationFileError(str(exc)) from None
         return cls.from_dict(data, source=str(path))
 
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-import yaml
 
+from .safe_input import InputFileError, excerpt, load_yaml
 from .geometry import DIRECTIONS
 
 
@@ -43,7 +43,7 @@ class ChannelMap:
         try:
             return self._selection[layout]
         except KeyError:
-            raise ChannelMapError(f'unknown layout {layout!r}; the map has {list(self._selection)}') from None
+            raise ChannelMapError(f'unknown layout {excerpt(layout)}; the map has {list(self._selection)}') from None
 
     def to_channels(self, direction_pressures: Sequence[float], layout: str) -> np.ndarray:
         """Per-channel pressures (kPa) in the configured order; channels not used are 0."""
@@ -78,7 +78,7 @@ class ChannelMap:
             where = f'{source}: layouts.{name}'
             if not isinstance(directions, Mapping) or set(directions) != set(DIRECTIONS):
                 got = sorted(directions) if isinstance(directions, Mapping) else directions
-                raise ChannelMapError(f'{where} must name exactly the directions {list(DIRECTIONS)}, got {got}')
+                raise ChannelMapError(f'{where} must name exactly the directions {list(DIRECTIONS)}, got {excerpt(got)}')
             sel = np.zeros((len(channels), len(DIRECTIONS)))
             for k, direction in enumerate(DIRECTIONS):
                 names = directions[direction]
@@ -86,10 +86,10 @@ class ChannelMap:
                     raise ChannelMapError(f'{where}.{direction} must be a non-empty list of channels')
                 for ch in names:
                     if ch not in channels:
-                        raise ChannelMapError(f'{where}.{direction}: channel {ch!r} is not in "channels"')
+                        raise ChannelMapError(f'{where}.{direction}: channel {excerpt(ch)} is not in "channels"')
                     i = channels.index(ch)
                     if sel[i].any():
-                        raise ChannelMapError(f'{where}.{direction}: channel {ch!r} already drives another direction')
+                        raise ChannelMapError(f'{where}.{direction}: channel {excerpt(ch)} already drives another direction')
                     sel[i, k] = 1.0
             sel.setflags(write=False)
             selection[str(name)] = sel
@@ -99,7 +99,7 @@ class ChannelMap:
     def load(cls, path: str | Path) -> 'ChannelMap':
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ChannelMapError(f'cannot read channel map {path}: {exc}') from None
+            data = load_yaml(path, 'channel map')
+        except InputFileError as exc:
+            raise ChannelMapError(str(exc)) from None
         return cls.from_dict(data, source=str(path))

@@ -77,9 +77,25 @@ def _reject_constant(name: str) -> Any:
     raise _NonFiniteLiteral(name)
 
 
+class _HugeInt(float):
+    """A JSON integer too long for CPython's int() digit limit (and for a double: any integer
+    of more than 309 digits is): kept as the float it rounds to (inf), so it is judged like any
+    other number that overflows a double ('non_finite', or 'range' for seq and version) and an
+    unknown field holding one is ignored like any other, instead of failing the whole datagram."""
+
+
+#: Integers with more characters than this become _HugeInt (far below CPython's digit limit,
+#: 640 at its lowest setting; 400 digits already overflow a double).
+_INT_CHARS = 400
+
+
+def _parse_int(text: str):
+    return int(text) if len(text) <= _INT_CHARS else _HugeInt(text)
+
+
 # Built once: json.loads with keyword arguments would build a new decoder per call.
-_STRICT_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
-_LENIENT_DECODER = json.JSONDecoder()
+_STRICT_DECODER = json.JSONDecoder(parse_constant=_reject_constant, parse_int=_parse_int)
+_LENIENT_DECODER = json.JSONDecoder(parse_int=_parse_int)
 _isfinite = math.isfinite
 
 
@@ -113,12 +129,16 @@ def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
         raise WireFormatError('not_object', f'datagram is a JSON {type(msg).__name__}, not an object')
 
     version = _field(msg, 'version')
+    if type(version) is _HugeInt:
+        raise WireFormatError('version', f'version of {_INT_CHARS}+ digits is not supported')
     if type(version) is not int:
         raise WireFormatError('type', f'version must be an integer, got {_json_type(version)}')
     if version != WIRE_VERSION:
         raise WireFormatError('version', f'version {version} is not supported (expected {WIRE_VERSION})')
 
     seq = _field(msg, 'seq')
+    if type(seq) is _HugeInt:
+        raise WireFormatError('range', f'seq of {_INT_CHARS}+ digits is outside 0..{SEQ_MODULUS - 1}')
     if type(seq) is not int:
         raise WireFormatError('type', f'seq must be an integer, got {_json_type(seq)}')
     if not 0 <= seq < SEQ_MODULUS:
@@ -128,17 +148,11 @@ def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
 
     ox, oy, oz = _vector(msg, 'gaze_origin', 3)
     _check_position(ox, oy, oz, 'gaze_origin')
-    dx, dy, dz = _vector(msg, 'gaze_direction', 3)
-    norm = math.hypot(dx, dy, dz)  # hypot does not overflow for large finite components
-    if not norm > MIN_NORM:
-        raise WireFormatError('zero_vector', f'gaze_direction has zero length ({norm:g})')
-    dx, dy, dz = dx / norm, dy / norm, dz / norm
+    dx, dy, dz = _unit(_vector(msg, 'gaze_direction', 3), 'gaze_direction')
     hx, hy, hz = _vector(msg, 'head_position', 3)
     _check_position(hx, hy, hz, 'head_position')
-    qx, qy, qz, qw = _vector(msg, 'head_orientation', 4)
-    qnorm = math.hypot(qx, qy, qz, qw)
-    if not qnorm > MIN_NORM:
-        raise WireFormatError('zero_vector', f'head_orientation has zero length ({qnorm:g})')
+    qx, qy, qz, qw = _unit(_vector(msg, 'head_orientation', 4), 'head_orientation')
+    qnorm = 1.0
 
     valid = _field(msg, 'eye_tracking_valid')
     if type(valid) is not bool:
@@ -293,7 +307,7 @@ def _json_type(value: Any) -> str:
         return 'a boolean'
     if type(value) in (int, float):
         return f'the number {value!r}'
-    return {str: 'a string', list: 'an array', dict: 'an object'}.get(type(value), type(value).__name__)
+    return {str: 'a string', list: 'an array', dict: 'an object', _HugeInt: 'a huge integer'}.get(type(value), type(value).__name__)
 
 
 def _number(value: Any, name: str, index: int | None = None) -> float:
@@ -303,12 +317,27 @@ def _number(value: Any, name: str, index: int | None = None) -> float:
             return value
         # 1e400 parses as inf
         raise WireFormatError('non_finite', f'{_name(name, index)} is not finite ({value!r})')
+    if type(value) is _HugeInt:
+        raise WireFormatError('non_finite', f'{_name(name, index)} is too large to be a float')
     if type(value) is int:
         try:
             return float(value)
         except OverflowError:
             raise WireFormatError('non_finite', f'{_name(name, index)} is too large to be a float') from None
     raise WireFormatError('type', f'{_name(name, index)} must be a number, got {_json_type(value)}')
+
+
+def _unit(v: list[float], name: str) -> list[float]:
+    """v / |v| for any finite v of length > MIN_NORM. Scaled by its largest component first:
+    the length of [1e308] * 4 overflows a double (hypot gives inf, and v / inf is zero)."""
+    m = max(abs(c) for c in v)
+    if not m > 0.0:
+        raise WireFormatError('zero_vector', f'{name} has zero length')
+    scaled = [c / m for c in v]
+    n = math.hypot(*scaled)          # in [1, sqrt(len(v))]
+    if not m * n > MIN_NORM:
+        raise WireFormatError('zero_vector', f'{name} has zero length ({m * n:g})')
+    return [c / n for c in scaled]
 
 
 def _name(name: str, index: int | None) -> str:

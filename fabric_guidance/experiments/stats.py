@@ -32,6 +32,8 @@ import pandas as pd
 import scikit_posthocs
 from scipy import stats as ss
 
+from ..core.safe_input import MAX_FILE_BYTES, excerpt
+
 #: The condition names of the paper's table (its Table I numbering) and how to show them.
 CONDITION_LABELS = {
     'surface_adjusted': '1 surface, adjusted',
@@ -172,6 +174,19 @@ def _where(cells: list[tuple], table: pd.DataFrame | None = None, limit: int = 5
 
 # ---------------------------------------------------------------------------------- loading
 
+#: No measured time, error or count of the experiments is near this; beyond it sums and plot
+#: ranges overflow (a +-1e308 cell broke the violin plot after the statistics).
+MAX_ABS_VALUE = 1e12
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def load_table(path: str | Path) -> pd.DataFrame:
     """Read a CSV shaped like the paper's table: a header row, then one row per subject whose
     first cell is the subject id and whose other cells are that subject's value per condition.
@@ -182,8 +197,15 @@ def load_table(path: str | Path) -> pd.DataFrame:
     conditions or 2 subjects; OSError if the file cannot be read.
     """
     path = Path(path)
-    with path.open(newline='', encoding='utf-8-sig') as f:  # -sig: spreadsheets write a BOM
-        rows = [r for r in csv.reader(f) if any(cell.strip() for cell in r)]
+    if path.is_file() and path.stat().st_size > MAX_FILE_BYTES:
+        raise ValueError(f'{path}: larger than {MAX_FILE_BYTES} bytes, not a table of subjects')
+    try:
+        with path.open(newline='', encoding='utf-8-sig') as f:  # -sig: spreadsheets write a BOM
+            rows = [r for r in csv.reader(f) if any(cell.strip() for cell in r)]
+    except UnicodeDecodeError as exc:
+        raise ValueError(f'{path}: not UTF-8 text (byte {exc.start})') from None
+    except csv.Error as exc:  # e.g. a field over the csv module's size limit
+        raise ValueError(f'{path}: not a CSV table: {excerpt(str(exc))}') from None
     if not rows:
         raise ValueError(f'{path}: empty file, expected a header row and one row per subject')
     header = [h.strip() for h in rows[0]]
@@ -192,12 +214,15 @@ def load_table(path: str | Path) -> pd.DataFrame:
         hint = ' (is it comma-separated?)' if len(header) == 1 else ''
         raise ValueError(f'{path}: needs a subject column and at least 2 condition columns, '
                          f'got {len(header)} column(s){hint}')
+    if all(_is_number(h) for h in conditions):
+        raise ValueError(f'{path}: the first row holds numbers, expected a header row naming the '
+                         f'conditions (e.g. subject,C1,C2,C3,C4)')
     if any(not c for c in conditions):
         raise ValueError(f'{path}: empty condition name in the header, column {conditions.index("") + 2}')
     body = rows[1:]
     if len(body) < 2:
         raise ValueError(f'{path}: needs at least 2 subjects, got {len(body)}')
-    subjects, values, bad, missing = [], [], [], []
+    subjects, values, bad, huge, missing = [], [], [], [], []
     for line, row in enumerate(body, start=2):
         if len(row) != len(header):
             raise ValueError(f'{path}: line {line} has {len(row)} cells, the header has {len(header)}')
@@ -218,12 +243,16 @@ def load_table(path: str | Path) -> pd.DataFrame:
                 value = math.nan
             if not math.isfinite(value):
                 bad.append((subject, cond, text))
+            elif abs(value) > MAX_ABS_VALUE:
+                huge.append((subject, cond, text))
             parsed.append(value)
         values.append(parsed)
-    if bad:
-        raise ValueError(f'{path}: non-numeric value at '
-                         + '; '.join(f'subject {s}, condition {c} ({t!r})' for s, c, t in bad[:5])
-                         + (f' and {len(bad) - 5} more' if len(bad) > 5 else ''))
+    for cells, what in ((bad, 'non-numeric value'), (huge, f'value beyond +-{MAX_ABS_VALUE:g}')):
+        if cells:
+            raise ValueError(f'{path}: {what} at '
+                             + '; '.join(f'subject {s[:40]}, condition {c[:40]} ({excerpt(t)})'
+                                         for s, c, t in cells[:5])
+                             + (f' and {len(cells) - 5} more' if len(cells) > 5 else ''))
     if missing:
         raise ValueError(f'{path}: missing value at {_where(missing)}')
     table = pd.DataFrame(values, index=pd.Index(subjects, name=header[0] or 'subject'),

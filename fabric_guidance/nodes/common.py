@@ -21,6 +21,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
                        qos_profile_sensor_data)
 from rclpy.signals import SignalHandlerOptions
 
+from ..core.safe_input import InputFileError, excerpt, load_yaml
+
 # Topic and service names, relative so that a namespace or a remap moves them together.
 GAZE = 'gaze'                          # geometry_msgs/PoseStamped, x axis along the gaze ray
 HEAD_POSE = 'head_pose'                # geometry_msgs/PoseStamped
@@ -94,6 +96,20 @@ def _end_process(code: int) -> None:
         os._exit(code)
 
 
+def check_params_files(args: Sequence[str]) -> None:
+    """Every `--params-file FILE` of the command line readable, YAML without aliases, and a
+    mapping of node names to mappings; InputFileError naming the file otherwise. rcl parses them
+    in rclpy.init, before any node exists, and reports a failure as a C traceback."""
+    args = list(args)
+    for flag, value in zip(args, args[1:]):
+        if flag != '--params-file':
+            continue
+        data = load_yaml(value, 'parameters file')
+        if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+            raise InputFileError(f'parameters file {value}: must map node names to '
+                                 f'{{ros__parameters: {{...}}}}, got {excerpt(data)}')
+
+
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
@@ -102,7 +118,12 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
     the spin loop checks every 50 ms. Raising from the handler instead would interrupt whatever
     runs at that instant (a callback, rclpy's C++ take path, a Modbus request) half-way.
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        check_params_files(sys.argv if args is None else args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # a bad command line or parameters file: no context, no node yet
+        print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
+        return 1
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -127,7 +148,7 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
         pass
     except Exception as exc:  # a start-up error (bad parameter or file) ends with its message
         if node is None:
-            print(f'[fabric_guidance] cannot start: {exc}', flush=True)
+            print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
             code = 1
         else:
             raise

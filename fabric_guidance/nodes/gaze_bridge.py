@@ -110,9 +110,13 @@ class GazeBridge(Node):
             if value == '':
                 continue
             try:
-                senders.add(str(ipaddress.ip_address(value)))
+                ip = ipaddress.ip_address(value)
             except ValueError:
                 raise ValueError(f"parameter 'allowed_senders': {value!r} is not an IP address") from None
+            # An IPv6 socket reports an IPv4 sender as ::ffff:a.b.c.d and the receive loop strips
+            # that prefix: an allowed sender written either way is the IPv4 address.
+            mapped = getattr(ip, 'ipv4_mapped', None)
+            senders.add(str(mapped if mapped is not None else ip))
         return frozenset(senders)
 
     # --- receiver thread ------------------------------------------------------------------

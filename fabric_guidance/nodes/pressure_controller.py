@@ -45,7 +45,9 @@ from std_srvs.srv import SetBool, Trigger
 from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
                     angles_between, condition, phrase, ray_direction, target_direction)
 from ..core.calibration import DONE, FAILED, Acceptance
+from ..core.channels import ChannelMapError
 from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
+from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
                                  guidance_step, safe_command)
@@ -87,7 +89,8 @@ class PressureController(Node):
                            'no guidance until calibrated')
         cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
                           "'' = ~/.fabric_guidance/calibrations")
-        self.wearer = declare(self, 'wearer', 'wearer', 'name of the wearer (the calibration file name)')
+        self.wearer = check_wearer(declare(self, 'wearer', 'wearer', 'name of the wearer (the calibration file '
+                                           'name)'), 'parameter "wearer"')
         self.cal_steps = declare(self, 'calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)',
                                  low=3, high=50)
         self.cal_dwell = declare(self, 'calibration_dwell_s', 3.0, 'time at each pressure step', 's',
@@ -119,6 +122,11 @@ class PressureController(Node):
 
         self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
         self.layout = self.condition.layout or 'suit'
+        if self.layout not in self.channel_map.layouts:
+            # Checked here: the first guidance step would otherwise fail after start-up.
+            raise ChannelMapError(f'channel map {resolve(channel_map_file, "channel_map.yaml")}: field '
+                                  f'"layouts" has no layout "{self.layout}" for condition '
+                                  f'{self.condition.number}; it has {list(self.channel_map.layouts)}')
         declare(self, 'channels', list(self.channel_map.channels),
                 'order of pressure_command (as ros2_controllers joints)', read_only=True)
         self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'

@@ -235,6 +235,9 @@ class WearerSim(Node):
         self.seq = 0
         self.last_step = self.start = time.monotonic()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        if self.address[0] in ('localhost', '127.0.0.1') or self.address[0].startswith('127.'):
+            # Sending alone would bind the socket to 0.0.0.0: reachable from the network.
+            self.sock.bind(('127.0.0.1', 0))
         self.create_subscription(Float64MultiArray, MEASURED_PRESSURE, self.on_pressure, COMMAND_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
         if self.scene_side is not None:

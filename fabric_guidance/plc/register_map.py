@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-import yaml
+
+from ..core.safe_input import InputFileError, excerpt, load_yaml
 
 #: Largest value of a 16-bit register and largest protocol address.
 REGISTER_MAX = 0xFFFF
@@ -162,9 +163,9 @@ class RegisterMap:
         """Read and validate a register map YAML file."""
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise RegisterMapError(f'cannot read register map {path}: {exc}') from None
+            data = load_yaml(path, 'register map')
+        except InputFileError as exc:
+            raise RegisterMapError(str(exc)) from None
         return cls.from_dict(data, source=str(path), expected_channels=expected_channels)
 
     @classmethod
@@ -212,7 +213,7 @@ class RegisterMap:
         for i, entry in enumerate(raw):
             where = f'channels[{i}]'
             if not isinstance(entry, Mapping):
-                raise fail(where, f'must be a mapping with {list(_CHANNEL_FIELDS)}, got {entry!r}')
+                raise fail(where, f'must be a mapping with {list(_CHANNEL_FIELDS)}, got {excerpt(entry)}')
             for field in _CHANNEL_FIELDS:
                 if field not in entry:
                     raise fail(f'{where}.{field}', 'is missing')
@@ -221,7 +222,7 @@ class RegisterMap:
                     raise fail(f'{where}.{field}', f'is not a known field (known: {list(_CHANNEL_FIELDS)})')
             name = entry['name']
             if not isinstance(name, str) or not name:
-                raise fail(f'{where}.name', f'must be a non-empty string, got {name!r}')
+                raise fail(f'{where}.name', f'must be a non-empty string, got {excerpt(name)}')
             channels.append(ChannelRegisters(
                 name,
                 _integer(entry['command_register'], 0, REGISTER_MAX, fail, f'{where}.command_register'),
@@ -232,7 +233,7 @@ class RegisterMap:
         for i, c in enumerate(channels):
             if c.command_register == heartbeat:
                 raise fail('heartbeat_register', f'{heartbeat} is also the command register of channel '
-                                                 f'{c.name!r} (channels[{i}])')
+                                                 f'{excerpt(c.name)} (channels[{i}])')
         sequence = None
         if data.get('sequence_register') is not None:
             sequence = _integer(data['sequence_register'], 0, REGISTER_MAX, fail, 'sequence_register')
@@ -392,13 +393,13 @@ def _block(addresses: Sequence[int]) -> tuple[int, int] | None:
 def _integer(value: Any, lo: int, hi: int, fail, field: str) -> int:
     # bool is an int subclass; "true" as an address is a typo, not 1.
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise fail(field, f'must be an integer in {lo}..{hi}, got {value!r}')
+        raise fail(field, f'must be an integer in {lo}..{hi}, got {excerpt(value)}')
     return value
 
 
 def _positive(value: Any, fail, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise fail(field, f'must be a positive finite number, got {value!r}')
+        raise fail(field, f'must be a positive finite number, got {excerpt(value)}')
     return float(value)
 
 
@@ -406,5 +407,5 @@ def _unique(values: list, fail, field: str) -> None:
     seen: dict = {}
     for i, v in enumerate(values):
         if v in seen:
-            raise fail(f'channels[{i}].{field}', f'duplicates {v!r} of channels[{seen[v]}].{field}')
+            raise fail(f'channels[{i}].{field}', f'duplicates {excerpt(v)} of channels[{seen[v]}].{field}')
         seen[v] = i

@@ -34,8 +34,8 @@ import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-import yaml
 
+from ..core.safe_input import InputFileError, excerpt, load_yaml
 from ..core.conditions import CONDITIONS
 from ..core.feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX,
                              RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST)
@@ -196,18 +196,18 @@ def _number(value, source: str, where: str, meta: Mapping) -> float | int | None
         return None
     unit = meta.get('unit', '')
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(source, where, f'must be a number ({unit}), got {value!r}')
+        _fail(source, where, f'must be a number ({unit}), got {excerpt(value)}')
     if meta.get('integer'):
         if isinstance(value, float) and not value.is_integer():
-            _fail(source, where, f'must be a whole number, got {value!r}')
+            _fail(source, where, f'must be a whole number, got {excerpt(value)}')
         value = int(value)
     elif not math.isfinite(value):
-        _fail(source, where, f'must be finite, got {value!r}')
+        _fail(source, where, f'must be finite, got {excerpt(value)}')
     lo, hi = meta.get('lo'), meta.get('hi')
     if lo is not None and (value <= lo if meta.get('lo_open') else value < lo):
-        _fail(source, where, f'must be {">" if meta.get("lo_open") else ">="} {lo:g} {unit}, got {value!r}')
+        _fail(source, where, f'must be {">" if meta.get("lo_open") else ">="} {lo:g} {unit}, got {excerpt(value)}')
     if hi is not None and value > hi:
-        _fail(source, where, f'must be <= {hi:g} {unit}, got {value!r}')
+        _fail(source, where, f'must be <= {hi:g} {unit}, got {excerpt(value)}')
     return value if meta.get('integer') else float(value)
 
 
@@ -238,7 +238,7 @@ def _section(cls, data, source: str, where: str, **extra):
             kwargs[f.name] = value
         elif f.type in ('bool', bool):
             if not isinstance(value, bool):
-                _fail(source, f'{where}.{f.name}', f'must be true or false, got {value!r}')
+                _fail(source, f'{where}.{f.name}', f'must be true or false, got {excerpt(value)}')
             kwargs[f.name] = value
         else:
             kwargs[f.name] = _number(value, source, f'{where}.{f.name}', f.metadata)
@@ -251,14 +251,14 @@ def _parse_protocol(data, source: str):
         _fail(source, 'protocol', f'is required: a mapping with kind ({" | ".join(PROTOCOLS)}) and its parameters')
     kind = data.pop('kind', None)
     if kind not in PROTOCOLS:
-        _fail(source, 'protocol.kind', f'must be one of {list(PROTOCOLS)}, got {kind!r}')
+        _fail(source, 'protocol.kind', f'must be one of {list(PROTOCOLS)}, got {excerpt(kind)}')
     return _section(PROTOCOLS[kind], data, source, 'protocol')
 
 
 def _parse_law(data, source: str, where: str) -> PowerLaw:
     data = _mapping(data, source, where)
     if set(data) != {'a', 'b', 'c'}:
-        _fail(source, where, f'must give exactly a, b and c, got {sorted(data)}')
+        _fail(source, where, f'must give exactly a, b and c, got {excerpt(sorted(data))}')
     vals = [_number(data[k], source, f'{where}.{k}', {'unit': u}) for k, u in
             (('a', 'kPa/deg^b'), ('b', '-'), ('c', 'kPa'))]
     try:
@@ -278,7 +278,7 @@ def _parse_population(data, source: str) -> PopulationSpec:
     laws_data = data.get('laws')
     if not isinstance(laws_data, Mapping) or set(laws_data) != set(DIRECTIONS):
         got = sorted(laws_data) if isinstance(laws_data, Mapping) else laws_data
-        _fail(source, 'population.laws', f'must give a law for exactly {list(DIRECTIONS)}, got {got!r}')
+        _fail(source, 'population.laws', f'must give a law for exactly {list(DIRECTIONS)}, got {excerpt(got)}')
     laws = tuple(_parse_law(laws_data[d], source, f'population.laws.{d}') for d in DIRECTIONS)
     spread_data = _mapping(data.get('spread'), source, 'population.spread')
     unknown = sorted(set(spread_data) - {'a', 'b', 'c'})
@@ -305,15 +305,15 @@ def _parse_effects(data, source: str) -> tuple[EffectSpec, ...]:
             name, params = next(iter(entry.items()))
             params = params if params is not None else {}
             if not isinstance(params, Mapping):
-                _fail(source, f'{where}.{name}', f'must map parameter names to values, got {params!r}')
+                _fail(source, f'{where}.{name}', f'must map parameter names to values, got {excerpt(params)}')
         elif isinstance(entry, EffectSpec):
             name, params = entry.name, entry.params_dict
         else:
-            _fail(source, where, f'must be an effect name or a single {{name: {{parameters}}}} mapping, got {entry!r}')
+            _fail(source, where, f'must be an effect name or a single {{name: {{parameters}}}} mapping, got {excerpt(entry)}')
         if name not in REGISTRY:
-            _fail(source, where, f'names unknown effect {name!r}; valid effects: {", ".join(sorted(REGISTRY))}')
+            _fail(source, where, f'names unknown effect {excerpt(name)}; valid effects: {", ".join(sorted(REGISTRY))}')
         if name in seen:
-            _fail(source, where, f'lists effect {name!r} a second time')
+            _fail(source, where, f'lists effect {excerpt(name)} a second time')
         seen.add(name)
         try:
             make_effect(name, params)   # validates names and values of the parameters
@@ -339,14 +339,14 @@ def scene_from_dict(data, source: str = '<scene>') -> Scene:
         _fail(source, 'name', 'must be a non-empty string')
     seed = data.get('seed')
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        _fail(source, 'seed', f'must be a whole number >= 0, got {seed!r}')
+        _fail(source, 'seed', f'must be a whole number >= 0, got {excerpt(seed)}')
     protocol = _parse_protocol(data.get('protocol'), source)
     conds = data.get('conditions', [1, 2, 3, 4])
     if (not isinstance(conds, Sequence) or isinstance(conds, str) or not conds
             or not all(isinstance(c, int) and not isinstance(c, bool) and c in CONDITIONS for c in conds)
             or len(set(conds)) != len(conds)):
         _fail(source, 'conditions', f'must be a non-empty list of distinct conditions from {sorted(CONDITIONS)}, '
-                                    f'got {conds!r}')
+                                    f'got {excerpt(conds)}')
     reps = _number(data.get('repetitions', protocol.default_repetitions), source, 'repetitions',
                    {'unit': 'trials', 'lo': 1, 'hi': 10000, 'integer': True})
     population = _parse_population(data.get('population'), source)
@@ -375,9 +375,9 @@ def load_scene(name_or_path: str | Path) -> Scene:
     """Read and validate a scene file (a path, or the name of one of config/scenes/)."""
     path = scene_path(name_or_path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise SceneError(f'cannot read scene {path}: {exc}') from None
+        data = load_yaml(path, 'scene')
+    except InputFileError as exc:
+        raise SceneError(str(exc)) from None
     return scene_from_dict(data, source=str(path))
 
 
