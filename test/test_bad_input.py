@@ -139,11 +139,11 @@ def test_defect3_every_yaml_reader_refuses_aliases(tmp_path):
     from fabric_guidance.core.calibration import Calibration
     from fabric_guidance.core.channels import ChannelMap
     from fabric_guidance.core.safe_input import InputFileError
-    from fabric_guidance.plc.register_map import RegisterMap
+    from fabric_guidance.plc.register_map import PlcLayout, RegisterMap
     from fabric_guidance.sim.scene import load_scene
     f = tmp_path / 'bomb.yaml'
     f.write_text(ALIAS_BOMB)
-    for reader in (Calibration.load, ChannelMap.load, RegisterMap.load, load_scene):
+    for reader in (Calibration.load, ChannelMap.load, RegisterMap.load, PlcLayout.load, load_scene):
         with pytest.raises((InputFileError, ValueError)) as info:
             reader(f)
         msg = str(info.value)
@@ -512,12 +512,14 @@ def _readers():
     from fabric_guidance.core.channels import ChannelMap
     from fabric_guidance.experiments.stats import load_table
     from fabric_guidance.nodes.common import check_params_files
-    from fabric_guidance.plc.register_map import RegisterMap
+    from fabric_guidance.plc.register_map import PlcLayout, RegisterMap
     from fabric_guidance.sim.scene import load_scene
     return {
         'calibration': (Calibration.load, SIM_CAL),
         'channel map': (ChannelMap.load, CONFIG / 'channel_map.yaml'),
         'register map': (RegisterMap.load, CONFIG / 'plc_register_map.yaml'),
+        # What plc_output reads (one PLC or several).
+        'plc layout': (PlcLayout.load, CONFIG / 'plc_register_map.yaml'),
         'scene': (load_scene, CONFIG / 'scenes' / 'paper-accuracy.yaml'),
         'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'guidance.yaml'),
         'analyze table': (load_table, ROOT / 'test' / 'data' / 'table-identified-targets.csv'),

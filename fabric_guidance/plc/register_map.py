@@ -296,9 +296,9 @@ class PlcLayout:
     def load(cls, path: str | Path, expected_channels: Sequence[str] | None = None) -> 'PlcLayout':
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise RegisterMapError(f'cannot read register map {path}: {exc}') from None
+            data = load_yaml(path, 'register map')
+        except InputFileError as exc:
+            raise RegisterMapError(str(exc)) from None
         return cls.from_dict(data, str(path), expected_channels)
 
     @classmethod
@@ -329,7 +329,7 @@ class PlcLayout:
             where = f'endpoints[{i}]'
             if not isinstance(entry, Mapping):
                 raise fail(where, f'must be a mapping with {list(_ENDPOINT_FIELDS)}, '
-                                  f'got {entry!r}')
+                                  f'got {excerpt(entry)}')
             for field in entry:
                 if field not in _ENDPOINT_FIELDS:
                     raise fail(f'{where}.{field}',
@@ -339,14 +339,14 @@ class PlcLayout:
                     raise fail(f'{where}.{field}', 'is missing')
             name, host = entry['name'], entry['host']
             if not isinstance(name, str) or not name:
-                raise fail(f'{where}.name', f'must be a non-empty string, got {name!r}')
+                raise fail(f'{where}.name', f'must be a non-empty string, got {excerpt(name)}')
             if name in seen_names:
                 raise fail(f'{where}.name',
                            f'{name!r} duplicates endpoints[{seen_names[name]}].name')
             seen_names[name] = i
             if not isinstance(host, str) or not host:
                 raise fail(f'{where}.host',
-                           f'must be a non-empty string (address of the PLC), got {host!r}')
+                           f'must be a non-empty string (address of the PLC), got {excerpt(host)}')
             port = _integer(entry.get('port', 502), 1, 65535, fail, f'{where}.port')
             unit_id = _integer(entry['unit_id'], *UNIT_ID_RANGE, fail, f'{where}.unit_id')
             if (host, port, unit_id) in seen_addresses:
