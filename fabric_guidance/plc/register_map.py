@@ -52,6 +52,14 @@ class RegisterMapError(ValueError):
     """A register map that is not usable; the message names the file, the field and the reason."""
 
 
+def _read(path: Path) -> Any:
+    """A register map file, parsed by the package's safe YAML loader (one-line errors)."""
+    try:
+        return load_yaml(path, 'register map')
+    except InputFileError as exc:
+        raise RegisterMapError(str(exc)) from None
+
+
 @dataclass(frozen=True)
 class ChannelRegisters:
     """One channel: its name, command holding register and measured input register."""
@@ -162,11 +170,7 @@ class RegisterMap:
     def load(cls, path: str | Path, expected_channels: Sequence[str] | None = None) -> 'RegisterMap':
         """Read and validate a register map YAML file."""
         path = Path(path)
-        try:
-            data = load_yaml(path, 'register map')
-        except InputFileError as exc:
-            raise RegisterMapError(str(exc)) from None
-        return cls.from_dict(data, source=str(path), expected_channels=expected_channels)
+        return cls.from_dict(_read(path), source=str(path), expected_channels=expected_channels)
 
     @classmethod
     def from_dict(cls, data: Any, source: str = 'register map',
@@ -295,11 +299,7 @@ class PlcLayout:
     @classmethod
     def load(cls, path: str | Path, expected_channels: Sequence[str] | None = None) -> 'PlcLayout':
         path = Path(path)
-        try:
-            data = load_yaml(path, 'register map')
-        except InputFileError as exc:
-            raise RegisterMapError(str(exc)) from None
-        return cls.from_dict(data, str(path), expected_channels)
+        return cls.from_dict(_read(path), str(path), expected_channels)
 
     @classmethod
     def from_dict(cls, data: Any, source: str = 'register map',
