@@ -83,7 +83,10 @@ class Lab:
             'gaze_bridge': dict(port=self.gaze_port),
             'target_selector': dict(target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
                                     auto_advance=False),
-            'pressure_controller': dict(calibration_file=str(SIM_CAL), calibration_dir=str(log_dir / 'cal')),
+            # stall_timeout_s 0: the stub's gaze never moves, and the no-progress vent (tested in
+            # test_node_pressure_controller) would end the guidance these faults interrupt.
+            'pressure_controller': dict(calibration_file=str(SIM_CAL), calibration_dir=str(log_dir / 'cal'),
+                                        stall_timeout_s=0.0),
         }
         for node in self.overrides:
             self.start(node)

@@ -89,7 +89,9 @@ def lab_graph(tmp_path):
     graph.start('gaze_bridge', files, port=gaze_port)
     graph.start('target_selector', files, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
                 auto_advance=False)
-    graph.start('pressure_controller', files, calibration_file=SIM_CAL, calibration_dir=str(tmp_path / 'cal'))
+    # stall_timeout_s 0: the stub's gaze never moves (no-progress vent: test_node_pressure_controller).
+    graph.start('pressure_controller', files, calibration_file=SIM_CAL, calibration_dir=str(tmp_path / 'cal'),
+                stall_timeout_s=0.0)
     hololens = HoloLensStub(gaze_port)
     watch = RegisterWatch(plc_port)
     probe = Probe(graph.domain_id)

@@ -133,7 +133,7 @@ def test_the_graph_split_over_two_hosts_passes_the_end_to_end_test(two_hosts, tm
         graph.start('target_selector', FILES, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
                     auto_advance=False)
         graph.start('pressure_controller', FILES, calibration_file=str(SIM_CAL),
-                    calibration_dir=str(tmp_path / 'cal'))
+                    calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)  # a still stub
         hololens = in_netns(a, lambda: HoloLensStub(gaze_port))   # its socket on host A
         watch = NetnsRegisterWatch(plc_port, b)
         stale_vent, watchdog_vent = end_to_end(graph, hololens, watch)
