@@ -1,4 +1,4 @@
-"""Property-based tests: the hard cases of ARCHITECTURE.md ("three things", item 2) stay stable.
+"""Property-based tests: the hard cases of the design (shared/design/ARCHITECTURE.md, "three things", item 2) stay stable.
 
 The rule checked for every hard case: the output is finite and bounded (pressures within
 [0, p_max], angles within their ranges), or the package's own clear exception is raised
