@@ -49,12 +49,15 @@ def _graph(context, *args, **kwargs):
 
 
 def generate_launch_description():
+    # The simulated graph talks to nobody else: Fast DDS on 127.0.0.1 only, the profile deciding
+    # alone, as in `make demo` and the tests (rmw's LOCALHOST range would add a send socket on
+    # every interface); without the profile, at least discovery stays on this machine.
+    profile = os.path.join(get_package_share_directory('fabric_guidance'), 'config',
+                           'fastdds_loopback.xml')
+    discovery_range = 'SYSTEM_DEFAULT' if os.path.isfile(profile) else 'LOCALHOST'
     return LaunchDescription([
-        # The simulated graph talks to nobody else: DDS discovery stays on this machine.
-        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
-        # issue 14: and its sockets on 127.0.0.1 only (config/fastdds_loopback.xml)
-        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE',
-                               os.path.join(share, 'config', 'fastdds_loopback.xml')),
+        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile),
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', discovery_range),
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
                                           '4 speech'),
