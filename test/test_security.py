@@ -46,7 +46,9 @@ def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
     assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
-    assert "SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')" in launch
+    # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).
+    assert "SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile)" in launch
+    assert "'fastdds_loopback.xml'" in launch and "else 'LOCALHOST'" in launch
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
     sim = yaml.safe_load((CONFIG / 'sim.yaml').read_text())
     assert ipaddress.ip_address(sim['mock_plc']['ros__parameters']['host']).is_loopback
