@@ -159,6 +159,13 @@ def draw_fit_figure(calibration: Calibration):
             ax_res.text(0.5, 0.5, 'no points', ha='center', va='center', transform=ax_res.transAxes)
             quality = 'no points (coefficients given)'
         ax.set_title(f'{f.direction} ({MOVEMENT[f.direction]}): {quality}', fontsize=10)
+        refused = calibration.directions[f.direction].fit.get('refused')
+        if refused:  # the operator sees why on the figure too, not only in the text report
+            reason = str(refused).removeprefix('fit refused: ')[:60]
+            # Bottom right: the rising curve leaves that corner empty.
+            ax.text(0.98, 0.04, f'REFUSED\n{reason}', transform=ax.transAxes,
+                    ha='right', va='bottom', color='tab:red', fontsize=8, fontweight='bold',
+                    bbox=dict(facecolor='white', edgecolor='tab:red', alpha=0.9))
         ax.set_ylabel('pressure P [kPa]')
         ax.set_ylim(bottom=0.0, top=calibration.p_max * 1.1)
         ax.legend(loc='upper left', fontsize=8)

@@ -220,3 +220,17 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 60.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data and 'previous calibration is kept' in status[-1].data
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == report_before
+
+
+def test_the_figure_shows_which_direction_was_refused_and_why():
+    """The operator looks at the PNG: a refused direction says so there, not only in the text."""
+    import dataclasses
+    cal = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
+    directions = dict(cal.directions)
+    fit = dict(directions['left'].fit, refused='fit refused: angle span 0.3 deg < min_span_deg 5 deg')
+    directions['left'] = dataclasses.replace(directions['left'], fit=fit)
+    fig = draw_fit_figure(dataclasses.replace(cal, directions=directions))
+    texts = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in fig.axes}
+    marked = [title for title, shown in texts.items() if any('REFUSED' in t for t in shown)]
+    assert len(marked) == 1 and marked[0].startswith('left'), texts
+    assert any('min_span_deg 5 deg' in t for t in sum(texts.values(), []))
