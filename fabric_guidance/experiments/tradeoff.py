@@ -989,91 +989,126 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     """The one plane: x = mean time to find a target (speed protocol, s), y = guidance error
     at the key press (accuracy protocol, deg; acceptance tolerance: the error when a target
     counts). Conditions 1-4 at the package defaults, one polyline per knob through its values
-    in the sweep's condition; whiskers +-1 SE over wearer means."""
+    in the sweep's condition; whiskers +-1 SE over wearer means. Left: the whole plane; right:
+    the same axes zoomed on the knobs other than the tolerance (they crowd round the condition
+    point), where their end values are labelled."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
+    from matplotlib.patches import Rectangle
+    from matplotlib.transforms import Bbox
 
     curves = plane_curves(result)
-    fig = Figure(figsize=(11.0, 7.2), layout='constrained')
+    cond = result.settings.condition
+    fig = Figure(figsize=(14.0, 8.6), layout='constrained')
     canvas = FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    xs, ys = [], []
+    whole, zoom = fig.subplots(1, 2, width_ratios=(1.0, 1.0))
 
     def stats(rows):
-        a = [r.stats('accuracy')['mean'] for r in rows]
-        t = [r.stats('time')['mean'] for r in rows]
-        ase = [r.wearer_se('accuracy')[0] for r in rows]
-        tse = [r.wearer_se('time')[0] for r in rows]
-        xs.extend(t)
-        ys.extend(a)
-        return np.array(t), np.array(a), np.nan_to_num(tse), np.nan_to_num(ase)
+        t = np.array([r.stats('time')['mean'] for r in rows])
+        a = np.array([r.stats('accuracy')['mean'] for r in rows])
+        tse = np.nan_to_num([r.wearer_se('time')[0] for r in rows])
+        ase = np.nan_to_num([r.wearer_se('accuracy')[0] for r in rows])
+        return t, a, tse, ase
 
-    handles, labels, items = [], [], []
-    cond = result.settings.condition
-    for k, knob in enumerate(k for k in KNOBS if k in curves):
-        rows = curves[knob]
-        x, y, xe, ye = stats(rows)
-        colour = f'C{k}'
-        style = ':' if knob == 'acceptance_tolerance' else '-'
-        ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colour, elinewidth=1.0, capsize=2, alpha=0.7,
-                    zorder=3)
-        ax.plot(x, y, style, color=colour, lw=1.6, marker='.', ms=7, zorder=4)
-        ref, _ = REFERENCE[knob]
-        ref_text = f'{KNOB_SYMBOLS[knob]} {_fmt(ref)}' if math.isfinite(ref) else ''
-        label = f'{KNOB_TITLES[knob]}: {_fmt(rows[0].value)} to {_fmt(rows[-1].value)}, package {ref_text}'
-        if knob == 'acceptance_tolerance':
-            label += '\n  (y: error when a target counts, speed protocol)'
-        elif knob == 'calibration_points':
-            label += '\n  (own cost: calibration time, in the labels)'
-        elif knob == 'fit_tolerance':
-            label += '\n  (own cost: fit wall time, in the labels)'
-        handles.append(Line2D([], [], color=colour, ls=style, marker='.', lw=1.6))
-        labels.append(label)
-        for i in sorted({0, len(rows) - 1}):
-            text = f'{KNOB_SYMBOLS[knob]} {rows[i].value:g}'
-            if knob == 'calibration_points' or knob == 'fit_tolerance':
-                text += f' ({rows[i].note.split("; ")[0]})'
-            items.append((x[i], y[i], text, colour))
-        if knob == 'acceptance_tolerance':
-            for i, r in enumerate(rows):
-                if math.isclose(float(r.value), ref) and i not in (0, len(rows) - 1):
-                    items.append((x[i], y[i], f'{KNOB_SYMBOLS[knob]} {r.value:g} (package)', colour))
+    knobs = [k for k in KNOBS if k in curves]
+    colours = {k: f'C{i}' for i, k in enumerate(knobs)}
     markers = {1: 'o', 2: 's', 3: '^', 4: 'D'}
-    for row in curves.get('condition', []):
+    handles, labels = [], []
+    for knob in knobs:
+        style = ':' if knob == 'acceptance_tolerance' else '-'
+        rows = curves[knob]
+        ref, _ = REFERENCE[knob]
+        label = (f'{KNOB_TITLES[knob]}: {rows[0].value:g} to {rows[-1].value:g} '
+                 f'(package {ref:.3g})')
+        if knob == 'acceptance_tolerance':
+            label += ';\n   y = error when a target counts (speed protocol)'
+        elif knob in ('calibration_points', 'fit_tolerance'):
+            label += ';\n   own cost (calibration time / fit wall time) in the labels'
+        handles.append(Line2D([], [], color=colours[knob], ls=style, marker='.', lw=1.6))
+        labels.append(label)
+    cond_rows = sorted(curves.get('condition', []), key=lambda r: r.value)
+    for row in cond_rows:
         c = int(row.value)
-        x, y, xe, ye = stats([row])
-        ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2, capsize=3, zorder=5)
-        ax.scatter(x, y, s=110, marker=markers.get(c, 'o'), facecolor='white' if c != cond else '0.2',
-                   edgecolor='black', linewidth=1.6, zorder=6)
-        handles.insert(0, Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9, mec='black',
-                                 mfc='white' if c != cond else '0.2'))
-        labels.insert(0, f'condition {CONDITION_LABELS[c]}' + (' (knobs swept here)' if c == cond else ''))
-    n_cond = len(curves.get('condition', []))
-    handles[:n_cond] = handles[:n_cond][::-1]
-    labels[:n_cond] = labels[:n_cond][::-1]
-    xs_a, ys_a = np.array(xs, float), np.array(ys, float)
-    if xs_a.size and xs_a.min() > 0 and xs_a.max() / xs_a.min() > 4:
-        ax.set_xscale('log')
-    if ys_a.size and ys_a.min() > 0 and ys_a.max() / ys_a.min() > 30:
-        ax.set_yscale('log')
-    ax.set_xlabel('mean time to find a target (s, speed protocol)')
-    ax.set_ylabel('guidance error at the key press (deg, accuracy protocol: hypot of h and v)')
+        handles.insert(len(handles) - len(knobs), Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9,
+                                                          mec='black', mfc='0.2' if c == cond else 'white'))
+        labels.insert(len(labels) - len(knobs), f'condition {CONDITION_LABELS[c]}'
+                      + (' (the knobs are swept here)' if c == cond else ''))
+
+    for ax in (whole, zoom):
+        for knob in knobs:
+            x, y, xe, ye = stats(curves[knob])
+            style = ':' if knob == 'acceptance_tolerance' else '-'
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colours[knob], elinewidth=1.0, capsize=2,
+                        alpha=0.7, zorder=3)
+            ax.plot(x, y, style, color=colours[knob], lw=1.6, marker='.', ms=7, zorder=4)
+        # the sweep's own condition last and smaller, so a condition at the same point stays visible
+        for row in sorted(cond_rows, key=lambda r: int(r.value) == cond):
+            c = int(row.value)
+            x, y, xe, ye = stats([row])
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2, capsize=3, zorder=5)
+            ax.scatter(x, y, s=60 if c == cond else 130, marker=markers.get(c, 'o'),
+                       facecolor='0.2' if c == cond else 'white', edgecolor='black', linewidth=1.6,
+                       zorder=7 if c == cond else 6)
+        ax.set_xlabel('mean time to find a target (s, speed protocol)')
+        ax.set_ylabel('guidance error at the key press (deg, accuracy protocol; hypot of h and v)')
+        ax.grid(alpha=0.3, which='both')
+    xs = np.concatenate([stats(v)[0] for v in curves.values()]) if curves else np.array([])
+    ys = np.concatenate([stats(v)[1] for v in curves.values()]) if curves else np.array([])
+    if xs.size and xs.min() > 0 and xs.max() / xs.min() > 4:
+        whole.set_xscale('log')
+    if ys.size and ys.min() > 0 and ys.max() / ys.min() > 30:
+        whole.set_yscale('log')
+    # the zoom: every knob but the tolerance, and the sweep's condition, with their whiskers
+    near = [r for k in knobs if k != 'acceptance_tolerance' for r in curves[k]] + \
+        [r for r in cond_rows if int(r.value) == cond]
+    if near:
+        x, y, xe, ye = stats(near)
+        x0, x1, y0, y1 = (x - xe).min(), (x + xe).max(), (y - ye).min(), (y + ye).max()
+        mx, my = 0.12 * ((x1 - x0) or 0.1), 0.12 * ((y1 - y0) or 0.1)
+        zoom.set_xlim(x0 - mx, x1 + mx)
+        zoom.set_ylim(y0 - my, y1 + my)
+        whole.add_patch(Rectangle((x0 - mx, y0 - my), x1 - x0 + 2 * mx, y1 - y0 + 2 * my, fill=False,
+                                  ec='0.4', ls='--', lw=0.8, zorder=2))
     s = result.settings
-    ax.set_title(f'What accuracy costs in time: conditions 1-4 at the package defaults, each knob swept in '
-                 f'condition {cond}\n{s.subjects} wearers; whiskers +-1 SE over wearer means; lower and left is '
-                 'better', fontsize=10)
-    ax.grid(alpha=0.3, which='both')
-    fig.legend(handles, labels, loc='outside right upper', fontsize=8, frameon=False)
+    whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
+    zoom.set_title(f'zoom: the knobs swept in condition {cond} (package values at the filled point)',
+                   fontsize=10)
+    fig.suptitle(f'What accuracy costs in time: conditions 1-4 at the package defaults and every knob; '
+                 f'{s.subjects} wearers, whiskers +-1 SE over wearer means; lower and to the left is better',
+                 fontsize=11)
+    fig.legend(handles, labels, loc='outside lower center', ncol=2, fontsize=8.5, frameon=False)
     canvas.draw()
     renderer = canvas.get_renderer()
-    # the condition markers are obstacles for the labels
-    placed = []
-    for row in curves.get('condition', []):
-        cx, cy = ax.transData.transform((row.stats('time')['mean'], row.stats('accuracy')['mean']))
-        from matplotlib.transforms import Bbox
-        placed.append(Bbox([[cx - 8, cy - 8], [cx + 8, cy + 8]]))
-    _place_labels(ax, renderer, items, placed)
+
+    def obstacles(ax, rows):
+        out = []
+        for row in rows:
+            cx, cy = ax.transData.transform((row.stats('time')['mean'], row.stats('accuracy')['mean']))
+            out.append(Bbox([[cx - 9, cy - 9], [cx + 9, cy + 9]]))
+        return out
+
+    tol = curves.get('acceptance_tolerance', [])
+    if tol:
+        x, y, _, _ = stats(tol)
+        idx = sorted({0, len(tol) - 1} | {i for i, r in enumerate(tol)
+                                           if math.isclose(float(r.value), REFERENCE['acceptance_tolerance'][0])})
+        items = [(x[i], y[i], f'tolerance {tol[i].value:g}'
+                  + (' (package)' if i not in (0, len(tol) - 1) else ''), colours['acceptance_tolerance'])
+                 for i in idx]
+        _place_labels(whole, renderer, items, obstacles(whole, cond_rows))
+    items = []
+    for knob in knobs:
+        if knob == 'acceptance_tolerance':
+            continue
+        rows = curves[knob]
+        x, y, _, _ = stats(rows)
+        for i in sorted({0, len(rows) - 1}):
+            text = f'{KNOB_SYMBOLS[knob]} {rows[i].value:g}'
+            if knob in ('calibration_points', 'fit_tolerance'):
+                text += f' ({rows[i].note.split("; ")[0]})'
+            items.append((x[i], y[i], text, colours[knob]))
+    _place_labels(zoom, renderer, items, obstacles(zoom, [r for r in cond_rows if int(r.value) == cond]))
     path = Path(path)
     fig.savefig(path, dpi=dpi, format='png')
     return path
