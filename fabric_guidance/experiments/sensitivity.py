@@ -566,39 +566,40 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
 # Command line
 
 
-def _positive_int(text: str) -> int:
+def _positive_int(option: str, text) -> int:
+    """Parsed here, not by argparse, so a bad value gives one line naming the option."""
     try:
-        v = int(text)
+        v = int(str(text).strip())
     except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a whole number >= 1, got {text!r}') from None
+        raise ValueError(f'{option} must be a whole number >= 1, got {text!r}') from None
     if v < 1:
-        raise argparse.ArgumentTypeError(f'must be a whole number >= 1, got {v}')
+        raise ValueError(f'{option} must be a whole number >= 1, got {v}')
     return v
 
 
-def _factor(text: str) -> float:
+def _factor(option: str, text) -> float:
     try:
-        v = float(text)
+        v = float(str(text).strip())
     except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number, got {text!r}') from None
+        raise ValueError(f'{option} must be a positive number, got {text!r}') from None
     if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f'must be a positive factor, got {text}')
+        raise ValueError(f'{option} must be a positive finite factor, got {text}')
     return v
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     d = Settings()
     parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for the table, report, plot')
-    parser.add_argument('--subjects', type=_positive_int, default=None,
+    parser.add_argument('--subjects', default=None,
                         help=f'wearers (default {d.subjects}; --quick 2)')
-    parser.add_argument('--repetitions', type=_positive_int, default=None,
+    parser.add_argument('--repetitions', default=None,
                         help=f'accuracy trials per wearer and condition (default {d.repetitions}; --quick 2)')
-    parser.add_argument('--speed-repetitions', type=_positive_int, default=None,
+    parser.add_argument('--speed-repetitions', default=None,
                         help=f'speed trials per wearer and condition (default {d.speed_repetitions}; --quick 1)')
-    parser.add_argument('--seeds', type=_positive_int, default=None,
+    parser.add_argument('--seeds', default=None,
                         help=f'baseline seeds for the noise (default {d.seeds}; --quick 2)')
-    parser.add_argument('--low', type=_factor, default=d.low, help=f'low factor (default {d.low:g})')
-    parser.add_argument('--high', type=_factor, default=d.high, help=f'high factor (default {d.high:g})')
+    parser.add_argument('--low', default=None, help=f'low factor (default {d.low:g})')
+    parser.add_argument('--high', default=None, help=f'high factor (default {d.high:g})')
     parser.add_argument('--parameters', default='',
                         help='comma-separated subset of the parameter keys (e.g. reaction_delay.mean_s); '
                              'default: every assumed one')
@@ -606,7 +607,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help='comma-separated parameter keys not to sweep (measured or fitted)')
     parser.add_argument('--speed-scene', default=DEFAULT_SPEED_SCENE, help='scene for the speed protocol')
     parser.add_argument('--accuracy-scene', default=DEFAULT_ACCURACY_SCENE, help='scene for the accuracy protocol')
-    parser.add_argument('--workers', type=_positive_int, default=min(2, os.cpu_count() or 1), help='processes')
+    parser.add_argument('--workers', default=min(2, os.cpu_count() or 1), help='processes (default 2)')
     parser.add_argument('--quick', action='store_true',
                         help='2 wearers, 2 seeds, 20 s speed trials: seconds per run, for a check')
     return parser
@@ -622,12 +623,14 @@ def _keys(text: str) -> tuple[str, ...]:
 
 def settings_from_args(args: argparse.Namespace) -> Settings:
     base = quick_settings() if args.quick else Settings()
-    changes = dict(workers=args.workers, low=args.low, high=args.high, speed_scene=args.speed_scene,
-                   accuracy_scene=args.accuracy_scene, parameters=_keys(args.parameters),
-                   exclude=_keys(args.exclude))
-    for name in ('subjects', 'repetitions', 'speed_repetitions', 'seeds'):
+    changes = dict(speed_scene=args.speed_scene, accuracy_scene=args.accuracy_scene,
+                   parameters=_keys(args.parameters), exclude=_keys(args.exclude))
+    for name in ('subjects', 'repetitions', 'speed_repetitions', 'seeds', 'workers'):
         if getattr(args, name) is not None:
-            changes[name] = getattr(args, name)
+            changes[name] = _positive_int(f'--{name.replace("_", "-")}', getattr(args, name))
+    for name in ('low', 'high'):
+        if getattr(args, name) is not None:
+            changes[name] = _factor(f'--{name}', getattr(args, name))
     return replace(base, **changes)
 
 
@@ -643,9 +646,12 @@ def run(args: argparse.Namespace) -> int:
         spd, acc = load_scenes(settings)
         params = assumed_parameters(spd, acc, settings.exclude)
         valid = {q.key for q in assumed_parameters(spd, acc)} | {f'{e}.{p}' for e, p in MEASURED}
-        unknown = [k for k in settings.exclude if k not in valid]
-        if unknown:
-            raise ValueError(f'--exclude: unknown parameter(s) {unknown}; valid: {", ".join(sorted(valid))}')
+        for option, keys, allowed in (('--exclude', settings.exclude, valid),
+                                      ('--parameters', settings.parameters, {q.key for q in params})):
+            unknown = [k for k in keys if k not in allowed]
+            if unknown:
+                raise ValueError(f'{option}: unknown or not swept {", ".join(unknown)}; valid: '
+                                 f'{", ".join(sorted(allowed))}')
         print(f'{PROG}: {len(settings.parameters) or len(params)} parameter(s), {settings.subjects} wearers, '
               f'{settings.seeds} baseline seed(s), {settings.workers} worker(s)', file=sys.stderr, flush=True)
         result = run_sensitivity(settings, progress=lambda line: print(line, file=sys.stderr, flush=True))
