@@ -1238,6 +1238,8 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
     parser.add_argument('--quick', action='store_true',
                         help='a tiny sweep: 2 wearers, 3 values per knob, 20 s speed trials (seconds, for a check)')
+    parser.add_argument('--no-plane', action='store_true',
+                        help='only the per-knob curves: no conditions 1-4, no plane.png (faster)')
     return parser
 
 
@@ -1249,6 +1251,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def settings_from_args(args: argparse.Namespace) -> Settings:
     base = quick_settings() if args.quick else Settings()
     changes = dict(condition=args.condition, workers=args.workers, accuracy_scene=args.accuracy_scene,
+                   plane=not args.no_plane,
                    speed_scene=args.speed_scene,
                    knobs=tuple(k.strip() for k in args.knobs.split(',') if k.strip()))
     for name in ('subjects', 'repetitions', 'speed_repetitions'):
