@@ -35,7 +35,8 @@ def _without(scene, effect):
 def _scene_file(tmp_path: Path, name: str, drop: str) -> Path:
     """A copy of a shipped scene without one effect."""
     data = yaml.safe_load(Path(config_path(f'scenes/{name}.yaml')).read_text())
-    data['effects'] = [e for e in data['effects'] if (e if isinstance(e, str) else next(iter(e))) != drop]
+    data['effects'] = [e for e in data['effects']
+                       if (e if isinstance(e, str) else next(iter(e))) != drop]
     data['name'] = f'{name}-reduced'
     path = tmp_path / f'{data["name"]}.yaml'
     path.write_text(yaml.safe_dump(data))
@@ -54,7 +55,8 @@ def _main(argv):
 def test_every_parameter_of_every_listed_effect_and_the_population_and_dwell():
     spd, acc = _scenes()
     keys = _keys(S.assumed_parameters(spd, acc))
-    expect = [f'{e}.{p}' for e in spd.effect_names for p, (default, _) in REGISTRY[e].parameters().items()
+    expect = [f'{e}.{p}' for e in spd.effect_names for p, (default,
+                                                           _) in REGISTRY[e].parameters().items()
               if (spd.effect(e).params_dict.get(p, default)) is not None]
     assert [k for k in keys if not k.startswith(('population.', 'protocol.'))] == expect
     assert keys[-5:] == ['population.spread.a', 'population.spread.b', 'population.spread.c',
@@ -65,7 +67,8 @@ def test_every_parameter_of_every_listed_effect_and_the_population_and_dwell():
 
 def test_an_effect_no_scene_lists_is_not_swept_and_one_scene_is_enough():
     spd, acc = _scenes()
-    keys = _keys(S.assumed_parameters(_without(spd, 'speech_latency'), _without(acc, 'speech_latency')))
+    keys = _keys(S.assumed_parameters(_without(spd, 'speech_latency'), _without(acc,
+                                                                                'speech_latency')))
     assert not [k for k in keys if k.startswith('speech_latency.')]
     # listed by the accuracy scene only: swept, and applied there only
     params = S.assumed_parameters(_without(spd, 'speech_latency'), acc)
@@ -101,7 +104,8 @@ def test_apply_sets_one_parameter_in_the_scenes_it_belongs_to():
     params = {p.key: p for p in S.assumed_parameters(spd, acc)}
     s2 = S.apply(spd, 'speed', params['reaction_delay.mean_s'], 0.5)
     assert s2.effect('reaction_delay').params_dict['mean_s'] == 0.5
-    assert s2.effect('reaction_delay').params_dict['sd_s'] == spd.effect('reaction_delay').params_dict['sd_s']
+    sd = spd.effect('reaction_delay').params_dict['sd_s']
+    assert s2.effect('reaction_delay').params_dict['sd_s'] == sd
     assert [e for e in s2.effects if e.name != 'reaction_delay'] == \
         [e for e in spd.effects if e.name != 'reaction_delay']
     dwell = params['protocol.dwell_s']
@@ -116,10 +120,12 @@ def test_apply_sets_one_parameter_in_the_scenes_it_belongs_to():
 def test_a_longer_reaction_delay_costs_targets_and_accuracy():
     """Acting on the percept later: fewer targets in 40 s and a larger key-press error (paired,
     same wearers and targets); a shorter one does not cost targets."""
-    result = S.run_sensitivity(S.quick_settings(parameters=('reaction_delay.mean_s',), seeds=1, workers=1))
+    result = S.run_sensitivity(S.quick_settings(parameters=('reaction_delay.mean_s',), seeds=1,
+                                                workers=1))
     base = result.baseline
     runs = {r.side: r for r in result.runs}
-    assert runs['high'].value == pytest.approx(2 * 0.25) and runs['low'].value == pytest.approx(0.125)
+    assert runs['high'].value == pytest.approx(2 * 0.25)
+    assert runs['low'].value == pytest.approx(0.125)
     high, low = runs['high'].figures, runs['low'].figures
     assert high['c1_targets'] < base['c1_targets'] and high['c4_targets'] < base['c4_targets']
     assert high['c1_error_deg'] > base['c1_error_deg']
@@ -153,7 +159,8 @@ def test_quick_run_writes_table_report_and_tornado(quick_run):
         moved = frame[frame['side'] != 'baseline']
         assert (moved[f'd_{h}'] == moved[h] - frame[frame['side'] == 'baseline'][h].iloc[0]).all()
     md = (out / 'sensitivity.md').read_text()
-    assert 'speech_latency' not in md and '| baseline |' in md and '![sensitivity](sensitivity.png)' in md
+    assert 'speech_latency' not in md and '| baseline |' in md
+    assert '![sensitivity](sensitivity.png)' in md
     # sorted by the largest move in seed SDs
     zs = [float(line.rsplit('|', 2)[1].split()[0]) for line in md.splitlines()
           if line.startswith('| ') and '(c' in line.rsplit('|', 2)[1]]
@@ -170,7 +177,8 @@ def test_central_field_moves_the_speed_figures_beyond_noise(quick_run):
     """Visual capture ends most searches in the paper scenes: halving the capture field costs
     condition 1 targets, far beyond the seed spread (a sign the figures rest on it)."""
     frame = pd.read_csv(quick_run[0] / 'sensitivity.csv')
-    row = frame[(frame['parameter'] == 'body_dynamics.central_field_deg') & (frame['side'] == 'low')].iloc[0]
+    field = frame[frame['parameter'] == 'body_dynamics.central_field_deg']
+    row = field[field['side'] == 'low'].iloc[0]
     assert row['d_c1_targets'] < 0 and row['value'] == pytest.approx(15.0)
 
 
@@ -182,7 +190,8 @@ def test_central_field_moves_the_speed_figures_beyond_noise(quick_run):
     (['--subjects', '0'], '--subjects must be a whole number >= 1'),
     (['--subjects', '99'], '--subjects must be within 1..15'),
     (['--seeds', 'two'], '--seeds must be a whole number'),
-    (['--parameters', 'reaction_delay.nonsense'], '--parameters: unknown or not swept reaction_delay.nonsense'),
+    (['--parameters', 'reaction_delay.nonsense'],
+     '--parameters: unknown or not swept reaction_delay.nonsense'),
     (['--exclude', 'nonsense'], '--exclude: unknown or not swept nonsense'),
     (['--speed-scene', 'no-such-scene'], 'no-such-scene'),
 ])

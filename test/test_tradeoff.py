@@ -59,7 +59,8 @@ def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
         for (_, _), part in frame[frame['knob'] == knob].groupby(['accuracy_metric', 'time_metric']):
             assert sorted(part['value']) == pytest.approx(sorted(grid))
     # calibration time is Algorithm 1's 4 x (rest + steps x dwell) of the scene, as simulated
-    cal = frame[(frame['knob'] == 'calibration_points') & (frame['time_metric'] == 'calibration_time_s')]
+    cal = frame[(frame['knob'] == 'calibration_points')
+                & (frame['time_metric'] == 'calibration_time_s')]
     scene = load_scene('paper-accuracy')
     expect = 4 * (scene.calibration.rest_s + cal['value'] * scene.calibration.dwell_s)
     assert np.allclose(cal['time_mean'], expect, atol=4 / scene.sim_rate_hz + 1e-9)
@@ -85,7 +86,8 @@ def test_report_has_the_table_a_reading_of_each_knob_and_the_plots(quick_run):
     assert '| knob | value |' in md
     # one progress line per knob value
     lines = [ln for ln in stderr.splitlines() if ln.startswith('[')]
-    assert len(lines) == sum(len(g) for g in tradeoff.QUICK_GRIDS.values()) + len(tradeoff.PLANE_CONDITIONS)
+    grids = sum(len(g) for g in tradeoff.QUICK_GRIDS.values())
+    assert len(lines) == grids + len(tradeoff.PLANE_CONDITIONS)
     assert '## The plane' in md and '![plane](plane.png)' in md
 
 
@@ -108,7 +110,8 @@ def test_plane_rows_for_every_condition_and_every_knob_value(quick_run):
     # the package values of condition 1 are the condition-1 point itself: the same simulations
     c1 = plane[(plane['knob'] == 'condition') & (plane['value'] == 1)].iloc[0]
     g = plane[(plane['knob'] == 'gain') & np.isclose(plane['value'], 0.05)].iloc[0]
-    assert (g['accuracy_mean'], g['time_mean']) == pytest.approx((c1['accuracy_mean'], c1['time_mean']))
+    assert (g['accuracy_mean'], g['time_mean']) == pytest.approx((c1['accuracy_mean'],
+                                                                  c1['time_mean']))
     # speech differs from the suit on both axes (a condition effect the plane must show)
     c4 = plane[(plane['knob'] == 'condition') & (plane['value'] == 4)].iloc[0]
     assert c4['time_mean'] != pytest.approx(c1['time_mean'])
@@ -166,7 +169,8 @@ def test_ideal_scene_more_tolerance_never_less_error_more_points_never_less_time
         assert np.all(np.diff(err) > 0.0), err
     else:                                              # the ideal wearer lands on the target at once
         assert np.all(err < 1e-9)
-    cal = frame[(frame['knob'] == 'calibration_points') & (frame['time_metric'] == 'calibration_time_s')]
+    cal = frame[(frame['knob'] == 'calibration_points')
+                & (frame['time_metric'] == 'calibration_time_s')]
     assert len(cal) == 2 * len(settings.grids['calibration_points'])
     for _, part in cal.groupby('accuracy_metric'):
         part = part.sort_values('value')
@@ -239,7 +243,8 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'control_rate': (90.0,)}, knobs=('control_rate',))
     with pytest.raises(ValueError, match='sim_rate_hz'):
         run_sweep(settings)
-    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'rate_threshold': (0.0,)}, knobs=('rate_threshold',))
+    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'rate_threshold': (0.0,)},
+                              knobs=('rate_threshold',))
     with pytest.raises(ValueError, match=r'knob rate_threshold: values out of range: \[0.0\]'):
         run_sweep(settings)
 
@@ -249,7 +254,8 @@ def test_add_parser_wires_a_subcommand(tmp_path):
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest='command')
     tradeoff.add_parser(sub)
-    args = parser.parse_args(['tradeoff', '--out', str(tmp_path), '--quick', '--knobs', 'fit_tolerance',
+    args = parser.parse_args(['tradeoff', '--out', str(tmp_path), '--quick', '--knobs',
+                              'fit_tolerance',
                               '--no-plane'])
     assert args.command == 'tradeoff' and args.quick
     assert tradeoff.run(args) == 0

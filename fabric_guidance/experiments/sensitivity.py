@@ -138,7 +138,8 @@ def load_scenes(s: Settings) -> tuple[Scene, Scene]:
     if s.trial_s is not None:
         spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(s.trial_s)))
     if not 1 <= s.subjects <= spd.population.subjects:
-        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} (scene {spd.name}), '
+        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} '
+                         f'(scene {spd.name}), '
                          f'got {s.subjects}')
     return spd, acc
 
@@ -195,12 +196,14 @@ def assumed_parameters(spd: Scene, acc: Scene, exclude=()) -> list[Parameter]:
     """Every assumed parameter of the two scenes, in a stable order: the effects the scenes list
     (REGISTRY order of first listing), their parameters, then spread, arm_spread, dwell_s.
     Optional parameters left unset (None) have no value to vary and are left out."""
-    skip = {f'{e}.{p}' for e, p in MEASURED} | set(exclude) | _scene_marked(spd) | _scene_marked(acc)
+    skip = {f'{e}.{p}' for e,
+            p in MEASURED} | set(exclude) | _scene_marked(spd) | _scene_marked(acc)
     out: list[Parameter] = []
     names = list(dict.fromkeys(spd.effect_names + acc.effect_names))
     for effect in names:
         cls = REGISTRY[effect]
-        where = tuple(k for k, sc in (('speed', spd), ('accuracy', acc)) if sc.effect(effect) is not None)
+        where = tuple(k for k, sc in (('speed', spd), ('accuracy',
+                                                       acc)) if sc.effect(effect) is not None)
         primary = spd if 'speed' in where else acc
         for f in fields(cls):
             key = f'{effect}.{f.name}'
@@ -209,7 +212,8 @@ def assumed_parameters(spd: Scene, acc: Scene, exclude=()) -> list[Parameter]:
                 continue
             meta = f.metadata
             default = f.default if isinstance(f.default, (int, float)) and f.default else None
-            out.append(Parameter(key, meta.get('unit', ''), float(value), meta.get('lo'), meta.get('hi'),
+            out.append(Parameter(key, meta.get('unit', ''), float(value), meta.get('lo'),
+                                 meta.get('hi'),
                                  bool(meta.get('lo_open')), default, where))
     for k, coef in enumerate('abc'):
         key = f'population.spread.{coef}'
@@ -217,10 +221,12 @@ def assumed_parameters(spd: Scene, acc: Scene, exclude=()) -> list[Parameter]:
             out.append(Parameter(key, '(log) -', float(spd.population.spread[k]), 0.0, 3.0,
                                  scenes=('speed', 'accuracy')))
     if 'population.arm_spread' not in skip:
-        out.append(Parameter('population.arm_spread', '(log) -', float(spd.population.arm_spread), 0.0, 3.0,
+        out.append(Parameter('population.arm_spread', '(log) -', float(spd.population.arm_spread),
+                             0.0, 3.0,
                              scenes=('speed', 'accuracy')))
     if 'protocol.dwell_s' not in skip:
-        out.append(Parameter('protocol.dwell_s', 's', float(spd.protocol.dwell_s), 0.0, None, scenes=('speed',)))
+        out.append(Parameter('protocol.dwell_s', 's', float(spd.protocol.dwell_s), 0.0, None,
+                             scenes=('speed',)))
     return out
 
 
@@ -281,7 +287,8 @@ def _wearer_job(args):
     per40 = 40.0 / spd.protocol.trial_s
     out = {}
     for c in spd.conditions:
-        n = [speed_trial(spd, wearer, cal.calibration, c, r)['identified'] for r in range(spd.repetitions)]
+        n = [speed_trial(spd, wearer, cal.calibration, c,
+                         r)['identified'] for r in range(spd.repetitions)]
         out[f'targets_{c}'] = per40 * float(np.mean(n))
     acc_wearer = sample_wearer(acc, subject)
     for c in acc.conditions:
@@ -300,7 +307,8 @@ def headlines(per_wearer: dict[int, dict]) -> dict[str, float]:
         return {h: math.nan for h in HEADLINES}
     m = lambda k: float(np.mean([v[k] for v in ok]))  # noqa: E731
     return {'c1_targets': m('targets_1'), 'c1_minus_c2': m('targets_1') - m('targets_2'),
-            'c4_targets': m('targets_4'), 'c1_error_deg': m('error_1'), 'c4_error_deg': m('error_4')}
+            'c4_targets': m('targets_4'), 'c1_error_deg': m('error_1'),
+            'c4_error_deg': m('error_4')}
 
 
 class _Pool:
@@ -400,7 +408,8 @@ class SensitivityResult:
         return sorted(((k, *best[k]) for k in order), key=lambda x: -x[1])
 
 
-def run_sensitivity(settings: Settings, progress: Callable[[str], None] | None = None) -> SensitivityResult:
+def run_sensitivity(settings: Settings,
+                    progress: Callable[[str], None] | None = None) -> SensitivityResult:
     say = progress or (lambda line: None)
     check_settings(settings)
     spd, acc = load_scenes(settings)
@@ -409,7 +418,8 @@ def run_sensitivity(settings: Settings, progress: Callable[[str], None] | None =
         known = {p.key for p in params}
         unknown = [k for k in settings.parameters if k not in known]
         if unknown:
-            raise ValueError(f'--parameters: unknown or not swept {unknown}; valid: {", ".join(sorted(known))}')
+            raise ValueError(f'--parameters: unknown or not swept {unknown}; '
+                             f'valid: {", ".join(sorted(known))}')
         params = [p for p in params if p.key in settings.parameters]
     plan: list[tuple[str, str, float | None, int, Scene, Scene]] = []
     for k in range(settings.seeds):
@@ -418,14 +428,16 @@ def run_sensitivity(settings: Settings, progress: Callable[[str], None] | None =
     for p in params:
         for side, v in zip(('low', 'high'), p.values(settings.low, settings.high)):
             if v is not None:
-                plan.append((p.key, side, v, spd.seed, apply(spd, 'speed', p, v), apply(acc, 'accuracy', p, v)))
+                plan.append((p.key, side, v, spd.seed, apply(spd, 'speed', p, v),
+                             apply(acc, 'accuracy', p, v)))
     start = time.perf_counter()
     pool = _Pool(settings.workers, settings.subjects)
     baselines, runs = [], []
     try:
         for i, (key, side, v, seed, s_scene, a_scene) in enumerate(plan, start=1):
             t0 = time.perf_counter()
-            results = pool.map(_wearer_job, [(s_scene, a_scene, j) for j in range(settings.subjects)])
+            results = pool.map(_wearer_job, [(s_scene, a_scene,
+                                              j) for j in range(settings.subjects)])
             per = {subj: out for subj, out, _ in results}
             excluded = [f'S{subj + 1:02d}: {err}' for subj, out, err in results if out is None]
             run = Run(key, side, v, seed, headlines(per), excluded, time.perf_counter() - t0)
@@ -433,10 +445,12 @@ def run_sensitivity(settings: Settings, progress: Callable[[str], None] | None =
             what = f'baseline seed {seed}' if side == 'baseline' else f'{key} {side} = {v:.4g}'
             figs = ', '.join(f'{h} {run.figures[h]:.3g}' for h in HEADLINES)
             say(f'[{i}/{len(plan)}] {what}: {figs}'
-                + (f'; {len(excluded)} wearer(s) excluded' if excluded else '') + f' ({run.wall_s:.1f} s)')
+                + (f'; {len(excluded)} wearer(s) excluded' if excluded else '')
+                + f' ({run.wall_s:.1f} s)')
     finally:
         pool.close()
-    return SensitivityResult(settings, params, baselines, runs, (spd, acc), time.perf_counter() - start)
+    return SensitivityResult(settings, params, baselines, runs, (spd, acc),
+                             time.perf_counter() - start)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -458,7 +472,8 @@ def markdown_table(result: SensitivityResult) -> str:
     sd = result.seed_sd()
     by = {(r.parameter, r.side): r for r in result.runs}
     base = result.baseline
-    header = ['parameter', 'scene value', 'low / high run'] + [f'{h}: low / high' for h in HEADLINES] + \
+    header = ['parameter', 'scene value',
+              'low / high run'] + [f'{h}: low / high' for h in HEADLINES] + \
         ['largest move (seed SDs)']
     rows = [['baseline', '', f'{len(result.baselines)} seeds']
             + [f'{_fmt(base[h])} (seed SD {_fmt(sd[h])})' for h in HEADLINES] + ['']]
@@ -468,7 +483,8 @@ def markdown_table(result: SensitivityResult) -> str:
         vals = ' / '.join(_fmt(r.value) if r else '-' for r in (lo, hi))
         cells = []
         for name in HEADLINES:
-            cells.append(' / '.join(_signed(r.figures[name] - base[name]) if r else '-' for r in (lo, hi)))
+            cells.append(' / '.join(_signed(r.figures[name] - base[name]) if r else '-'
+                                    for r in (lo, hi)))
         mark = ' **beyond noise**' if z >= NOISE_SDS else ''
         unit = f' {p.unit}' if p.unit and p.unit != '-' else ''
         rows.append([key, f'{_fmt(p.value)}{unit}', vals] + cells + [f'{z:.1f} ({h}){mark}'])
@@ -509,9 +525,12 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
     first.set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=8)
     first.set_ylim(-0.7, n - 0.3)
     s = result.settings
-    fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters (x{s.low:g} blue, x{s.high:g} '
-                 f'orange; black line: baseline, grey band: +-{NOISE_SDS:g} SD over {len(result.baselines)} '
-                 f'seeds)\n{s.subjects} wearers, scenes {result.scenes[0].name} / {result.scenes[1].name}; '
+    fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters '
+                 f'(x{s.low:g} blue, x{s.high:g} '
+                 f'orange; black line: baseline, grey band: +-{NOISE_SDS:g} SD over '
+                 f'{len(result.baselines)} '
+                 f'seeds)\n{s.subjects} wearers, scenes {result.scenes[0].name} / '
+                 f'{result.scenes[1].name}; '
                  'sorted by the largest move in seed SDs', fontsize=10)
     fig.legend(handles=[Patch(color='tab:blue', label=f'low (x{s.low:g})'),
                         Patch(color='tab:orange', label=f'high (x{s.high:g})'),
@@ -525,38 +544,51 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
 def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {'csv': out / 'sensitivity.csv', 'png': out / 'sensitivity.png', 'md': out / 'sensitivity.md'}
+    paths = {'csv': out / 'sensitivity.csv', 'png': out / 'sensitivity.png',
+             'md': out / 'sensitivity.md'}
     result.frame().to_csv(paths['csv'], index=False)
     plot_tornado(result, paths['png'])
     s = result.settings
     spd, acc = result.scenes
-    sd = result.seed_sd()
     beyond = [(k, z, h) for k, z, h in result.ranking() if z >= NOISE_SDS]
     lines = ['# Which figures rest on which assumptions', '',
-             f'Scenes `{spd.name}` (speed protocol, conditions {", ".join(map(str, spd.conditions))}, '
-             f'{s.speed_repetitions} trial(s) of {spd.protocol.trial_s:g} s per wearer and condition) and '
-             f'`{acc.name}` (accuracy protocol, conditions {", ".join(map(str, acc.conditions))}, {s.repetitions} '
-             f'trials), on the same {s.subjects} wearers (the speed scene\'s seed {spd.seed} and population). '
-             f'Each assumed parameter at x{s.low:g} and x{s.high:g} of the scene value (0 goes to a small positive '
-             f'value; clipped to the valid range), one at a time, same seed: the moves are paired. '
-             f'{len(result.baselines) + len(result.runs)} runs in {result.wall_s:.0f} s wall with {s.workers} '
+             f'Scenes `{spd.name}` (speed protocol, conditions '
+             f'{", ".join(map(str, spd.conditions))}, '
+             f'{s.speed_repetitions} trial(s) of {spd.protocol.trial_s:g} s per wearer and '
+             'condition) and '
+             f'`{acc.name}` (accuracy protocol, conditions '
+             f'{", ".join(map(str, acc.conditions))}, {s.repetitions} '
+             f'trials), on the same {s.subjects} wearers (the speed scene\'s seed {spd.seed} and '
+             'population). '
+             f'Each assumed parameter at x{s.low:g} and x{s.high:g} of the scene value (0 goes '
+             'to a small positive '
+             'value; clipped to the valid range), one at a time, same seed: the moves are '
+             'paired. '
+             f'{len(result.baselines) + len(result.runs)} runs in {result.wall_s:.0f} s wall '
+             f'with {s.workers} '
              f'worker(s)' + (' (--quick)' if s.quick else '') + '.', '',
-             'Figures: ' + '; '.join(f'`{h}` {HEADLINE_TITLES[h]}' for h in HEADLINES) + '. Targets are scaled '
+             'Figures: ' + '; '.join(f'`{h}` {HEADLINE_TITLES[h]}' for h in HEADLINES)
+             + '. Targets are scaled '
              'to 40 s; errors are the true gaze\'s at the key press (hypot of h and v).', '',
              '## Table', '',
-             f'Moves from the baseline (first row: the baseline at seed {spd.seed} and the SD of each figure over '
-             f'{len(result.baselines)} seeds, i.e. other wearers and targets). Sorted by the largest move in seed SDs; '
-             f'**beyond noise**: at least {NOISE_SDS:g} seed SDs (a paired move can be real below that, but is '
+             f'Moves from the baseline (first row: the baseline at seed {spd.seed} and the SD of '
+             'each figure over '
+             f'{len(result.baselines)} seeds, i.e. other wearers and targets). Sorted by the '
+             'largest move in seed SDs; '
+             f'**beyond noise**: at least {NOISE_SDS:g} seed SDs (a paired move can be real '
+             'below that, but is '
              'not shown to matter on this many wearers).', '',
              markdown_table(result), '']
     if beyond:
-        lines += [f'{len(beyond)} of {len(result.ranking())} parameters move a figure beyond noise: '
+        lines += [f'{len(beyond)} of {len(result.ranking())} parameters move a figure beyond '
+                  'noise: '
                   + ', '.join(f'`{k}` ({h}, {z:.1f} SD)' for k, z, h in beyond) + '.', '']
     else:
         lines += ['No parameter moves a figure by 2 seed SDs or more.', '']
     skipped = sorted({f'{e}.{p}' for e, p in MEASURED} | set(s.exclude))
     if skipped:
-        lines += ['Not swept (measured, fitted or excluded): ' + ', '.join(f'`{k}`' for k in skipped) + '.', '']
+        lines += ['Not swept (measured, fitted or excluded): '
+                  + ', '.join(f'`{k}`' for k in skipped) + '.', '']
     lines += ['## Tornado plot', '', f'![sensitivity]({_image_path(paths["png"], out)})', '']
     paths['md'].write_text('\n'.join(lines))
     return paths
@@ -589,25 +621,32 @@ def _factor(option: str, text) -> float:
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     d = Settings()
-    parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for the table, report, plot')
+    parser.add_argument('--out', type=Path, required=True, metavar='DIR',
+                        help='folder for the table, report, plot')
     parser.add_argument('--subjects', default=None,
                         help=f'wearers (default {d.subjects}; --quick 2)')
     parser.add_argument('--repetitions', default=None,
-                        help=f'accuracy trials per wearer and condition (default {d.repetitions}; --quick 2)')
+                        help=f'accuracy trials per wearer and condition (default {d.repetitions}; '
+                             '--quick 2)')
     parser.add_argument('--speed-repetitions', default=None,
-                        help=f'speed trials per wearer and condition (default {d.speed_repetitions}; --quick 1)')
+                        help=f'speed trials per wearer and condition '
+                             f'(default {d.speed_repetitions}; --quick 1)')
     parser.add_argument('--seeds', default=None,
                         help=f'baseline seeds for the noise (default {d.seeds}; --quick 2)')
     parser.add_argument('--low', default=None, help=f'low factor (default {d.low:g})')
     parser.add_argument('--high', default=None, help=f'high factor (default {d.high:g})')
     parser.add_argument('--parameters', default='',
-                        help='comma-separated subset of the parameter keys (e.g. reaction_delay.mean_s); '
+                        help='comma-separated subset of the parameter keys '
+                             '(e.g. reaction_delay.mean_s); '
                              'default: every assumed one')
     parser.add_argument('--exclude', default='',
                         help='comma-separated parameter keys not to sweep (measured or fitted)')
-    parser.add_argument('--speed-scene', default=DEFAULT_SPEED_SCENE, help='scene for the speed protocol')
-    parser.add_argument('--accuracy-scene', default=DEFAULT_ACCURACY_SCENE, help='scene for the accuracy protocol')
-    parser.add_argument('--workers', default=min(2, os.cpu_count() or 1), help='processes (default 2)')
+    parser.add_argument('--speed-scene', default=DEFAULT_SPEED_SCENE,
+                        help='scene for the speed protocol')
+    parser.add_argument('--accuracy-scene', default=DEFAULT_ACCURACY_SCENE,
+                        help='scene for the accuracy protocol')
+    parser.add_argument('--workers', default=min(2, os.cpu_count() or 1),
+                        help='processes (default 2)')
     parser.add_argument('--quick', action='store_true',
                         help='2 wearers, 2 seeds, 20 s speed trials: seconds per run, for a check')
     return parser
@@ -647,14 +686,18 @@ def run(args: argparse.Namespace) -> int:
         params = assumed_parameters(spd, acc, settings.exclude)
         valid = {q.key for q in assumed_parameters(spd, acc)} | {f'{e}.{p}' for e, p in MEASURED}
         for option, keys, allowed in (('--exclude', settings.exclude, valid),
-                                      ('--parameters', settings.parameters, {q.key for q in params})):
+                                      ('--parameters', settings.parameters,
+                                       {q.key for q in params})):
             unknown = [k for k in keys if k not in allowed]
             if unknown:
                 raise ValueError(f'{option}: unknown or not swept {", ".join(unknown)}; valid: '
                                  f'{", ".join(sorted(allowed))}')
-        print(f'{PROG}: {len(settings.parameters) or len(params)} parameter(s), {settings.subjects} wearers, '
-              f'{settings.seeds} baseline seed(s), {settings.workers} worker(s)', file=sys.stderr, flush=True)
-        result = run_sensitivity(settings, progress=lambda line: print(line, file=sys.stderr, flush=True))
+        print(f'{PROG}: {len(settings.parameters) or len(params)} parameter(s), '
+              f'{settings.subjects} wearers, '
+              f'{settings.seeds} baseline seed(s), {settings.workers} worker(s)', file=sys.stderr,
+              flush=True)
+        result = run_sensitivity(settings, progress=lambda line: print(line, file=sys.stderr,
+                                                                       flush=True))
     except (ValueError, OSError) as exc:
         _error(exc)
         return 2
@@ -664,7 +707,8 @@ def run(args: argparse.Namespace) -> int:
         _error(f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
         return 1
     print(markdown_table(result))
-    print(f'\nsensitivity: {result.wall_s:.1f} s wall\ntable: {paths["csv"]}\nreport: {paths["md"]}\n'
+    print(f'\nsensitivity: {result.wall_s:.1f} s wall\ntable: {paths["csv"]}\n'
+          f'report: {paths["md"]}\n'
           f'plot: {paths["png"]}')
     return 0
 
@@ -673,8 +717,10 @@ def main(argv: list[str] | None = None) -> int:
     return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
-__all__ = ['HEADLINES', 'MEASURED', 'Parameter', 'SensitivityResult', 'Settings', 'add_parser', 'apply',
-           'assumed_parameters', 'headlines', 'main', 'quick_settings', 'run', 'run_sensitivity', 'write_outputs']
+__all__ = ['HEADLINES', 'MEASURED', 'Parameter', 'SensitivityResult', 'Settings', 'add_parser',
+           'apply',
+           'assumed_parameters', 'headlines', 'main', 'quick_settings', 'run', 'run_sensitivity',
+           'write_outputs']
 
 
 if __name__ == '__main__':

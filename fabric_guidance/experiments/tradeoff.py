@@ -110,7 +110,8 @@ KNOB_TITLES = {'acceptance_tolerance': 'acceptance tolerance (deg)', 'gain': 'ad
                'calibration_points': 'calibration points per direction (Algorithm 1)',
                'control_rate': 'control rate (Hz)',
                'rate_threshold': 'rate threshold of the feedback law (deg/s)',
-               'fit_tolerance': 'fit tolerance (LM xtol = ftol)', 'condition': 'the paper\'s condition'}
+               'fit_tolerance': 'fit tolerance (LM xtol = ftol)',
+               'condition': 'the paper\'s condition'}
 KNOB_SYMBOLS = {'acceptance_tolerance': 'tolerance', 'gain': 'G', 'calibration_points': 'points',
                 'control_rate': 'rate', 'rate_threshold': 'threshold', 'fit_tolerance': 'tol',
                 'condition': 'condition'}
@@ -125,7 +126,8 @@ METRICS = {
     'fit_time_ms': ('fit wall time (ms per fit)', 'ms'),
 }
 CSV_COLUMNS = ('knob', 'value', 'accuracy_metric', 'accuracy_mean', 'accuracy_sd', 'accuracy_p10', 'accuracy_p90',
-               'accuracy_se', 'time_metric', 'time_mean', 'time_sd', 'time_p10', 'time_p90', 'time_se', 'n',
+               'accuracy_se', 'time_metric', 'time_mean', 'time_sd', 'time_p10', 'time_p90',
+               'time_se', 'n',
                'n_time', 'wearers', 'plane', 'note')
 #: Changes below this fraction of the curve's level are called flat whatever the noise: too small
 #: to matter (5 %).
@@ -383,7 +385,8 @@ class Row:
         t_se, _ = self.wearer_se('time')
         return dict(knob=self.knob, value=self.value, accuracy_metric=self.accuracy_metric,
                     accuracy_mean=a['mean'], accuracy_sd=a['sd'], accuracy_p10=a['p10'], accuracy_p90=a['p90'],
-                    accuracy_se=a_se, time_metric=self.time_metric, time_mean=t['mean'], time_sd=t['sd'],
+                    accuracy_se=a_se, time_metric=self.time_metric, time_mean=t['mean'],
+                    time_sd=t['sd'],
                     time_p10=t['p10'], time_p90=t['p90'], time_se=t_se, n=a['n'], n_time=t['n'],
                     wearers=wearers, plane=self.plane, note=self.note)
 
@@ -584,13 +587,16 @@ def refit_calibrations(cals: dict, tol: float, p_max: float) -> dict:
         dirs = {}
         try:
             for d, dc in o.calibration.directions.items():
-                law = fit_power_law(np.array(dc.angles), np.array(dc.pressures), p_max, xtol=tol, ftol=tol).law
+                law = fit_power_law(np.array(dc.angles), np.array(dc.pressures), p_max, xtol=tol,
+                                    ftol=tol).law
                 dirs[d] = dc_replace(dc, law=law)
         except CalibrationFitError as exc:
-            out[subject] = (CalibrationOutcome(subject, o.wearer, None, f'calibration failed: refit at {tol:g}: '
+            out[subject] = (CalibrationOutcome(subject, o.wearer, None,
+                                               f'calibration failed: refit at {tol:g}: '
                                                f'{exc}'), took)
             continue
-        out[subject] = (dc_replace(o, calibration=dc_replace(o.calibration, directions=dirs)), took)
+        out[subject] = (dc_replace(o, calibration=dc_replace(o.calibration, directions=dirs)),
+                        took)
     return out
 
 
@@ -612,9 +618,11 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 v_start = time.perf_counter()
                 a_samples, cals = runner.trials(acc.replace(conditions=(cond,)), 'accuracy')
                 s_samples, _ = runner.trials(spd.replace(conditions=(cond,)), 'speed')
-                row = plane_row('condition', cond, a_samples, s_samples, cals, CONDITION_LABELS[cond], timeout)
+                row = plane_row('condition', cond, a_samples, s_samples, cals,
+                                CONDITION_LABELS[cond], timeout)
                 rows.append(row)
-                say(f'[condition {i}/{len(PLANE_CONDITIONS)}] {CONDITION_LABELS[cond]}: {_summary(row)} '
+                say(f'[condition {i}/{len(PLANE_CONDITIONS)}] {CONDITION_LABELS[cond]}: '
+                    f'{_summary(row)} '
                     f'({time.perf_counter() - v_start:.1f} s)')
             knob_wall['condition'] = time.perf_counter() - k_start
         for knob in settings.knobs:
@@ -656,7 +664,8 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 elif knob in ('gain', 'rate_threshold'):
                     field_name = 'gain' if knob == 'gain' else 'rate_threshold_dps'
                     for base, kind in ((acc, 'accuracy'), (spd, 'speed')):
-                        scene = base.replace(controller=replace(base.controller, **{field_name: float(value)}))
+                        scene = base.replace(controller=replace(base.controller,
+                                                                **{field_name: float(value)}))
                         samples, cals = runner.trials(scene, kind)
                         if kind == 'accuracy':
                             a_samples = samples
@@ -670,7 +679,8 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                     new += calibration_rows(int(value), a_samples, cals, timeout)
                     if settings.plane:
                         s_samples, _ = runner.trials(
-                            spd.replace(calibration=replace(spd.calibration, steps=int(value))), 'speed')
+                            spd.replace(calibration=replace(spd.calibration, steps=int(value))),
+                            'speed')
                 elif knob == 'control_rate':
                     scene = acc.replace(controller=replace(acc.controller, control_rate_hz=float(value)))
                     a_samples, cals = runner.trials(scene, 'accuracy')
@@ -679,7 +689,8 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                     new.append(row)
                     if settings.plane:
                         s_samples, _ = runner.trials(
-                            spd.replace(controller=replace(spd.controller, control_rate_hz=float(value))), 'speed')
+                            spd.replace(controller=replace(spd.controller,
+                                                           control_rate_hz=float(value))), 'speed')
                 if settings.plane and a_samples is not None and s_samples is not None:
                     cost = ''
                     if knob == 'calibration_points':
@@ -777,7 +788,8 @@ def read_curve(rows: list[Row]) -> str:
     fastest, slowest = int(np.argmin(t)), int(np.argmax(t))
     pt = lambda i: f'{KNOB_SYMBOLS[knob]} = {vals[i]:g} ({_fmt(t[i])} {tu}, {_fmt(a[i])} {au})'  # noqa: E731
     s1 = (f'{a_name.capitalize()} goes from {_fmt(a[0])} {au} at {KNOB_SYMBOLS[knob]} = {vals[0]:g} to '
-          f'{_fmt(a[-1])} {au} at {vals[-1]:g} (best {_fmt(a[best])} {au} at {vals[best]:g}), while the '
+          f'{_fmt(a[-1])} {au} at {vals[-1]:g} (best {_fmt(a[best])} {au} at {vals[best]:g}), '
+          'while the '
           f'{t_name.split(" (")[0]} goes from {_fmt(t[0])} to {_fmt(t[-1])} {tu}.')
     if len(rows) == 1:
         return s1
@@ -786,10 +798,12 @@ def read_curve(rows: list[Row]) -> str:
     front = pareto_front(t, a)
     if a_flat and t_flat:
         s2 = (f'Both accuracy and time are flat: the accuracy means span {_flat_why(a_span, a_noise, a, au)} and the '
-              f'times {_flat_why(t_span, t_noise, t, tu)}, so this knob trades nothing that matters here.')
+              f'times {_flat_why(t_span, t_noise, t, tu)}, so this knob trades nothing that '
+              'matters here.')
     elif a_flat:
         s2 = (f'Accuracy is flat: its means span {_flat_why(a_span, a_noise, a, au)}, so spending time on this knob '
-              f'buys no accuracy that matters; the fastest value, {pt(fastest)}, is the one to pick.')
+              f'buys no accuracy that matters; the fastest value, {pt(fastest)}, is the one to '
+              'pick.')
     elif t_flat:
         s2 = (f'Time is flat (the means span {_flat_why(t_span, t_noise, t, tu)}): accuracy comes free, '
               f'and {pt(best)} is the most accurate.')
@@ -816,7 +830,8 @@ def read_curve(rows: list[Row]) -> str:
             gain = a[knee] - a[f_best]
             extra = t[front[-1]] - t[knee]
             s2 += (f'More time stops buying accuracy at {KNOB_SYMBOLS[knob]} = {vals[knee]:g}: the slower front '
-                   f'values gain at most {_fmt(gain)} {au} (within 2 SE or {KNEE_FRACTION:.0%} of the front\'s '
+                   f'values gain at most {_fmt(gain)} {au} (within 2 SE or {KNEE_FRACTION:.0%} '
+                   'of the front\'s '
                    f'range) for up to {_fmt(extra)} {tu} more.')
     parts = []
     if not a_flat and len(rows) >= 3:
@@ -827,11 +842,13 @@ def read_curve(rows: list[Row]) -> str:
         rho = float(pd.Series([float(v) for v in vals]).corr(pd.Series(a), method='spearman'))
         if len(real) < len(diffs) / 2:
             parts.append(f'Noisy: only {len(real)} of {len(diffs)} neighbouring values differ by more than 2 SE, '
-                         f'so read the trend (Spearman rho of value and accuracy {rho:+.2f}), not the order of '
+                         f'so read the trend (Spearman rho of value and accuracy {rho:+.2f}), '
+                         'not the order of '
                          f'neighbours.')
         elif reversals >= 2:
             parts.append(f'Not monotone: along the grid the accuracy turns between better and worse {reversals} '
-                         f'times by more than 2 SE (Spearman rho of value and accuracy {rho:+.2f}), so it depends on '
+                         'times by more than 2 SE (Spearman rho of value and accuracy '
+                         f'{rho:+.2f}), so it depends on '
                          f'this knob through something other than "more is better".')
     ref, source = REFERENCE[knob]
     ref_i = [i for i, v in enumerate(vals) if math.isclose(float(v), float(ref), rel_tol=1e-9)]
@@ -872,10 +889,12 @@ def gain_rate_reading(result: SweepResult) -> str:
         noise = 2.0 * diff_se(g.accuracy, r.accuracy)
         same = abs(ga['mean'] - ra['mean']) <= noise
         text += (f' At the same product {g.value * r0:g}/s, G = {g.value:g} at {r0:g} Hz gives {_fmt(ga["mean"])} deg '
-                 f'in {_fmt(gt["mean"])} s and G = {g0:g} at {r.value:g} Hz {_fmt(ra["mean"])} deg in '
+                 f'in {_fmt(gt["mean"])} s and G = {g0:g} at {r.value:g} Hz {_fmt(ra["mean"])} '
+                 'deg in '
                  f'{_fmt(rt["mean"])} s: the errors '
                  + (f'agree within 2 SE ({_fmt(noise)} deg), so rate and G act as one knob.' if same else
-                    f'differ by more than 2 SE ({_fmt(noise)} deg): G x rate does not explain it all.'))
+                    f'differ by more than 2 SE ({_fmt(noise)} deg): G x rate does not explain it '
+                    'all.'))
     if not pairs:
         text += ' No value of the two grids gives the same product, so the sweeps cannot be compared point to point.'
     return text
@@ -970,9 +989,11 @@ def _place_labels(ax, renderer, items, placed=None):
     dropped = []
     for x, y, text, colour in items:
         for dx, dy, ha, va in offsets:
-            ann = ax.annotate(text, (x, y), textcoords='offset points', xytext=(dx, dy), ha=ha, va=va,
+            ann = ax.annotate(text, (x, y), textcoords='offset points', xytext=(dx, dy), ha=ha,
+                              va=va,
                               fontsize=7.5, color=colour, zorder=8,
-                              bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none', alpha=0.8))
+                              bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none',
+                                        alpha=0.8))
             box = ann.get_window_extent(renderer).expanded(1.05, 1.1)
             inside = ax.get_window_extent(renderer).contains(box.x0, box.y0) and \
                 ax.get_window_extent(renderer).contains(box.x1, box.y1)
@@ -1030,8 +1051,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     cond_rows = sorted(curves.get('condition', []), key=lambda r: r.value)
     for row in cond_rows:
         c = int(row.value)
-        handles.insert(len(handles) - len(knobs), Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9,
-                                                          mec='black', mfc='0.2' if c == cond else 'white'))
+        handles.insert(len(handles) - len(knobs),
+                       Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9, mec='black',
+                              mfc='0.2' if c == cond else 'white'))
         labels.insert(len(labels) - len(knobs), f'condition {CONDITION_LABELS[c]}'
                       + (' (the knobs are swept here)' if c == cond else ''))
 
@@ -1039,14 +1061,16 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
         for knob in knobs:
             x, y, xe, ye = stats(curves[knob])
             style = ':' if knob == 'acceptance_tolerance' else '-'
-            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colours[knob], elinewidth=1.0, capsize=2,
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colours[knob], elinewidth=1.0,
+                        capsize=2,
                         alpha=0.7, zorder=3)
             ax.plot(x, y, style, color=colours[knob], lw=1.6, marker='.', ms=7, zorder=4)
-        # the sweep's own condition last and smaller, so a condition at the same point stays visible
+        # the sweep's own condition last and smaller: another at the same point stays visible
         for row in sorted(cond_rows, key=lambda r: int(r.value) == cond):
             c = int(row.value)
             x, y, xe, ye = stats([row])
-            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2, capsize=3, zorder=5)
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2,
+                        capsize=3, zorder=5)
             ax.scatter(x, y, s=60 if c == cond else 130, marker=markers.get(c, 'o'),
                        facecolor='0.2' if c == cond else 'white', edgecolor='black', linewidth=1.6,
                        zorder=7 if c == cond else 6)
@@ -1068,14 +1092,18 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
         mx, my = 0.12 * ((x1 - x0) or 0.1), 0.12 * ((y1 - y0) or 0.1)
         zoom.set_xlim(x0 - mx, x1 + mx)
         zoom.set_ylim(y0 - my, y1 + my)
-        whole.add_patch(Rectangle((x0 - mx, y0 - my), x1 - x0 + 2 * mx, y1 - y0 + 2 * my, fill=False,
+        whole.add_patch(Rectangle((x0 - mx, y0 - my), x1 - x0 + 2 * mx, y1 - y0 + 2 * my,
+                                  fill=False,
                                   ec='0.4', ls='--', lw=0.8, zorder=2))
     s = result.settings
     whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
-    zoom.set_title(f'zoom: the knobs swept in condition {cond} (package values at the filled point)',
+    zoom.set_title(f'zoom: the knobs swept in condition {cond} '
+                   '(package values at the filled point)',
                    fontsize=10)
-    fig.suptitle(f'What accuracy costs in time: conditions 1-4 at the package defaults and every knob; '
-                 f'{s.subjects} wearers, whiskers +-1 SE over wearer means; lower and to the left is better',
+    fig.suptitle('What accuracy costs in time: conditions 1-4 at the package defaults and '
+                 'every knob; '
+                 f'{s.subjects} wearers, whiskers +-1 SE over wearer means; lower and to the '
+                 'left is better',
                  fontsize=11)
     fig.legend(handles, labels, loc='outside lower center', ncol=2, fontsize=8.5, frameon=False)
     canvas.draw()
@@ -1084,7 +1112,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     def obstacles(ax, rows):
         out = []
         for row in rows:
-            cx, cy = ax.transData.transform((row.stats('time')['mean'], row.stats('accuracy')['mean']))
+            cx, cy = ax.transData.transform((row.stats('time')['mean'],
+                                             row.stats('accuracy')['mean']))
             out.append(Bbox([[cx - 9, cy - 9], [cx + 9, cy + 9]]))
         return out
 
@@ -1092,9 +1121,11 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     if tol:
         x, y, _, _ = stats(tol)
         idx = sorted({0, len(tol) - 1} | {i for i, r in enumerate(tol)
-                                           if math.isclose(float(r.value), REFERENCE['acceptance_tolerance'][0])})
+                                           if math.isclose(float(r.value),
+                                                           REFERENCE['acceptance_tolerance'][0])})
         items = [(x[i], y[i], f'tolerance {tol[i].value:g}'
-                  + (' (package)' if i not in (0, len(tol) - 1) else ''), colours['acceptance_tolerance'])
+                  + (' (package)' if i not in (0, len(tol) - 1) else ''),
+                  colours['acceptance_tolerance'])
                  for i in idx]
         _place_labels(whole, renderer, items, obstacles(whole, cond_rows))
     items = []
@@ -1108,7 +1139,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
             if knob in ('calibration_points', 'fit_tolerance'):
                 text += f' ({rows[i].note.split("; ")[0]})'
             items.append((x[i], y[i], text, colours[knob]))
-    _place_labels(zoom, renderer, items, obstacles(zoom, [r for r in cond_rows if int(r.value) == cond]))
+    _place_labels(zoom, renderer, items, obstacles(zoom,
+                                                   [r for r in cond_rows if int(r.value) == cond]))
     path = Path(path)
     fig.savefig(path, dpi=dpi, format='png')
     return path
@@ -1116,24 +1148,28 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
 
 def plane_text(result: 'SweepResult') -> str:
     s = result.settings
-    return (f'x: the mean time to find a target in the speed protocol (s, found targets only); y: the guidance '
-            f'error of the true gaze at the accuracy protocol\'s key press (deg, hypot of h and v), before any '
-            f'visual capture. Acceptance tolerance, which the accuracy protocol does not use, has y = the error '
-            f'when a target counts (speed protocol). Conditions 1-4 at the package defaults; every knob '
-            f'swept in condition {s.condition}, both protocols on the same {s.subjects} wearers (common '
-            f'random numbers). Spread: +-1 SE over wearer means (the columns SE). The package value of each '
-            f'knob other than the tolerance is the condition-{s.condition} point itself.')
+    return ('x: the mean time to find a target in the speed protocol (s, found targets only); '
+            'y: the guidance error of the true gaze at the accuracy protocol\'s key press (deg, '
+            'hypot of h and v), before any visual capture. Acceptance tolerance, which the '
+            'accuracy protocol does not use, has y = the error when a target counts (speed '
+            'protocol). Conditions 1-4 at the package defaults; every knob swept in condition '
+            f'{s.condition}, both protocols on the same {s.subjects} wearers (common random '
+            'numbers). Spread: +-1 SE over wearer means (the columns SE). The package value of '
+            f'each knob other than the tolerance is the condition-{s.condition} point itself.')
 
 
 def plane_table(result: 'SweepResult') -> str:
-    header = ['knob', 'value', 'y metric', 'y mean', 'y SE', 'time to find (s)', 'time SE', 'wearers', 'note']
+    header = ['knob', 'value', 'y metric', 'y mean', 'y SE', 'time to find (s)', 'time SE',
+              'wearers', 'note']
     rows = []
     curves = plane_curves(result)
     for knob in ('condition',) + tuple(k for k in KNOBS if k in curves):
         for r in curves.get(knob, []):
             rec = r.as_record()
-            value = CONDITION_LABELS.get(int(r.value), f'{r.value:g}') if knob == 'condition' else f'{r.value:g}'
-            rows.append([knob, value, r.accuracy_metric, _fmt(rec['accuracy_mean']), _fmt(rec['accuracy_se']),
+            value = CONDITION_LABELS.get(int(r.value),
+                                         f'{r.value:g}') if knob == 'condition' else f'{r.value:g}'
+            rows.append([knob, value, r.accuracy_metric, _fmt(rec['accuracy_mean']),
+                         _fmt(rec['accuracy_se']),
                          _fmt(rec['time_mean']), _fmt(rec['time_se']), rec['wearers'], r.note])
     return '\n'.join(_md_table(header, rows, 'llrrrrrrl'))
 
@@ -1164,10 +1200,13 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
     s = result.settings
     acc, spd = result.scenes
     lines = ['# What accuracy costs in time', '',
-             f'Scenes: `{acc.name}` (accuracy protocol, {s.repetitions} trials per wearer and value) and '
-             f'`{spd.name}` (speed protocol, {s.speed_repetitions} trials of {spd.protocol.trial_s:g} s per wearer '
+             f'Scenes: `{acc.name}` (accuracy protocol, {s.repetitions} trials per wearer and '
+             'value) and '
+             f'`{spd.name}` (speed protocol, {s.speed_repetitions} trials of '
+             f'{spd.protocol.trial_s:g} s per wearer '
              f'and value), with their effects: {", ".join(acc.effect_names) or "none"}. '
-             f'The first {s.subjects} wearers of each population, condition {s.condition}, each calibrated by '
+             f'The first {s.subjects} wearers of each population, condition {s.condition}, each '
+             'calibrated by '
              f'Algorithm 1 in the simulation. Lower is better on both axes. '
              f'Sweep wall time {result.wall_s:.0f} s with {s.workers} worker(s)'
              + (' (--quick: tiny population and grids)' if s.quick else '') + '.', '',
@@ -1180,11 +1219,16 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
         lines += ['', '## The plane', '', plane_text(result), '', plane_table(result), '',
                   f'![plane]({_image_path(paths["plane"], out)})']
     lines += ['', '## Table', '', markdown_table(frame), '',
-              'Guidance error: hypot of the horizontal and vertical absolute errors of the true gaze at the key '
-              'press. Error when a target counts: the true gaze\'s angle to the target when the tracked gaze has '
-              'stayed within the tolerance for the dwell. Time to find: from a target\'s appearance to its count '
-              '(found targets only). Calibration time: simulated seconds Algorithm 1 ran. Fit wall time: the fastest '
-              f'of {s.fit_repeats} calls of fit_power_law on the same points, on this machine (the Algorithm 1 '
+              'Guidance error: hypot of the horizontal and vertical absolute errors of the true '
+              'gaze at the key '
+              'press. Error when a target counts: the true gaze\'s angle to the target when the '
+              'tracked gaze has '
+              'stayed within the tolerance for the dwell. Time to find: from a target\'s '
+              'appearance to its count '
+              '(found targets only). Calibration time: simulated seconds Algorithm 1 ran. Fit '
+              'wall time: the fastest '
+              f'of {s.fit_repeats} calls of fit_power_law on the same points, on this machine '
+              '(the Algorithm 1 '
               'points of the accuracy scene at its own settings, refitted). '
               'n: accuracy samples (trials, found targets, '
               'wearer x direction or fits). Spread: SD (ddof 1), p10-p90 over those samples.', '']
