@@ -733,7 +733,7 @@ def diff_se(x: pd.Series, y: pd.Series) -> float:
 
 def _value_text(knob: str, value) -> str:
     ref, source = REFERENCE[knob]
-    text = f'{KNOB_SYMBOLS[knob]} = {value:g}'
+    text = f'{KNOB_SYMBOLS[knob]} = {value:.4g}'
     return text + (f' ({source})' if math.isclose(float(value), float(ref), rel_tol=1e-9) else '')
 
 
@@ -912,7 +912,8 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
     from matplotlib.patches import Rectangle
 
     fig = Figure(figsize=(6.4 * len(curves), 5.0), layout='constrained')
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
+    labels = []     # (axes, knob, rows, x, y): placed once the layout is final
     for k, rows in enumerate(curves):
         rows = [r for r in rows if r.stats('accuracy')['n'] and r.stats('time')['n']]
         ax = fig.add_subplot(1, len(curves), k + 1)
@@ -941,13 +942,7 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
             ax.scatter(x[dom], y[dom], s=42, facecolor='white', edgecolor=colour, linewidth=1.5, zorder=5,
                        label='dominated')
         ax.plot(x[front], y[front], color='black', ls='--', lw=1.0, zorder=4)
-        # Labels of points that nearly coincide are stacked downwards instead of overprinted.
-        xn = (x - x.min()) / ((x.max() - x.min()) or 1.0)
-        yn = (y - y.min()) / ((y.max() - y.min()) or 1.0)
-        for i, (r, xi, yi) in enumerate(zip(rows, x, y)):
-            near = sum(1 for j in range(i) if abs(xn[j] - xn[i]) < 0.15 and abs(yn[j] - yn[i]) < 0.06)
-            ax.annotate(_value_text(knob, r.value), (xi, yi), textcoords='offset points',
-                        xytext=(6, 4 - 10 * near), fontsize=8, zorder=6)
+        labels.append((ax, knob, rows, x, y))
         ax.errorbar([], [], xerr=[], yerr=[], fmt='none', ecolor=colour, capsize=3, label='mean +- SD')
         ax.add_patch(Rectangle((0, 0), 0, 0, color=colour, alpha=0.2, lw=0, label='p10-p90'))
         if x.min() > 0 and x.max() / x.min() > 30:
@@ -959,9 +954,43 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
         ax.set_title(f'{KNOB_TITLES[knob]}\n{METRICS[rows[0].accuracy_metric][0]}', fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc='best', framealpha=0.8)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    for ax, knob, rows, x, y in labels:
+        _label_points(ax, renderer, knob, rows, x, y)
     path = Path(path)
     fig.savefig(path, dpi=dpi, format='png')
     return path
+
+
+def _label_points(ax, renderer, knob: str, rows: list[Row], x, y) -> None:
+    """Each point's value, without overprinting: values at (nearly) the same place share one
+    label ('G = 0, 0.01, 0.02'), and labels go where they overlap no other (_place_labels);
+    a value that finds no place is named in a note in the corner."""
+    pix = ax.transData.transform(np.column_stack([x, y]))
+    groups: list[list[int]] = []
+    for i in range(len(rows)):
+        for g in groups:
+            if np.hypot(*(pix[g[0]] - pix[i])) < 4.0:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    items = []
+    for g in groups:
+        text = _value_text(knob, rows[g[0]].value)
+        if len(g) > 1:
+            ref, source = REFERENCE[knob]
+            values = ', '.join(f'{rows[i].value:.4g}' for i in g)
+            text = f'{KNOB_SYMBOLS[knob]} = {values}'
+            if any(math.isclose(float(rows[i].value), float(ref), rel_tol=1e-9) for i in g):
+                text += f' ({source}: {ref:.4g})'
+        items.append((x[g[0]], y[g[0]], text, 'black'))
+    boxes = [ax.get_legend().get_window_extent(renderer)] if ax.get_legend() else []
+    dropped = _place_labels(ax, renderer, items, boxes)
+    if dropped:
+        ax.text(0.01, 0.01, 'not labelled (no room): ' + '; '.join(dropped), transform=ax.transAxes,
+                fontsize=7, va='bottom', ha='left', color='0.3')
 
 
 def _is_plane_only(curve: tuple[str, str, str]) -> bool:
