@@ -989,8 +989,8 @@ def _label_points(ax, renderer, knob: str, rows: list[Row], x, y) -> None:
     boxes = [ax.get_legend().get_window_extent(renderer)] if ax.get_legend() else []
     dropped = _place_labels(ax, renderer, items, boxes)
     if dropped:
-        ax.text(0.01, 0.01, 'not labelled (no room): ' + '; '.join(dropped), transform=ax.transAxes,
-                fontsize=7, va='bottom', ha='left', color='0.3')
+        ax.text(0.01, 0.01, 'not labelled (no room): ' + '; '.join(dropped),
+                transform=ax.transAxes, fontsize=7, va='bottom', ha='left', color='0.3')
 
 
 def _is_plane_only(curve: tuple[str, str, str]) -> bool:
