@@ -1023,7 +1023,7 @@ def _place_labels(ax, renderer, items, placed=None):
                               fontsize=7.5, color=colour, zorder=8,
                               bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none',
                                         alpha=0.8))
-            box = ann.get_window_extent(renderer).expanded(1.05, 1.1)
+            box = ann.get_window_extent(renderer).padded(4.0)   # the label's white box and a gap
             inside = ax.get_window_extent(renderer).contains(box.x0, box.y0) and \
                 ax.get_window_extent(renderer).contains(box.x1, box.y1)
             if inside and not any(box.overlaps(b) for b in placed):
