@@ -7,6 +7,7 @@
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
   compare-paper  both experiments on several seeds, every figure of the paper beside the model's
+  sensitivity  which headline figures rest on which assumed human parameters (low/high sweep)
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
   example   the core alone on a worked example (no ROS)
@@ -92,8 +93,9 @@ def main(argv: list[str] | None = None) -> int:
                       help='record the session as a ROS 2 bag (MCAP) in DIR')
     from . import calibration_report, replay
     from .bench import runner as bench
-    from .experiments import analyze, beyond, experiment, paper_comparison, tradeoff
-    for module in (replay, calibration_report, analyze, experiment, tradeoff, paper_comparison, beyond, bench):
+    from .experiments import analyze, beyond, experiment, paper_comparison, sensitivity, tradeoff
+    for module in (replay, calibration_report, analyze, experiment, tradeoff, paper_comparison,
+                   sensitivity, beyond, bench):
         module.add_parser(sub).set_defaults(run=module.run)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,

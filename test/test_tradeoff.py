@@ -39,7 +39,7 @@ def quick_run(tmp_path_factory):
 def test_quick_sweep_writes_every_file(quick_run):
     out, code, stdout, _ = quick_run
     assert code == 0
-    for name in ['tradeoff.csv', 'tradeoff.md'] + [f'{k}.png' for k in KNOBS]:
+    for name in ['tradeoff.csv', 'tradeoff.md', 'plane.png'] + [f'{k}.png' for k in KNOBS]:
         assert (out / name).is_file(), name
     assert '| knob | value | accuracy metric |' in stdout       # the markdown table is printed
 
@@ -48,7 +48,7 @@ def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
     out = quick_run[0]
     frame = pd.read_csv(out / 'tradeoff.csv')
     assert tuple(frame.columns) == CSV_COLUMNS
-    assert set(frame['knob']) == set(KNOBS)
+    assert set(frame['knob']) == set(KNOBS) | {'condition'}
     numeric = [c for c in CSV_COLUMNS if c not in ('knob', 'accuracy_metric', 'time_metric', 'note')]
     values = frame[numeric].to_numpy(float)
     assert np.all(np.isfinite(values))
@@ -59,7 +59,8 @@ def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
         for (_, _), part in frame[frame['knob'] == knob].groupby(['accuracy_metric', 'time_metric']):
             assert sorted(part['value']) == pytest.approx(sorted(grid))
     # calibration time is Algorithm 1's 4 x (rest + steps x dwell) of the scene, as simulated
-    cal = frame[(frame['knob'] == 'calibration_points')]
+    cal = frame[(frame['knob'] == 'calibration_points')
+                & (frame['time_metric'] == 'calibration_time_s')]
     scene = load_scene('paper-accuracy')
     expect = 4 * (scene.calibration.rest_s + cal['value'] * scene.calibration.dwell_s)
     assert np.allclose(cal['time_mean'], expect, atol=4 / scene.sim_rate_hz + 1e-9)
@@ -67,7 +68,7 @@ def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
 
 def test_plots_are_valid_pngs(quick_run):
     out = quick_run[0]
-    for knob in KNOBS:
+    for knob in KNOBS + ('plane',):
         path = out / f'{knob}.png'
         assert path.read_bytes()[:8] == PNG_SIGNATURE
         pixels = image.imread(path)
@@ -85,7 +86,35 @@ def test_report_has_the_table_a_reading_of_each_knob_and_the_plots(quick_run):
     assert '| knob | value |' in md
     # one progress line per knob value
     lines = [ln for ln in stderr.splitlines() if ln.startswith('[')]
-    assert len(lines) == sum(len(g) for g in tradeoff.QUICK_GRIDS.values())
+    grids = sum(len(g) for g in tradeoff.QUICK_GRIDS.values())
+    assert len(lines) == grids + len(tradeoff.PLANE_CONDITIONS)
+    assert '## The plane' in md and '![plane](plane.png)' in md
+
+
+def test_plane_rows_for_every_condition_and_every_knob_value(quick_run):
+    """The one plane: conditions 1-4 and each knob's values in condition 1, all with time to find
+    (speed protocol) on x; y the key-press error, or for the tolerance the error when a target
+    counts; each with its spread over wearers."""
+    frame = pd.read_csv(quick_run[0] / 'tradeoff.csv')
+    plane = frame[frame['plane']]
+    assert set(plane['knob']) == set(KNOBS) | {'condition'}
+    assert sorted(plane[plane['knob'] == 'condition']['value']) == [1, 2, 3, 4]
+    for knob, grid in tradeoff.QUICK_GRIDS.items():
+        part = plane[plane['knob'] == knob]
+        assert sorted(part['value']) == pytest.approx(sorted(grid)), knob
+        metric = 'error_at_count_deg' if knob == 'acceptance_tolerance' else 'guidance_error_deg'
+        assert set(part['accuracy_metric']) == {metric}
+    assert set(plane['time_metric']) == {'time_to_find_s'}
+    assert (plane['wearers'] == 2).all()
+    assert (plane['accuracy_se'] > 0).all() and (plane['time_se'] >= 0).all()
+    # the package values of condition 1 are the condition-1 point itself: the same simulations
+    c1 = plane[(plane['knob'] == 'condition') & (plane['value'] == 1)].iloc[0]
+    g = plane[(plane['knob'] == 'gain') & np.isclose(plane['value'], 0.05)].iloc[0]
+    assert (g['accuracy_mean'], g['time_mean']) == pytest.approx((c1['accuracy_mean'],
+                                                                  c1['time_mean']))
+    # speech differs from the suit on both axes (a condition effect the plane must show)
+    c4 = plane[(plane['knob'] == 'condition') & (plane['value'] == 4)].iloc[0]
+    assert c4['time_mean'] != pytest.approx(c1['time_mean'])
 
 
 # ------------------------------------------------------------------ measurements, cross-checked
@@ -140,7 +169,10 @@ def test_ideal_scene_more_tolerance_never_less_error_more_points_never_less_time
         assert np.all(np.diff(err) > 0.0), err
     else:                                              # the ideal wearer lands on the target at once
         assert np.all(err < 1e-9)
-    for _, part in frame[frame['knob'] == 'calibration_points'].groupby('accuracy_metric'):
+    cal = frame[(frame['knob'] == 'calibration_points')
+                & (frame['time_metric'] == 'calibration_time_s')]
+    assert len(cal) == 2 * len(settings.grids['calibration_points'])
+    for _, part in cal.groupby('accuracy_metric'):
         part = part.sort_values('value')
         assert np.all(np.diff(part['time_mean'].to_numpy()) > 0.0)   # more points, longer calibration
 
@@ -211,6 +243,10 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'control_rate': (90.0,)}, knobs=('control_rate',))
     with pytest.raises(ValueError, match='sim_rate_hz'):
         run_sweep(settings)
+    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'rate_threshold': (0.0,)},
+                              knobs=('rate_threshold',))
+    with pytest.raises(ValueError, match=r'knob rate_threshold: values out of range: \[0.0\]'):
+        run_sweep(settings)
 
 
 def test_add_parser_wires_a_subcommand(tmp_path):
@@ -218,8 +254,11 @@ def test_add_parser_wires_a_subcommand(tmp_path):
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest='command')
     tradeoff.add_parser(sub)
-    args = parser.parse_args(['tradeoff', '--out', str(tmp_path), '--quick', '--knobs', 'fit_tolerance'])
+    args = parser.parse_args(['tradeoff', '--out', str(tmp_path), '--quick', '--knobs',
+                              'fit_tolerance',
+                              '--no-plane'])
     assert args.command == 'tradeoff' and args.quick
     assert tradeoff.run(args) == 0
     frame = pd.read_csv(tmp_path / 'tradeoff.csv')
     assert set(frame['knob']) == {'fit_tolerance'} and math.isfinite(frame['time_mean'].min())
+    assert not frame['plane'].any() and not (tmp_path / 'plane.png').exists()

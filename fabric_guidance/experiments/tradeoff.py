@@ -59,6 +59,7 @@ import numpy as np
 import pandas as pd
 
 from .. import subcommand
+from ..core.feedback import RATE_THRESHOLD_DPS
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import CalibrationFitError, fit_power_law
 from ..sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial_run
@@ -70,13 +71,24 @@ from .report import _image_path, _md_table
 PROG = 'fabric-guidance tradeoff'
 HELP = 'sweep the knobs that buy accuracy with time; table, plots and a reading of the curves'
 
-KNOBS = ('acceptance_tolerance', 'gain', 'calibration_points', 'control_rate', 'fit_tolerance')
+#: The scenes both the sweep and the sensitivity analysis run on by default: the one place to
+#: switch them (e.g. to the fitted scenes).
+DEFAULT_SPEED_SCENE = 'paper-speed'
+DEFAULT_ACCURACY_SCENE = 'paper-accuracy'
+
+KNOBS = ('acceptance_tolerance', 'gain', 'calibration_points', 'control_rate', 'rate_threshold',
+         'fit_tolerance')
+#: The paper's conditions drawn on the plane, at the package defaults.
+PLANE_CONDITIONS = (1, 2, 3, 4)
+CONDITION_LABELS = {1: '1 suit, adjusted', 2: '2 suit, fixed', 3: '3 arm band, adjusted',
+                    4: '4 speech'}
 
 DEFAULT_GRIDS = {
     'acceptance_tolerance': (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0),
     'gain': (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5),
     'calibration_points': (3, 4, 5, 6, 8, 10, 12, 15, 20),
     'control_rate': (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
+    'rate_threshold': (3.0, 7.0, RATE_THRESHOLD_DPS, 30.0, 60.0, 120.0),
     'fit_tolerance': (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12),
 }
 QUICK_GRIDS = {
@@ -84,17 +96,25 @@ QUICK_GRIDS = {
     'gain': (0.0, 0.05, 0.5),
     'calibration_points': (3, 10, 20),
     'control_rate': (5.0, 30.0, 60.0),
+    'rate_threshold': (3.0, RATE_THRESHOLD_DPS, 60.0),
     'fit_tolerance': (1e-2, 1e-6, 1e-10),
 }
 #: The value the package runs with, and where it comes from.
 REFERENCE = {'acceptance_tolerance': (5.0, 'the paper'), 'gain': (0.05, 'the paper'),
              'calibration_points': (10, 'the paper'), 'control_rate': (30.0, 'node default'),
-             'fit_tolerance': (1e-10, 'core default')}
+             'rate_threshold': (RATE_THRESHOLD_DPS, 'core default'),
+             'fit_tolerance': (1e-10, 'core default'),
+             # not a knob: the plane's conditions have no package value to mark
+             'condition': (math.nan, '')}
 KNOB_TITLES = {'acceptance_tolerance': 'acceptance tolerance (deg)', 'gain': 'adjustment gain G (Eq. 5)',
                'calibration_points': 'calibration points per direction (Algorithm 1)',
-               'control_rate': 'control rate (Hz)', 'fit_tolerance': 'fit tolerance (LM xtol = ftol)'}
+               'control_rate': 'control rate (Hz)',
+               'rate_threshold': 'rate threshold of the feedback law (deg/s)',
+               'fit_tolerance': 'fit tolerance (LM xtol = ftol)',
+               'condition': 'the paper\'s condition'}
 KNOB_SYMBOLS = {'acceptance_tolerance': 'tolerance', 'gain': 'G', 'calibration_points': 'points',
-                'control_rate': 'rate', 'fit_tolerance': 'tol'}
+                'control_rate': 'rate', 'rate_threshold': 'threshold', 'fit_tolerance': 'tol',
+                'condition': 'condition'}
 METRICS = {
     'guidance_error_deg': ('guidance error (deg, accuracy protocol)', 'deg'),
     'error_at_count_deg': ('gaze error when a target counts (deg, speed protocol)', 'deg'),
@@ -106,7 +126,9 @@ METRICS = {
     'fit_time_ms': ('fit wall time (ms per fit)', 'ms'),
 }
 CSV_COLUMNS = ('knob', 'value', 'accuracy_metric', 'accuracy_mean', 'accuracy_sd', 'accuracy_p10', 'accuracy_p90',
-               'time_metric', 'time_mean', 'time_sd', 'time_p10', 'time_p90', 'n', 'n_time', 'note')
+               'accuracy_se', 'time_metric', 'time_mean', 'time_sd', 'time_p10', 'time_p90',
+               'time_se', 'n',
+               'n_time', 'wearers', 'plane', 'note')
 #: Changes below this fraction of the curve's level are called flat whatever the noise: too small
 #: to matter (5 %).
 FLAT_FRACTION = 0.05
@@ -125,13 +147,14 @@ class Settings:
     speed_repetitions: int = 3          # 40 s speed-protocol trials per wearer and value
     condition: int = 1                  # the paper's condition 1: suit, adjusted
     workers: int = 2
-    accuracy_scene: str = 'paper-accuracy'
-    speed_scene: str = 'paper-speed'
+    accuracy_scene: str = DEFAULT_ACCURACY_SCENE
+    speed_scene: str = DEFAULT_SPEED_SCENE
     knobs: tuple[str, ...] = KNOBS
     grids: dict = field(default_factory=lambda: dict(DEFAULT_GRIDS))
     fit_repeats: int = 15               # timed calls per fit and tolerance (the fastest is kept)
     trial_s: float | None = None        # speed trials' length; None: the scene's (the paper: 40 s)
     quick: bool = False
+    plane: bool = True                  # run conditions 1-4 and both protocols per knob value
 
 
 def quick_settings(**changes) -> Settings:
@@ -154,6 +177,10 @@ def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
     """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
     acc = _as_protocol(load_scene(settings.accuracy_scene), 'accuracy')
     spd = _as_protocol(load_scene(settings.speed_scene), 'speed')
+    # The plane puts one protocol's time against the other's error: both run on the same
+    # wearers (the speed scene's seed and population; common random numbers), which also lets
+    # the two share every calibration when the scenes list the same effects.
+    acc = acc.replace(seed=spd.seed, population=spd.population)
     acc = acc.replace(conditions=(settings.condition,), repetitions=settings.repetitions)
     spd = spd.replace(conditions=(settings.condition,), repetitions=settings.speed_repetitions)
     if settings.trial_s is not None:
@@ -180,6 +207,7 @@ def check_settings(settings: Settings, acc: Scene) -> None:
         'acceptance_tolerance': lambda v: 0 < v <= 180, 'gain': lambda v: 0 <= v <= 10,
         'calibration_points': lambda v: float(v).is_integer() and 3 <= v <= 50,
         'control_rate': lambda v: 0 < v <= acc.sim_rate_hz, 'fit_tolerance': lambda v: 1e-15 < v < 1,
+        'rate_threshold': lambda v: 0 < v <= 1000,
     }
     for k in settings.knobs:
         values = g.get(k, ())
@@ -293,8 +321,11 @@ class _Runner:
             self.calibrations[key] = dict(self.map(_calibration_job, [(key, i) for i in self.subjects]))
         return self.calibrations[key]
 
-    def trials(self, scene: Scene, kind: str) -> tuple[list[dict], dict[int, tuple[CalibrationOutcome, float]]]:
-        cals = self.calibrate(scene)
+    def trials(self, scene: Scene, kind: str, cals: dict | None = None
+               ) -> tuple[list[dict], dict[int, tuple[CalibrationOutcome, float]]]:
+        """Every wearer's trials of `kind` on `scene`, with Algorithm 1's calibrations of the
+        scene, or `cals` (subject -> (outcome, seconds)) when given."""
+        cals = self.calibrate(scene) if cals is None else cals
         jobs = [(scene, i, cals[i][0].calibration, kind) for i in self.subjects if cals[i][0].ok]
         samples = []
         for _, out in sorted(self.map(_trial_job, jobs), key=lambda x: x[0]):
@@ -321,6 +352,8 @@ class Row:
     #: what makes the numbers of this value less than they seem (timeouts, censored waits,
     #: excluded wearers), short, for the reading
     caveat: str = ''
+    #: a point of the one plane (time to find a target against guidance error)
+    plane: bool = False
 
     @property
     def curve(self) -> tuple[str, str, str]:
@@ -335,12 +368,27 @@ class Row:
         return dict(mean=float(np.mean(s)), sd=sd, p10=float(np.percentile(s, 10)),
                     p90=float(np.percentile(s, 90)), n=n, se=sd / math.sqrt(n))
 
+    def wearer_se(self, which: str) -> tuple[float, int]:
+        """(SE of the mean over wearers, wearers): the SD of the per-wearer means over sqrt of
+        their number. Trials of one wearer are not independent; wearers are."""
+        s = self.accuracy if which == 'accuracy' else self.time
+        if not len(s) or 'subject' not in (s.index.names or ()):
+            return math.nan, 0
+        means = s.groupby(level='subject').mean().to_numpy(float)
+        if means.size < 2:
+            return 0.0, int(means.size)
+        return float(np.std(means, ddof=1) / math.sqrt(means.size)), int(means.size)
+
     def as_record(self) -> dict:
         a, t = self.stats('accuracy'), self.stats('time')
+        a_se, wearers = self.wearer_se('accuracy')
+        t_se, _ = self.wearer_se('time')
         return dict(knob=self.knob, value=self.value, accuracy_metric=self.accuracy_metric,
                     accuracy_mean=a['mean'], accuracy_sd=a['sd'], accuracy_p10=a['p10'], accuracy_p90=a['p90'],
-                    time_metric=self.time_metric, time_mean=t['mean'], time_sd=t['sd'], time_p10=t['p10'],
-                    time_p90=t['p90'], n=a['n'], n_time=t['n'], note=self.note)
+                    accuracy_se=a_se, time_metric=self.time_metric, time_mean=t['mean'],
+                    time_sd=t['sd'],
+                    time_p10=t['p10'], time_p90=t['p90'], time_se=t_se, n=a['n'], n_time=t['n'],
+                    wearers=wearers, plane=self.plane, note=self.note)
 
 
 def _series(samples: Sequence[dict], value: str, keys: Sequence[str]) -> pd.Series:
@@ -402,6 +450,17 @@ def speed_row(knob: str, value, samples: list[dict], cals: dict) -> Row:
     note = _join(f'{per_trial:.1f} targets found per trial', censored, _exclusion_note(cals))
     return Row(knob, value, 'error_at_count_deg', 'time_to_find_s', acc, tim, note,
                _join(caveat, _exclusion_caveat(cals)))
+
+
+def plane_row(knob: str, value, acc_samples: list[dict], spd_samples: list[dict], cals: dict,
+              note: str = '', timeout_s: float | None = None) -> Row:
+    """A point of the plane: the accuracy protocol's guidance error at the key press against
+    the speed protocol's time to find a target, on the same wearers."""
+    guidance = accuracy_rows(knob, value, acc_samples, cals, timeout_s)
+    speed = speed_row(knob, value, spd_samples, cals)
+    return Row(knob, value, 'guidance_error_deg', 'time_to_find_s', guidance.accuracy, speed.time,
+               _join(note, speed.note.split('; ')[0], guidance.note),
+               _join(guidance.caveat, speed.caveat), plane=True)
 
 
 def _wearer_time(cals: dict, keys: Sequence[str] = ('subject',)) -> pd.Series:
@@ -516,8 +575,34 @@ class SweepResult:
         return out
 
 
+def refit_calibrations(cals: dict, tol: float, p_max: float) -> dict:
+    """Each wearer's calibration with every direction's law refitted from Algorithm 1's
+    recorded points at xtol = ftol = tol (a wearer whose fit fails at tol is excluded)."""
+    from dataclasses import replace as dc_replace
+    out = {}
+    for subject, (o, took) in cals.items():
+        if not o.ok:
+            out[subject] = (o, took)
+            continue
+        dirs = {}
+        try:
+            for d, dc in o.calibration.directions.items():
+                law = fit_power_law(np.array(dc.angles), np.array(dc.pressures), p_max, xtol=tol,
+                                    ftol=tol).law
+                dirs[d] = dc_replace(dc, law=law)
+        except CalibrationFitError as exc:
+            out[subject] = (CalibrationOutcome(subject, o.wearer, None,
+                                               f'calibration failed: refit at {tol:g}: '
+                                               f'{exc}'), took)
+            continue
+        out[subject] = (dc_replace(o, calibration=dc_replace(o.calibration, directions=dirs)),
+                        took)
+    return out
+
+
 def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None) -> SweepResult:
-    """Run every knob of settings.knobs over its grid; progress(line) once per knob value."""
+    """Run every knob of settings.knobs over its grid, and (settings.plane) conditions 1-4 and
+    the plane's point of every knob value; progress(line) once per knob value or condition."""
     say = progress or (lambda line: None)
     acc, spd = base_scenes(settings)
     check_settings(settings, acc)
@@ -525,7 +610,21 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
     runner = _Runner(settings.workers, settings.subjects)
     rows: list[Row] = []
     knob_wall = {}
+    timeout = acc.protocol.timeout_s
     try:
+        if settings.plane:
+            k_start = time.perf_counter()
+            for i, cond in enumerate(PLANE_CONDITIONS, start=1):
+                v_start = time.perf_counter()
+                a_samples, cals = runner.trials(acc.replace(conditions=(cond,)), 'accuracy')
+                s_samples, _ = runner.trials(spd.replace(conditions=(cond,)), 'speed')
+                row = plane_row('condition', cond, a_samples, s_samples, cals,
+                                CONDITION_LABELS[cond], timeout)
+                rows.append(row)
+                say(f'[condition {i}/{len(PLANE_CONDITIONS)}] {CONDITION_LABELS[cond]}: '
+                    f'{_summary(row)} '
+                    f'({time.perf_counter() - v_start:.1f} s)')
+            knob_wall['condition'] = time.perf_counter() - k_start
         for knob in settings.knobs:
             k_start = time.perf_counter()
             grid = list(settings.grids[knob])
@@ -536,32 +635,67 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 rows += new
                 per_value = (time.perf_counter() - v_start) / len(grid)
                 for i, tol in enumerate(grid, start=1):
+                    v_start = time.perf_counter()
                     r = [x for x in new if x.value == tol]
+                    if settings.plane:
+                        refit = refit_calibrations(cals, tol, acc.controller.p_max_kpa)
+                        ms = r[0].stats('time')['mean']
+                        pr = plane_row(knob, tol, runner.trials(acc, 'accuracy', refit)[0],
+                                       runner.trials(spd, 'speed', refit)[0], refit,
+                                       f'{_fmt(ms)} ms per fit', timeout)
+                        rows.append(pr)
+                        r.append(pr)
                     say(f'[{knob} {i}/{len(grid)}] {KNOB_SYMBOLS[knob]} = {tol:g}: '
-                        + '; '.join(_summary(x) for x in r) + f' ({per_value:.1f} s)')
+                        + '; '.join(_summary(x) for x in r)
+                        + f' ({per_value + time.perf_counter() - v_start:.1f} s)')
                 knob_wall[knob] = time.perf_counter() - k_start
                 continue
             for i, value in enumerate(grid, start=1):
                 v_start = time.perf_counter()
                 new: list[Row] = []
+                a_samples = s_samples = None
                 if knob == 'acceptance_tolerance':
                     scene = spd.replace(protocol=replace(spd.protocol, acceptance_deg=float(value)))
-                    new.append(speed_row(knob, value, *runner.trials(scene, 'speed')))
-                elif knob == 'gain':
+                    row = speed_row(knob, value, *runner.trials(scene, 'speed'))
+                    # The accuracy protocol has no tolerance: on the plane, the error when a
+                    # target counts stands in for the guidance error.
+                    row.plane = settings.plane
+                    new.append(row)
+                elif knob in ('gain', 'rate_threshold'):
+                    field_name = 'gain' if knob == 'gain' else 'rate_threshold_dps'
                     for base, kind in ((acc, 'accuracy'), (spd, 'speed')):
-                        scene = base.replace(controller=replace(base.controller, gain=float(value)))
+                        scene = base.replace(controller=replace(base.controller,
+                                                                **{field_name: float(value)}))
                         samples, cals = runner.trials(scene, kind)
-                        new.append(accuracy_rows(knob, value, samples, cals, acc.protocol.timeout_s)
-                                   if kind == 'accuracy'
-                                   else speed_row(knob, value, samples, cals))
+                        if kind == 'accuracy':
+                            a_samples = samples
+                            new.append(accuracy_rows(knob, value, samples, cals, timeout))
+                        else:
+                            s_samples = samples
+                            new.append(speed_row(knob, value, samples, cals))
                 elif knob == 'calibration_points':
                     scene = acc.replace(calibration=replace(acc.calibration, steps=int(value)))
-                    new += calibration_rows(int(value), *runner.trials(scene, 'accuracy'), acc.protocol.timeout_s)
+                    a_samples, cals = runner.trials(scene, 'accuracy')
+                    new += calibration_rows(int(value), a_samples, cals, timeout)
+                    if settings.plane:
+                        s_samples, _ = runner.trials(
+                            spd.replace(calibration=replace(spd.calibration, steps=int(value))),
+                            'speed')
                 elif knob == 'control_rate':
                     scene = acc.replace(controller=replace(acc.controller, control_rate_hz=float(value)))
-                    row = accuracy_rows(knob, value, *runner.trials(scene, 'accuracy'), acc.protocol.timeout_s)
+                    a_samples, cals = runner.trials(scene, 'accuracy')
+                    row = accuracy_rows(knob, value, a_samples, cals, timeout)
                     row.note = _join(f'G x rate = {scene.controller.gain * float(value):.3g} per s', row.note)
                     new.append(row)
+                    if settings.plane:
+                        s_samples, _ = runner.trials(
+                            spd.replace(controller=replace(spd.controller,
+                                                           control_rate_hz=float(value))), 'speed')
+                if settings.plane and a_samples is not None and s_samples is not None:
+                    cost = ''
+                    if knob == 'calibration_points':
+                        cost = f'{_fmt(new[0].stats("time")["mean"])} s calibration'
+                    new.append(plane_row(knob, value, a_samples, s_samples, cals, cost, timeout))
                 rows += new
                 say(f'[{knob} {i}/{len(grid)}] {KNOB_SYMBOLS[knob]} = {value:g}: '
                     + '; '.join(_summary(x) for x in new) + f' ({time.perf_counter() - v_start:.1f} s)')
@@ -599,7 +733,7 @@ def diff_se(x: pd.Series, y: pd.Series) -> float:
 
 def _value_text(knob: str, value) -> str:
     ref, source = REFERENCE[knob]
-    text = f'{KNOB_SYMBOLS[knob]} = {value:g}'
+    text = f'{KNOB_SYMBOLS[knob]} = {value:.4g}'
     return text + (f' ({source})' if math.isclose(float(value), float(ref), rel_tol=1e-9) else '')
 
 
@@ -654,7 +788,8 @@ def read_curve(rows: list[Row]) -> str:
     fastest, slowest = int(np.argmin(t)), int(np.argmax(t))
     pt = lambda i: f'{KNOB_SYMBOLS[knob]} = {vals[i]:g} ({_fmt(t[i])} {tu}, {_fmt(a[i])} {au})'  # noqa: E731
     s1 = (f'{a_name.capitalize()} goes from {_fmt(a[0])} {au} at {KNOB_SYMBOLS[knob]} = {vals[0]:g} to '
-          f'{_fmt(a[-1])} {au} at {vals[-1]:g} (best {_fmt(a[best])} {au} at {vals[best]:g}), while the '
+          f'{_fmt(a[-1])} {au} at {vals[-1]:g} (best {_fmt(a[best])} {au} at {vals[best]:g}), '
+          'while the '
           f'{t_name.split(" (")[0]} goes from {_fmt(t[0])} to {_fmt(t[-1])} {tu}.')
     if len(rows) == 1:
         return s1
@@ -663,10 +798,12 @@ def read_curve(rows: list[Row]) -> str:
     front = pareto_front(t, a)
     if a_flat and t_flat:
         s2 = (f'Both accuracy and time are flat: the accuracy means span {_flat_why(a_span, a_noise, a, au)} and the '
-              f'times {_flat_why(t_span, t_noise, t, tu)}, so this knob trades nothing that matters here.')
+              f'times {_flat_why(t_span, t_noise, t, tu)}, so this knob trades nothing that '
+              'matters here.')
     elif a_flat:
         s2 = (f'Accuracy is flat: its means span {_flat_why(a_span, a_noise, a, au)}, so spending time on this knob '
-              f'buys no accuracy that matters; the fastest value, {pt(fastest)}, is the one to pick.')
+              f'buys no accuracy that matters; the fastest value, {pt(fastest)}, is the one to '
+              'pick.')
     elif t_flat:
         s2 = (f'Time is flat (the means span {_flat_why(t_span, t_noise, t, tu)}): accuracy comes free, '
               f'and {pt(best)} is the most accurate.')
@@ -693,7 +830,8 @@ def read_curve(rows: list[Row]) -> str:
             gain = a[knee] - a[f_best]
             extra = t[front[-1]] - t[knee]
             s2 += (f'More time stops buying accuracy at {KNOB_SYMBOLS[knob]} = {vals[knee]:g}: the slower front '
-                   f'values gain at most {_fmt(gain)} {au} (within 2 SE or {KNEE_FRACTION:.0%} of the front\'s '
+                   f'values gain at most {_fmt(gain)} {au} (within 2 SE or {KNEE_FRACTION:.0%} '
+                   'of the front\'s '
                    f'range) for up to {_fmt(extra)} {tu} more.')
     parts = []
     if not a_flat and len(rows) >= 3:
@@ -704,11 +842,13 @@ def read_curve(rows: list[Row]) -> str:
         rho = float(pd.Series([float(v) for v in vals]).corr(pd.Series(a), method='spearman'))
         if len(real) < len(diffs) / 2:
             parts.append(f'Noisy: only {len(real)} of {len(diffs)} neighbouring values differ by more than 2 SE, '
-                         f'so read the trend (Spearman rho of value and accuracy {rho:+.2f}), not the order of '
+                         f'so read the trend (Spearman rho of value and accuracy {rho:+.2f}), '
+                         'not the order of '
                          f'neighbours.')
         elif reversals >= 2:
             parts.append(f'Not monotone: along the grid the accuracy turns between better and worse {reversals} '
-                         f'times by more than 2 SE (Spearman rho of value and accuracy {rho:+.2f}), so it depends on '
+                         'times by more than 2 SE (Spearman rho of value and accuracy '
+                         f'{rho:+.2f}), so it depends on '
                          f'this knob through something other than "more is better".')
     ref, source = REFERENCE[knob]
     ref_i = [i for i, v in enumerate(vals) if math.isclose(float(v), float(ref), rel_tol=1e-9)]
@@ -749,10 +889,12 @@ def gain_rate_reading(result: SweepResult) -> str:
         noise = 2.0 * diff_se(g.accuracy, r.accuracy)
         same = abs(ga['mean'] - ra['mean']) <= noise
         text += (f' At the same product {g.value * r0:g}/s, G = {g.value:g} at {r0:g} Hz gives {_fmt(ga["mean"])} deg '
-                 f'in {_fmt(gt["mean"])} s and G = {g0:g} at {r.value:g} Hz {_fmt(ra["mean"])} deg in '
+                 f'in {_fmt(gt["mean"])} s and G = {g0:g} at {r.value:g} Hz {_fmt(ra["mean"])} '
+                 'deg in '
                  f'{_fmt(rt["mean"])} s: the errors '
                  + (f'agree within 2 SE ({_fmt(noise)} deg), so rate and G act as one knob.' if same else
-                    f'differ by more than 2 SE ({_fmt(noise)} deg): G x rate does not explain it all.'))
+                    f'differ by more than 2 SE ({_fmt(noise)} deg): G x rate does not explain it '
+                    'all.'))
     if not pairs:
         text += ' No value of the two grids gives the same product, so the sweeps cannot be compared point to point.'
     return text
@@ -770,7 +912,8 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
     from matplotlib.patches import Rectangle
 
     fig = Figure(figsize=(6.4 * len(curves), 5.0), layout='constrained')
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
+    labels = []     # (axes, knob, rows, x, y): placed once the layout is final
     for k, rows in enumerate(curves):
         rows = [r for r in rows if r.stats('accuracy')['n'] and r.stats('time')['n']]
         ax = fig.add_subplot(1, len(curves), k + 1)
@@ -799,13 +942,7 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
             ax.scatter(x[dom], y[dom], s=42, facecolor='white', edgecolor=colour, linewidth=1.5, zorder=5,
                        label='dominated')
         ax.plot(x[front], y[front], color='black', ls='--', lw=1.0, zorder=4)
-        # Labels of points that nearly coincide are stacked downwards instead of overprinted.
-        xn = (x - x.min()) / ((x.max() - x.min()) or 1.0)
-        yn = (y - y.min()) / ((y.max() - y.min()) or 1.0)
-        for i, (r, xi, yi) in enumerate(zip(rows, x, y)):
-            near = sum(1 for j in range(i) if abs(xn[j] - xn[i]) < 0.15 and abs(yn[j] - yn[i]) < 0.06)
-            ax.annotate(_value_text(knob, r.value), (xi, yi), textcoords='offset points',
-                        xytext=(6, 4 - 10 * near), fontsize=8, zorder=6)
+        labels.append((ax, knob, rows, x, y))
         ax.errorbar([], [], xerr=[], yerr=[], fmt='none', ecolor=colour, capsize=3, label='mean +- SD')
         ax.add_patch(Rectangle((0, 0), 0, 0, color=colour, alpha=0.2, lw=0, label='p10-p90'))
         if x.min() > 0 and x.max() / x.min() > 30:
@@ -817,9 +954,253 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
         ax.set_title(f'{KNOB_TITLES[knob]}\n{METRICS[rows[0].accuracy_metric][0]}', fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc='best', framealpha=0.8)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    for ax, knob, rows, x, y in labels:
+        _label_points(ax, renderer, knob, rows, x, y)
     path = Path(path)
     fig.savefig(path, dpi=dpi, format='png')
     return path
+
+
+def _label_points(ax, renderer, knob: str, rows: list[Row], x, y) -> None:
+    """Each point's value, without overprinting: values at (nearly) the same place share one
+    label ('G = 0, 0.01, 0.02'), and labels go where they overlap no other (_place_labels);
+    a value that finds no place is named in a note in the corner."""
+    pix = ax.transData.transform(np.column_stack([x, y]))
+    groups: list[list[int]] = []
+    for i in range(len(rows)):
+        for g in groups:
+            if np.hypot(*(pix[g[0]] - pix[i])) < 4.0:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    items = []
+    for g in groups:
+        text = _value_text(knob, rows[g[0]].value)
+        if len(g) > 1:
+            ref, source = REFERENCE[knob]
+            values = ', '.join(f'{rows[i].value:.4g}' for i in g)
+            text = f'{KNOB_SYMBOLS[knob]} = {values}'
+            if any(math.isclose(float(rows[i].value), float(ref), rel_tol=1e-9) for i in g):
+                text += f' ({source}: {ref:.4g})'
+        items.append((x[g[0]], y[g[0]], text, 'black'))
+    boxes = [ax.get_legend().get_window_extent(renderer)] if ax.get_legend() else []
+    dropped = _place_labels(ax, renderer, items, boxes)
+    if dropped:
+        ax.text(0.01, 0.01, 'not labelled (no room): ' + '; '.join(dropped),
+                transform=ax.transAxes, fontsize=7, va='bottom', ha='left', color='0.3')
+
+
+def _is_plane_only(curve: tuple[str, str, str]) -> bool:
+    """A curve that exists only for the plane (one protocol's error, the other's time)."""
+    return curve[1] == 'guidance_error_deg' and curve[2] == 'time_to_find_s'
+
+
+def plane_curves(result: 'SweepResult') -> dict[str, list[Row]]:
+    """knob (or 'condition') -> its rows on the plane, in grid order."""
+    out: dict[str, list[Row]] = {}
+    for r in result.rows:
+        if r.plane and r.stats('accuracy')['n'] and r.stats('time')['n']:
+            out.setdefault(r.knob, []).append(r)
+    return out
+
+
+def _place_labels(ax, renderer, items, placed=None):
+    """Annotate (x, y, text, colour) items at the first of a few offsets whose box overlaps no
+    label placed before (greedy); a label that fits nowhere is left out (the legend names it)."""
+    placed = [] if placed is None else placed
+    offsets = [(7, 5, 'left', 'bottom'), (7, -5, 'left', 'top'), (-7, 5, 'right', 'bottom'),
+               (-7, -5, 'right', 'top'), (0, 10, 'center', 'bottom'), (0, -10, 'center', 'top'),
+               (14, 14, 'left', 'bottom'), (-14, -14, 'right', 'top'), (14, -16, 'left', 'top'),
+               (-14, 16, 'right', 'bottom')]
+    dropped = []
+    for x, y, text, colour in items:
+        for dx, dy, ha, va in offsets:
+            ann = ax.annotate(text, (x, y), textcoords='offset points', xytext=(dx, dy), ha=ha,
+                              va=va,
+                              fontsize=7.5, color=colour, zorder=8,
+                              bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none',
+                                        alpha=0.8))
+            box = ann.get_window_extent(renderer).padded(4.0)   # the label's white box and a gap
+            inside = ax.get_window_extent(renderer).contains(box.x0, box.y0) and \
+                ax.get_window_extent(renderer).contains(box.x1, box.y1)
+            if inside and not any(box.overlaps(b) for b in placed):
+                placed.append(box)
+                break
+            ann.remove()
+        else:
+            dropped.append(text)
+    return dropped
+
+
+def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
+    """The one plane: x = mean time to find a target (speed protocol, s), y = guidance error
+    at the key press (accuracy protocol, deg; acceptance tolerance: the error when a target
+    counts). Conditions 1-4 at the package defaults, one polyline per knob through its values
+    in the sweep's condition; whiskers +-1 SE over wearer means. Left: the whole plane; right:
+    the same axes zoomed on the knobs other than the tolerance (they crowd round the condition
+    point), where their end values are labelled."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Rectangle
+    from matplotlib.transforms import Bbox
+
+    curves = plane_curves(result)
+    cond = result.settings.condition
+    fig = Figure(figsize=(14.0, 8.6), layout='constrained')
+    canvas = FigureCanvasAgg(fig)
+    whole, zoom = fig.subplots(1, 2, width_ratios=(1.0, 1.0))
+
+    def stats(rows):
+        t = np.array([r.stats('time')['mean'] for r in rows])
+        a = np.array([r.stats('accuracy')['mean'] for r in rows])
+        tse = np.nan_to_num([r.wearer_se('time')[0] for r in rows])
+        ase = np.nan_to_num([r.wearer_se('accuracy')[0] for r in rows])
+        return t, a, tse, ase
+
+    knobs = [k for k in KNOBS if k in curves]
+    colours = {k: f'C{i}' for i, k in enumerate(knobs)}
+    markers = {1: 'o', 2: 's', 3: '^', 4: 'D'}
+    handles, labels = [], []
+    for knob in knobs:
+        style = ':' if knob == 'acceptance_tolerance' else '-'
+        rows = curves[knob]
+        ref, _ = REFERENCE[knob]
+        label = (f'{KNOB_TITLES[knob]}: {rows[0].value:g} to {rows[-1].value:g} '
+                 f'(package {ref:.3g})')
+        if knob == 'acceptance_tolerance':
+            label += ';\n   y = error when a target counts (speed protocol)'
+        elif knob in ('calibration_points', 'fit_tolerance'):
+            label += ';\n   own cost (calibration time / fit wall time) in the labels'
+        handles.append(Line2D([], [], color=colours[knob], ls=style, marker='.', lw=1.6))
+        labels.append(label)
+    cond_rows = sorted(curves.get('condition', []), key=lambda r: r.value)
+    for row in cond_rows:
+        c = int(row.value)
+        handles.insert(len(handles) - len(knobs),
+                       Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9, mec='black',
+                              mfc='0.2' if c == cond else 'white'))
+        labels.insert(len(labels) - len(knobs), f'condition {CONDITION_LABELS[c]}'
+                      + (' (the knobs are swept here)' if c == cond else ''))
+
+    for ax in (whole, zoom):
+        for knob in knobs:
+            x, y, xe, ye = stats(curves[knob])
+            style = ':' if knob == 'acceptance_tolerance' else '-'
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colours[knob], elinewidth=1.0,
+                        capsize=2,
+                        alpha=0.7, zorder=3)
+            ax.plot(x, y, style, color=colours[knob], lw=1.6, marker='.', ms=7, zorder=4)
+        # the sweep's own condition last and smaller: another at the same point stays visible
+        for row in sorted(cond_rows, key=lambda r: int(r.value) == cond):
+            c = int(row.value)
+            x, y, xe, ye = stats([row])
+            ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2,
+                        capsize=3, zorder=5)
+            ax.scatter(x, y, s=60 if c == cond else 130, marker=markers.get(c, 'o'),
+                       facecolor='0.2' if c == cond else 'white', edgecolor='black', linewidth=1.6,
+                       zorder=7 if c == cond else 6)
+        ax.set_xlabel('mean time to find a target (s, speed protocol)')
+        ax.set_ylabel('guidance error at the key press (deg, accuracy protocol; hypot of h and v)')
+        ax.grid(alpha=0.3, which='both')
+    xs = np.concatenate([stats(v)[0] for v in curves.values()]) if curves else np.array([])
+    ys = np.concatenate([stats(v)[1] for v in curves.values()]) if curves else np.array([])
+    if xs.size and xs.min() > 0 and xs.max() / xs.min() > 4:
+        whole.set_xscale('log')
+    if ys.size and ys.min() > 0 and ys.max() / ys.min() > 30:
+        whole.set_yscale('log')
+    # the zoom: every knob but the tolerance, and the sweep's condition, with their whiskers
+    near = [r for k in knobs if k != 'acceptance_tolerance' for r in curves[k]] + \
+        [r for r in cond_rows if int(r.value) == cond]
+    if near:
+        x, y, xe, ye = stats(near)
+        x0, x1, y0, y1 = (x - xe).min(), (x + xe).max(), (y - ye).min(), (y + ye).max()
+        mx, my = 0.12 * ((x1 - x0) or 0.1), 0.12 * ((y1 - y0) or 0.1)
+        zoom.set_xlim(x0 - mx, x1 + mx)
+        zoom.set_ylim(y0 - my, y1 + my)
+        whole.add_patch(Rectangle((x0 - mx, y0 - my), x1 - x0 + 2 * mx, y1 - y0 + 2 * my,
+                                  fill=False,
+                                  ec='0.4', ls='--', lw=0.8, zorder=2))
+    s = result.settings
+    whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
+    zoom.set_title(f'zoom: the knobs swept in condition {cond} '
+                   '(package values at the filled point)',
+                   fontsize=10)
+    fig.suptitle('What accuracy costs in time: conditions 1-4 at the package defaults and '
+                 'every knob; '
+                 f'{s.subjects} wearers, whiskers +-1 SE over wearer means; lower and to the '
+                 'left is better',
+                 fontsize=11)
+    fig.legend(handles, labels, loc='outside lower center', ncol=2, fontsize=8.5, frameon=False)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+
+    def obstacles(ax, rows):
+        out = []
+        for row in rows:
+            cx, cy = ax.transData.transform((row.stats('time')['mean'],
+                                             row.stats('accuracy')['mean']))
+            out.append(Bbox([[cx - 9, cy - 9], [cx + 9, cy + 9]]))
+        return out
+
+    tol = curves.get('acceptance_tolerance', [])
+    if tol:
+        x, y, _, _ = stats(tol)
+        idx = sorted({0, len(tol) - 1} | {i for i, r in enumerate(tol)
+                                           if math.isclose(float(r.value),
+                                                           REFERENCE['acceptance_tolerance'][0])})
+        items = [(x[i], y[i], f'tolerance {tol[i].value:g}'
+                  + (' (package)' if i not in (0, len(tol) - 1) else ''),
+                  colours['acceptance_tolerance'])
+                 for i in idx]
+        _place_labels(whole, renderer, items, obstacles(whole, cond_rows))
+    items = []
+    for knob in knobs:
+        if knob == 'acceptance_tolerance':
+            continue
+        rows = curves[knob]
+        x, y, _, _ = stats(rows)
+        for i in sorted({0, len(rows) - 1}):
+            text = f'{KNOB_SYMBOLS[knob]} {rows[i].value:g}'
+            if knob in ('calibration_points', 'fit_tolerance'):
+                text += f' ({rows[i].note.split("; ")[0]})'
+            items.append((x[i], y[i], text, colours[knob]))
+    _place_labels(zoom, renderer, items, obstacles(zoom,
+                                                   [r for r in cond_rows if int(r.value) == cond]))
+    path = Path(path)
+    fig.savefig(path, dpi=dpi, format='png')
+    return path
+
+
+def plane_text(result: 'SweepResult') -> str:
+    s = result.settings
+    return ('x: the mean time to find a target in the speed protocol (s, found targets only); '
+            'y: the guidance error of the true gaze at the accuracy protocol\'s key press (deg, '
+            'hypot of h and v), before any visual capture. Acceptance tolerance, which the '
+            'accuracy protocol does not use, has y = the error when a target counts (speed '
+            'protocol). Conditions 1-4 at the package defaults; every knob swept in condition '
+            f'{s.condition}, both protocols on the same {s.subjects} wearers (common random '
+            'numbers). Spread: +-1 SE over wearer means (the columns SE). The package value of '
+            f'each knob other than the tolerance is the condition-{s.condition} point itself.')
+
+
+def plane_table(result: 'SweepResult') -> str:
+    header = ['knob', 'value', 'y metric', 'y mean', 'y SE', 'time to find (s)', 'time SE',
+              'wearers', 'note']
+    rows = []
+    curves = plane_curves(result)
+    for knob in ('condition',) + tuple(k for k in KNOBS if k in curves):
+        for r in curves.get(knob, []):
+            rec = r.as_record()
+            value = CONDITION_LABELS.get(int(r.value),
+                                         f'{r.value:g}') if knob == 'condition' else f'{r.value:g}'
+            rows.append([knob, value, r.accuracy_metric, _fmt(rec['accuracy_mean']),
+                         _fmt(rec['accuracy_se']),
+                         _fmt(rec['time_mean']), _fmt(rec['time_se']), rec['wearers'], r.note])
+    return '\n'.join(_md_table(header, rows, 'llrrrrrrl'))
 
 
 def markdown_table(frame: pd.DataFrame) -> str:
@@ -841,15 +1222,20 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
     curves = result.curves()
     readings = {c: read_curve(rows) for c, rows in curves.items()}
     for knob in result.settings.knobs:
-        mine = [rows for c, rows in curves.items() if c[0] == knob]
+        mine = [rows for c, rows in curves.items() if c[0] == knob and not _is_plane_only(c)]
         paths[knob] = plot_knob(mine, out / f'{knob}.png')
+    if result.settings.plane:
+        paths['plane'] = plot_plane(result, out / 'plane.png')
     s = result.settings
     acc, spd = result.scenes
     lines = ['# What accuracy costs in time', '',
-             f'Scenes: `{acc.name}` (accuracy protocol, {s.repetitions} trials per wearer and value) and '
-             f'`{spd.name}` (speed protocol, {s.speed_repetitions} trials of {spd.protocol.trial_s:g} s per wearer '
+             f'Scenes: `{acc.name}` (accuracy protocol, {s.repetitions} trials per wearer and '
+             'value) and '
+             f'`{spd.name}` (speed protocol, {s.speed_repetitions} trials of '
+             f'{spd.protocol.trial_s:g} s per wearer '
              f'and value), with their effects: {", ".join(acc.effect_names) or "none"}. '
-             f'The first {s.subjects} wearers of each population, condition {s.condition}, each calibrated by '
+             f'The first {s.subjects} wearers of each population, condition {s.condition}, each '
+             'calibrated by '
              f'Algorithm 1 in the simulation. Lower is better on both axes. '
              f'Sweep wall time {result.wall_s:.0f} s with {s.workers} worker(s)'
              + (' (--quick: tiny population and grids)' if s.quick else '') + '.', '',
@@ -858,12 +1244,20 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
         ref, source = REFERENCE[knob]
         lines.append(f'- {KNOB_TITLES[knob]}: {", ".join(f"{v:g}" for v in s.grids[knob])} '
                      f'({source}: {ref:g})')
+    if s.plane:
+        lines += ['', '## The plane', '', plane_text(result), '', plane_table(result), '',
+                  f'![plane]({_image_path(paths["plane"], out)})']
     lines += ['', '## Table', '', markdown_table(frame), '',
-              'Guidance error: hypot of the horizontal and vertical absolute errors of the true gaze at the key '
-              'press. Error when a target counts: the true gaze\'s angle to the target when the tracked gaze has '
-              'stayed within the tolerance for the dwell. Time to find: from a target\'s appearance to its count '
-              '(found targets only). Calibration time: simulated seconds Algorithm 1 ran. Fit wall time: the fastest '
-              f'of {s.fit_repeats} calls of fit_power_law on the same points, on this machine (the Algorithm 1 '
+              'Guidance error: hypot of the horizontal and vertical absolute errors of the true '
+              'gaze at the key '
+              'press. Error when a target counts: the true gaze\'s angle to the target when the '
+              'tracked gaze has '
+              'stayed within the tolerance for the dwell. Time to find: from a target\'s '
+              'appearance to its count '
+              '(found targets only). Calibration time: simulated seconds Algorithm 1 ran. Fit '
+              'wall time: the fastest '
+              f'of {s.fit_repeats} calls of fit_power_law on the same points, on this machine '
+              '(the Algorithm 1 '
               'points of the accuracy scene at its own settings, refitted). '
               'n: accuracy samples (trials, found targets, '
               'wearer x direction or fits). Spread: SD (ddof 1), p10-p90 over those samples.', '']
@@ -908,15 +1302,17 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('--knobs', default=','.join(KNOBS), help=f'comma-separated subset of {",".join(KNOBS)}')
     parser.add_argument('--condition', type=int, default=1, choices=(1, 2, 3),
                         help='guidance condition (1 suit adjusted, 2 suit fixed, 3 arm adjusted)')
-    parser.add_argument('--accuracy-scene', default='paper-accuracy',
+    parser.add_argument('--accuracy-scene', default=DEFAULT_ACCURACY_SCENE,
                         help='scene for the accuracy-protocol curves (a speed scene gets the accuracy protocol\'s '
                              'defaults)')
-    parser.add_argument('--speed-scene', default='paper-speed',
+    parser.add_argument('--speed-scene', default=DEFAULT_SPEED_SCENE,
                         help='scene for the speed-protocol curves (an accuracy scene gets the speed protocol\'s '
                              'defaults)')
     parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
     parser.add_argument('--quick', action='store_true',
                         help='a tiny sweep: 2 wearers, 3 values per knob, 20 s speed trials (seconds, for a check)')
+    parser.add_argument('--no-plane', action='store_true',
+                        help='only the per-knob curves: no conditions 1-4, no plane.png (faster)')
     return parser
 
 
@@ -928,6 +1324,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def settings_from_args(args: argparse.Namespace) -> Settings:
     base = quick_settings() if args.quick else Settings()
     changes = dict(condition=args.condition, workers=args.workers, accuracy_scene=args.accuracy_scene,
+                   plane=not args.no_plane,
                    speed_scene=args.speed_scene,
                    knobs=tuple(k.strip() for k in args.knobs.split(',') if k.strip()))
     for name in ('subjects', 'repetitions', 'speed_repetitions'):
@@ -963,7 +1360,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'{knob} ({am} vs {tm}): {text}\n')
     print(f'sweep: {result.wall_s:.1f} s wall; ' + ', '.join(f'{k} {v:.1f} s' for k, v in result.knob_wall_s.items()))
     print(f'table: {paths["csv"]}\nreport: {paths["md"]}\nplots: '
-          + ', '.join(str(paths[k]) for k in settings.knobs))
+          + ', '.join(str(paths[k]) for k in ('plane',) + settings.knobs if k in paths))
     return 0
 
 
