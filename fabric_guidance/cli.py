@@ -6,6 +6,7 @@
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
+  fit-wearer  fit the simulated wearer's human parameters to the paper's speed means
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
   example   the core alone on a worked example (no ROS)
@@ -91,8 +92,8 @@ def main(argv: list[str] | None = None) -> int:
                       help='record the session as a ROS 2 bag (MCAP) in DIR')
     from . import calibration_report, replay
     from .bench import runner as bench
-    from .experiments import analyze, beyond, experiment, tradeoff
-    for module in (replay, calibration_report, analyze, experiment, tradeoff, beyond, bench):
+    from .experiments import analyze, beyond, experiment, fit_wearer, tradeoff
+    for module in (replay, calibration_report, analyze, experiment, tradeoff, fit_wearer, beyond, bench):
         module.add_parser(sub).set_defaults(run=module.run)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,

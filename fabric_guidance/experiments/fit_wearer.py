@@ -11,9 +11,11 @@ identified targets and nothing else: the means of the columns of the paper's tab
 Objective: sum over the conditions of ((model mean - paper mean) / paper SE)^2, with
 SE = paper SD / sqrt(15). One evaluation is the full speed protocol of the scene (15 wearers,
 4 conditions, 6 repetitions) with the scene seed fixed (common random numbers), so the
-objective is a deterministic function of the parameters; scipy's bounded Nelder-Mead
-searches the unit cube of the parameters (threshold on a log scale), for --budget
-evaluations. One line per evaluation: parameters, means, objective.
+objective is a deterministic function of the parameters. The search runs in the unit cube of
+the parameters (threshold on a log scale): the nominal start and a seeded Latin hypercube of
+starting points (a fifth of --budget; the objective has local minima), then scipy's bounded
+Nelder-Mead from the best of them, for --budget evaluations in all. One line per evaluation:
+parameters, means, objective.
 
 It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the
 paper scenes plus the new effects, the same human parameters in both) with comments saying
@@ -155,11 +157,20 @@ def fit(base, budget: int, seed: int | None, workers: int, subjects=None, stream
               f'objective {obj:.2f} ({time.perf_counter() - start:.1f} s)', file=stream, flush=True)
         return obj
 
+    # A seeded Latin hypercube of starting points (a fifth of the budget; the objective has
+    # local minima), then Nelder-Mead from the best of them and the nominal start.
+    from scipy.stats import qmc
     x0 = np.array([fr.unit(fr.start) for fr in FREE])
-    simplex = [x0] + [np.clip(x0 + 0.2 * np.eye(len(FREE))[i], 0.0, 1.0) for i in range(len(FREE))]
-    minimize(f, x0, method='Nelder-Mead', bounds=[(0.0, 1.0)] * len(FREE),
-             options={'maxfev': budget, 'initial_simplex': np.array(simplex), 'xatol': 1e-3,
-                      'fatol': 0.05})
+    n_design = min(max(budget // 5, 0), budget - 1)
+    design = [x0] + list(qmc.LatinHypercube(d=len(FREE), seed=int(seed or 0)).random(n_design))
+    scores = [f(x) for x in design[:budget]]
+    x_best = design[int(np.argmin(scores))]
+    simplex = [x_best] + [np.clip(x_best + 0.1 * np.eye(len(FREE))[i], 0.0, 1.0)
+                          for i in range(len(FREE))]
+    if len(cache) < budget:
+        minimize(f, x_best, method='Nelder-Mead', bounds=[(0.0, 1.0)] * len(FREE),
+                 options={'maxfev': budget, 'initial_simplex': np.array(simplex), 'xatol': 1e-3,
+                          'fatol': 0.05})
     return best[0], best[1], best[2], log
 
 
@@ -184,7 +195,7 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
         "# to the paper's four per-condition mean numbers of identified targets (the means of",
         '# table-identified-targets.csv) and nothing else, on the speed protocol with seed '
         f'{seed} ({budget} evaluations',
-        "# at most, Nelder-Mead). Objective: sum of ((model - paper) / paper SE)^2 = "
+        "# at most: Latin hypercube, then Nelder-Mead). Objective: sum of ((model - paper) / SE)^2 = "
         f'{obj:.2f}.',
         f'# Fitted: {fitted}.',
         '# Speed means (fitted seed) vs paper (SE): ' + ', '.join(

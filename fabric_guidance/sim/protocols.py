@@ -156,6 +156,7 @@ def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, rep
                 checked = True
                 if cue.read(keep_magnitude=True):
                     loop.senses.rereads['still'] += 1
+                    loop.senses._restart()
                     w.feel_again()
                     still_since = None
                     continue
