@@ -527,11 +527,13 @@ class CueMisreading(Effect):
     axis's direction (left/right, up/down) is misread with probability direction_p, and the
     size by a factor exp(N(0, magnitude_sd)); the wearer turns toward the goal they read
     (anchor + sign * factor * perceived angle). Without other feedback they re-read the cue
-    once their torso has moved slower than still_dps for reread_s while no target is seen;
+    once their torso has moved slower than still_dps for reread_s while a visible target they
+    look for is not seen;
     the pull is still there, so they take it to mean further: the k-th such re-read of a
-    guidance multiplies the size read by (1 + still_gain)^min(k, 2) (in the accuracy protocol, where
-    nothing is ever seen, they read the direction once more before pressing the key instead:
-    protocols.accuracy_trial).
+    guidance multiplies the size read by (1 + still_gain)^min(k, 2). In the accuracy protocol
+    the wearer presses the key once they have stood still for the protocol's settle_s (shorter
+    than reread_s): a wearer who misread presses where they believe the target is, unless
+    resistance or a rise of the pressure corrected them during the move.
 
     direction_p (-, default 0.15): the paper's Discussion says users may "move differently from
     the directional presentation", and no training was given; no rate is published: an

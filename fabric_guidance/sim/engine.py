@@ -218,6 +218,7 @@ class ClosedLoop:
         self.visible = bool(visible)
         self.mode = 'follow'
         self.wearer.acting = False
+        self.senses.searching = self.visible
         if self.view is not None:
             proto = self.scene.protocol
             self.view.present(self.target if self.visible else None,

@@ -136,8 +136,6 @@ def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, rep
     still_since = None
     prev_y, prev_p = w.gaze_yaw, w.gaze_pitch
     timed_out = True
-    cue = loop.senses.cue if loop.senses._cue_on else None
-    checked = False
     while loop.t < end:
         loop.step()
         gy, gp = w.torso_yaw + w.head_yaw, w.torso_pitch + w.head_pitch
@@ -145,21 +143,12 @@ def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, rep
         prev_y, prev_p = gy, gp
         if not w.acting or moved >= limit:
             still_since = None
-            checked = False
             continue
         if still_since is None:
             still_since = loop.t
         if loop.t - still_since >= proto.settle_s - 1e-9:
-            if cue is not None and not checked:
-                # cue_misreading: before pressing, the wearer reads the cue once more; a
-                # direction read differently sends them on (and they settle again).
-                checked = True
-                if cue.read(keep_magnitude=True):
-                    loop.senses.rereads['still'] += 1
-                    loop.senses._restart()
-                    w.feel_again()
-                    still_since = None
-                    continue
+            # A wearer who misread the cue presses here too: they believe they are there
+            # (only resistance or a rise of the pressure, during the move, corrects them).
             timed_out = False
             break
     gy, gp = w.gaze_yaw, w.gaze_pitch

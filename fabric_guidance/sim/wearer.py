@@ -273,9 +273,11 @@ class Senses:
     The cue effects (issue 12), in the haptic conditions while the wearer follows: the wearer
     reads the cue through cue_misreading; surface_resistance (suit only) makes them read it
     again with the right direction once a wrong move has built up enough resistance;
-    relative_perception (suit only) makes them read it again when the pressure rises; and after
-    standing still for cue_misreading.reread_s without seeing the target (`seen`, set by the
-    engine) they read it again. Every read restarts the resistance and the rise detection.
+    relative_perception (suit only) makes them read it again, with the right direction, when
+    the pressure rises; and after standing still for cue_misreading.reread_s without seeing the
+    visible target they look for (`searching` and `seen`, set by the engine) they read it
+    again. Every read restarts the resistance and the rise detection. In the ROS graph
+    (wearer_sim) `seen` stays False: hololens_view is headless only.
     """
 
     def __init__(self, stages, haptic: bool, skip=(), cue: bool = True):
@@ -290,6 +292,9 @@ class Senses:
         self.relative = cue_fx.get('relative_perception')
         self._cue_on = haptic and bool(cue_fx) and cue
         self.seen = False          # the wearer sees the target (engine: visual capture)
+        # The wearer looks for a visible object (speed task); with nothing to look for (the
+        # accuracy task) standing still means "arrived", not "lost": no re-read.
+        self.searching = True
         self._prev = None          # torso (yaw, pitch, t) of the last cue step
         self._still_s = 0.0
         self._stills = 0           # 'still' re-reads of this guidance
@@ -345,6 +350,8 @@ class Senses:
             return
         cue = self.cue
         if cue is None:
+            return
+        if not self.searching:
             return
         if vy * vy + vp * vp < cue.still_dps * cue.still_dps and not self.seen:
             self._still_s += dt
