@@ -70,3 +70,16 @@ def test_the_fitted_speed_scene_reproduces_each_paper_mean_within_the_papers_se(
     means = np.array([summary[c]['identified'] for c in (1, 2, 3, 4)])
     target, se, _ = fit_wearer.paper_targets(TABLE)
     assert np.all(np.abs(means - target) <= se), (means, target, se)
+
+
+def test_the_fitted_accuracy_scene_ends_where_the_paper_does():
+    """The paper: every mean error below 30 deg, speech the most accurate. A misreading wearer
+    presses where they believe the target is, within the protocol's time (no wearer wanders
+    until the timeout: a re-read for a target 'not seen' would make them, as nothing is seen)."""
+    summary = summarize(run_protocol(load_scene('paper-fitted-accuracy'), workers=2))
+    for c in (1, 2, 3, 4):
+        assert summary[c]['h_error_deg'] < 30.0 and summary[c]['v_error_deg'] < 30.0, summary[c]
+        assert summary[c]['timed_out'] == 0.0
+    for c in (1, 2, 3):
+        assert summary[4]['h_error_deg'] < summary[c]['h_error_deg']
+        assert summary[4]['v_error_deg'] < summary[c]['v_error_deg']
