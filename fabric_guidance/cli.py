@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     from . import calibration_report, replay
     from .bench import runner as bench
     from .experiments import analyze, beyond, experiment, fit_wearer, tradeoff
-    for module in (replay, calibration_report, analyze, experiment, tradeoff, fit_wearer, beyond, bench):
+    for module in (replay, calibration_report, analyze, experiment, tradeoff, fit_wearer, beyond,
+                   bench):
         module.add_parser(sub).set_defaults(run=module.run)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,

@@ -32,21 +32,24 @@ def test_a_table_without_a_condition_column_is_one_line_naming_it(tmp_path):
     bad.write_text('subject,surface_adjusted,surface_fixed,speech\nA,1,2,3\nB,2,3,4\n')
     with pytest.raises(SystemExit, match=r'bad\.csv: column "simple_adjusted" is missing'):
         fit_wearer.paper_targets(bad)
-    bad.write_text('subject,surface_adjusted,surface_fixed,simple_adjusted,speech\nA,1,2,x,3\nB,2,3,4,5\n')
+    bad.write_text('subject,surface_adjusted,surface_fixed,simple_adjusted,speech\n'
+                   'A,1,2,x,3\nB,2,3,4,5\n')
     with pytest.raises(SystemExit, match=r'bad\.csv: a value is not a number'):
         fit_wearer.paper_targets(bad)
 
 
 def test_the_free_parameters_map_the_unit_cube_onto_their_bounds():
     for free in fit_wearer.FREE:
-        assert free.value(0.0) == pytest.approx(free.lo) and free.value(1.0) == pytest.approx(free.hi)
+        assert free.value(0.0) == pytest.approx(free.lo)
+        assert free.value(1.0) == pytest.approx(free.hi)
         assert free.value(free.unit(free.start)) == pytest.approx(free.start)
         assert free.value(-1.0) == pytest.approx(free.lo)     # clipped to the bounds
 
 
 def test_fit_wearer_runs_end_to_end_and_writes_scenes_that_load(tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer', '--budget', '2',
-                           '--subjects', '2', '--workers', '1', '--out', str(tmp_path)],
+    proc = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer',
+                           '--budget', '2', '--subjects', '2', '--workers', '1',
+                           '--out', str(tmp_path)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     evals = [line for line in proc.stdout.splitlines() if line.startswith('eval ')]

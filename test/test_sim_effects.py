@@ -22,9 +22,10 @@ def started(name, dt=DT, wearer=0, run=(2, 1, 0), seed=7, **params):
 # ---- registry and parameters ----------------------------------------------------------------
 
 def test_registry_names_every_effect_of_the_design():
-    assert set(REGISTRY) == {'gaze_noise', 'datagram_loss', 'datagram_latency', 'regulator_lag', 'suit_hysteresis',
-                             'weber_perception', 'reaction_delay', 'body_dynamics', 'speech_latency',
-                             'cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view'}
+    assert set(REGISTRY) == {
+        'gaze_noise', 'datagram_loss', 'datagram_latency', 'regulator_lag', 'suit_hysteresis',
+        'weber_perception', 'reaction_delay', 'body_dynamics', 'speech_latency',
+        'cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view'}
     for name, cls in REGISTRY.items():
         assert cls.name == name and cls.stage in fx.STAGES
         doc = cls.__doc__
@@ -222,9 +223,11 @@ def test_each_effect_has_its_own_stream_keyed_by_name_wearer_and_run():
 # ---- the wearer who can be wrong (issue 12) -----------------------------------------------------
 
 def test_new_effect_parameters_out_of_range_name_the_field():
-    with pytest.raises(EffectError, match=r'^cue_misreading\.direction_p must be <= 0\.5 -, got 0\.7$'):
+    with pytest.raises(EffectError,
+                       match=r'^cue_misreading\.direction_p must be <= 0\.5 -, got 0\.7$'):
         make_effect('cue_misreading', {'direction_p': 0.7})
-    with pytest.raises(EffectError, match=r'^surface_resistance\.threshold_kpa_deg must be > 0 kPa deg'):
+    with pytest.raises(EffectError,
+                       match=r'^surface_resistance\.threshold_kpa_deg must be > 0 kPa deg'):
         make_effect('surface_resistance', {'threshold_kpa_deg': 0.0})
     with pytest.raises(EffectError, match=r'^relative_perception\.fraction must be > 0'):
         make_effect('relative_perception', {'fraction': 0.0})
@@ -242,7 +245,8 @@ def test_cue_misreading_flips_directions_at_the_stated_rate_with_a_fixed_number_
         flips += [cue.factor_h < 0, cue.factor_v < 0]
         logs.append(math.log(abs(cue.factor_h)))
     assert np.mean(flips) == pytest.approx(0.3, abs=0.02)
-    assert np.std(logs) == pytest.approx(0.2, rel=0.05) and np.mean(logs) == pytest.approx(0.0, abs=0.01)
+    assert np.std(logs) == pytest.approx(0.2, rel=0.05)
+    assert np.mean(logs) == pytest.approx(0.0, abs=0.01)
     # A correct read (the wearer felt the resistance) has the right directions, and consumes the
     # same draws: the next reads are the same as if it had been an ordinary read.
     a, b = started('cue_misreading', direction_p=0.5), started('cue_misreading', direction_p=0.5)

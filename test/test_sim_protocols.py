@@ -33,7 +33,8 @@ def small(data, subjects=2, trial_s=10.0, reps=2):
 
 # ---- scene files --------------------------------------------------------------------------------
 
-#: The wearer model of issue 12: only the fitted scenes list it (the paper scenes stay as they were).
+#: The wearer model of issue 12: only the fitted scenes list it (the paper scenes stay as they
+#: were).
 WEARER_MODEL = {'cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view'}
 
 

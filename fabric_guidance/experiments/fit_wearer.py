@@ -41,7 +41,8 @@ from ..paths import config_path
 
 #: The paper's per-subject table of identified targets (Yokoe et al. 2025, the speed table):
 #: the repository's copy (test/data, checked against the paper's file by test_stats).
-PAPER_TABLE = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'table-identified-targets.csv'
+PAPER_TABLE = (Path(__file__).resolve().parents[2] / 'test' / 'data'
+               / 'table-identified-targets.csv')
 #: Its columns, in condition order 1-4 (sim.protocols.CONDITION_NAMES).
 COLUMNS = ('surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech')
 
@@ -153,8 +154,9 @@ def fit(base, budget: int, seed: int | None, workers: int, subjects=None, stream
         if obj < best[2]:
             best[:] = [values, means, obj]
         shown = ' '.join(f'{p}={v:.4g}' for (_, p), v in values.items())
+        took = time.perf_counter() - start
         print(f'eval {len(cache):3d}: {shown} | means {" ".join(f"{m:.2f}" for m in means)} | '
-              f'objective {obj:.2f} ({time.perf_counter() - start:.1f} s)', file=stream, flush=True)
+              f'objective {obj:.2f} ({took:.1f} s)', file=stream, flush=True)
         return obj
 
     # A seeded Latin hypercube of starting points (a fifth of the budget; the objective has
@@ -178,7 +180,8 @@ def fit(base, budget: int, seed: int | None, workers: int, subjects=None, stream
 # Writing the fitted scenes
 
 def _effect_line(name: str, params: dict, comment: str) -> str:
-    inner = ', '.join(f'{k}: {v:g}' if isinstance(v, float) else f'{k}: {v}' for k, v in params.items())
+    inner = ', '.join(f'{k}: {v:g}' if isinstance(v, float) else f'{k}: {v}'
+                      for k, v in params.items())
     return f'  - {name}: {{{inner}}}   # {comment}'
 
 
@@ -191,21 +194,24 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
     fitted = ', '.join(f'{e}.{p} = {v:g}' for (e, p), v in values.items())
     header = [
         f'# {new_name}: {base_name} plus a wearer who can be wrong (issue 12), its free human',
-        '# parameters fitted by `fabric-guidance fit-wearer` (fabric_guidance/experiments/fit_wearer.py)',
+        '# parameters fitted by `fabric-guidance fit-wearer` '
+        '(fabric_guidance/experiments/fit_wearer.py)',
         "# to the paper's four per-condition mean numbers of identified targets (the means of",
         '# table-identified-targets.csv) and nothing else, on the speed protocol with seed '
         f'{seed} ({budget} evaluations',
-        "# at most: Latin hypercube, then Nelder-Mead). Objective: sum of ((model - paper) / SE)^2 = "
-        f'{obj:.2f}.',
+        '# at most: Latin hypercube, then Nelder-Mead). '
+        f'Objective: sum of ((model - paper) / SE)^2 = {obj:.2f}.',
         f'# Fitted: {fitted}.',
         '# Speed means (fitted seed) vs paper (SE): ' + ', '.join(
-            f'c{c} {m:.2f} vs {t:.2f} ({s:.2f})' for c, m, t, s in zip((1, 2, 3, 4), means, target, se)),
+            f'c{c} {m:.2f} vs {t:.2f} ({s:.2f})'
+            for c, m, t, s in zip((1, 2, 3, 4), means, target, se)),
         '# Every other number is the base scene\'s or the effect\'s default (sim/effects.py).',
         '#',
     ]
     text = re.sub(r'^name: .*$', f'name: {new_name}', text, count=1, flags=re.M)
     per_word = values[('speech_latency', 'per_word_s')]
-    text, n = re.subn(r'(- speech_latency: \{[^}]*per_word_s: )[0-9.]+', rf'\g<1>{per_word:g}', text)
+    text, n = re.subn(r'(- speech_latency: \{[^}]*per_word_s: )[0-9.]+', rf'\g<1>{per_word:g}',
+                      text)
     if n != 1:
         raise ValueError(f'{base_name}: no speech_latency line with per_word_s to set')
     text = re.sub(r'(- speech_latency: .*)$', r'\1 [per_word_s fitted]', text, count=1, flags=re.M)
@@ -242,14 +248,19 @@ def write_scenes(out: Path, values: dict, means, obj: float, seed: int, budget: 
 # Command line
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser('fit-wearer', help="fit the simulated wearer's human parameters to the paper's "
-                                                 'speed means', description=__doc__,
+    p = subparsers.add_parser('fit-wearer', description=__doc__,
+                              help="fit the simulated wearer's human parameters to the paper's "
+                                   'speed means',
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('--budget', type=int, default=60, help='objective evaluations at most (default 60)')
-    p.add_argument('--out', type=Path, default=None, help='folder for the fitted scenes (default config/scenes)')
-    p.add_argument('--seed', type=int, default=None, help="the speed scene's seed (default: paper-speed's)")
+    p.add_argument('--budget', type=int, default=60,
+                   help='objective evaluations at most (default 60)')
+    p.add_argument('--out', type=Path, default=None,
+                   help='folder for the fitted scenes (default config/scenes)')
+    p.add_argument('--seed', type=int, default=None,
+                   help="the speed scene's seed (default: paper-speed's)")
     p.add_argument('--workers', type=int, default=2, help='processes per evaluation (default 2)')
-    p.add_argument('--subjects', type=int, default=None, help='only the first N wearers (for a quick check)')
+    p.add_argument('--subjects', type=int, default=None,
+                   help='only the first N wearers (for a quick check)')
     p.add_argument('--table', type=Path, default=PAPER_TABLE,
                    help="the paper's per-subject table of identified targets (CSV)")
     return p
@@ -275,15 +286,16 @@ def run(args) -> int:
     target, se, n = paper_targets(args.table)
     print(f'paper ({n} subjects): means {" ".join(f"{m:.2f}" for m in target)}, '
           f'SE {" ".join(f"{s:.2f}" for s in se)}; seed {seed}, budget {args.budget}', flush=True)
-    values, means, obj, log = fit(base, args.budget, seed, args.workers, args.subjects, table=args.table)
+    values, means, obj, log = fit(base, args.budget, seed, args.workers, args.subjects,
+                                  table=args.table)
     out = args.out if args.out is not None else config_path('scenes')
     paths = write_scenes(out, values, means, obj, seed, args.budget, args.table)
     print(f'best of {len(log)} evaluations: objective {obj:.2f}; '
           + ', '.join(f'{p} = {v:g}' for (_, p), v in values.items()))
     within = np.abs(means - target) <= se
     for c in range(4):
-        print(f'  condition {c + 1}: model {means[c]:.2f}, paper {target[c]:.2f} +- {se[c]:.2f} (SE): '
-              f'{"within" if within[c] else "outside"}')
+        print(f'  condition {c + 1}: model {means[c]:.2f}, paper {target[c]:.2f} '
+              f'+- {se[c]:.2f} (SE): {"within" if within[c] else "outside"}')
     for path in paths:
         print(f'wrote {path}')
     return 0

@@ -652,9 +652,9 @@ class RelativePerception(Effect):
     On the suit a noticed rise during a move tells the wearer the move is wrong (the paper's
     Discussion: the adjustment makes the wearer "quickly recognize that the movement was
     different from the guided movement"; condition 1's Eq. 5 raises the pressure exactly when
-    the error grows): they read the cue again with the right direction; on the arm (condition 3) the rise only
-    makes the percept larger, which the percept already does (the paper: on the arm "air
-    pressure adjustment may be less effective"), so nothing more happens there.
+    the error grows): they read the cue again with the right direction. On the arm (condition 3)
+    the rise only makes the percept larger, which the percept already does (the paper: on the
+    arm "air pressure adjustment may be less effective"), so nothing more happens there.
 
     Different from weber_perception, which is a dead band on the percept (changes below the
     fraction are not felt at all); this one acts on the wearer's decisions, not on the percept.
@@ -771,13 +771,15 @@ class HololensView(Effect):
         n = int(self.dummies)
         self.dummy_pos = [((2.0 * u() - 1.0) * rh, (2.0 * u() - 1.0) * rv) for _ in range(n)]
 
-    def in_display(self, gy: float, gp: float, yaw: float, pitch: float, margin: float = 0.0) -> bool:
+    def in_display(self, gy: float, gp: float, yaw: float, pitch: float,
+                   margin: float = 0.0) -> bool:
         dy = yaw - gy
         dy = (dy + 180.0) % 360.0 - 180.0
         hh, hv = self.half_h + margin, self.half_v + margin
         return -hh <= dy <= hh and -hv <= pitch - gp <= hv
 
-    def update(self, t: float, gy: float, gp: float, in_central: bool, still: bool = False) -> bool:
+    def update(self, t: float, gy: float, gp: float, in_central: bool,
+               still: bool = False) -> bool:
         """One step with the gaze at (gy, gp): whether the target has been found. still: the
         torso has stopped, and the head scans around (scan_deg)."""
         if self.found_t is not None:
@@ -810,7 +812,8 @@ class HololensView(Effect):
 
 REGISTRY: dict[str, type[Effect]] = {cls.name: cls for cls in (
     GazeNoise, DatagramLoss, DatagramLatency, RegulatorLag, SuitHysteresis, WeberPerception, ReactionDelay,
-    BodyDynamics, SpeechLatency, CueMisreading, SurfaceResistance, RelativePerception, HololensView)}
+    BodyDynamics, SpeechLatency, CueMisreading, SurfaceResistance, RelativePerception,
+    HololensView)}
 
 
 def effect_class(name: str) -> type[Effect]:
@@ -844,7 +847,9 @@ def by_stage(effects) -> dict[str, list[Effect]]:
     return out
 
 
-__all__ = ['HOLOLENS2_FOV_DEG', 'REGISTRY', 'STAGES', 'BodyDynamics', 'CueMisreading', 'HololensView',
-           'RelativePerception', 'SurfaceResistance', 'DatagramLatency', 'DatagramLoss', 'Draws', 'Effect', 'EffectError',
+__all__ = ['HOLOLENS2_FOV_DEG', 'REGISTRY', 'STAGES', 'BodyDynamics', 'CueMisreading',
+           'HololensView',
+           'RelativePerception', 'SurfaceResistance', 'DatagramLatency', 'DatagramLoss', 'Draws',
+           'Effect', 'EffectError',
            'GazeNoise', 'ReactionDelay', 'RegulatorLag', 'RunContext', 'SpeechLatency', 'SuitHysteresis',
            'WeberPerception', 'by_stage', 'effect_class', 'generator', 'make_effect', 'seed_sequence', 'stream_key']

@@ -44,7 +44,8 @@ from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
 from .effects import RunContext, by_stage
-from .wearer import SceneWearer, Senses, angle_between_deg, gaze_from_angles, haversine  # noqa: F401
+from .wearer import (SceneWearer, Senses, angle_between_deg, gaze_from_angles,  # noqa: F401
+                     haversine)
 
 #: Seconds of simulated time before a run starts: the gaze stream, its loss and latency state
 #: settle with the wearer at rest, facing front (the HoloLens streams before a trial begins).

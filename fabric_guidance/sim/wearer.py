@@ -340,7 +340,8 @@ class Senses:
         dt = t - prev[2]
         vy, vp = (ty - prev[0]) / dt, (tp - prev[1]) / dt
         suit = wearer.layout == 'suit'
-        if suit and self.resistance is not None and self.resistance.accumulate(exerted, vy, vp, dt):
+        resistance = self.resistance
+        if suit and resistance is not None and resistance.accumulate(exerted, vy, vp, dt):
             self.reread(wearer, 'resistance', correct=True)
             wearer.feel_again()
             return
