@@ -362,3 +362,19 @@ def test_hololens_view_dummies_are_the_papers_fifty_in_the_region_per_target():
     first = list(v.dummy_pos)
     v.present((0.0, 10.0))
     assert v.dummy_pos != first and _view().dummy_pos == first      # seeded, new per target
+
+
+def test_a_scene_with_a_new_effect_out_of_range_is_one_scene_error_naming_the_field():
+    from fabric_guidance.sim.scene import SceneError, load_scene, scene_from_dict
+    base = load_scene('paper-fitted-speed')
+    data = {'name': 'x', 'seed': 1, 'protocol': {'kind': 'speed'},
+            'population': {'laws': {d: {'a': 20.0, 'b': 0.6, 'c': 20.0}
+                                    for d in ('left', 'right', 'down', 'up')}},
+            'effects': [{'hololens_view': {'scan_deg': 120.0}}]}
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data, 'scene.yaml')
+    msg = str(err.value)
+    assert '\n' not in msg
+    assert msg.startswith('scene.yaml: field "effects[0].hololens_view" '
+                          'hololens_view.scan_deg must be <= 90')
+    assert base.effect('cue_misreading') is not None
