@@ -6,6 +6,7 @@
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
+  fit-wearer  fit the simulated wearer's human parameters to the paper's speed means
   compare-paper  both experiments on several seeds, every figure of the paper beside the model's
   sensitivity  which headline figures rest on which assumed human parameters (low/high sweep)
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
@@ -93,9 +94,10 @@ def main(argv: list[str] | None = None) -> int:
                       help='record the session as a ROS 2 bag (MCAP) in DIR')
     from . import calibration_report, replay
     from .bench import runner as bench
-    from .experiments import analyze, beyond, experiment, paper_comparison, sensitivity, tradeoff
-    for module in (replay, calibration_report, analyze, experiment, tradeoff, paper_comparison,
-                   sensitivity, beyond, bench):
+    from .experiments import (analyze, beyond, experiment, fit_wearer, paper_comparison, sensitivity,
+                              tradeoff)
+    for module in (replay, calibration_report, analyze, experiment, fit_wearer, tradeoff,
+                   paper_comparison, sensitivity, beyond, bench):
         module.add_parser(sub).set_defaults(run=module.run)
     example = sub.add_parser('example', help='the core alone on a worked example: calibration and guided turns')
     example.add_argument('--out', type=Path, default=None,

@@ -22,8 +22,10 @@ def started(name, dt=DT, wearer=0, run=(2, 1, 0), seed=7, **params):
 # ---- registry and parameters ----------------------------------------------------------------
 
 def test_registry_names_every_effect_of_the_design():
-    assert set(REGISTRY) == {'gaze_noise', 'datagram_loss', 'datagram_latency', 'regulator_lag', 'suit_hysteresis',
-                             'weber_perception', 'reaction_delay', 'body_dynamics', 'speech_latency'}
+    assert set(REGISTRY) == {
+        'gaze_noise', 'datagram_loss', 'datagram_latency', 'regulator_lag', 'suit_hysteresis',
+        'weber_perception', 'reaction_delay', 'body_dynamics', 'speech_latency',
+        'cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view'}
     for name, cls in REGISTRY.items():
         assert cls.name == name and cls.stage in fx.STAGES
         doc = cls.__doc__
@@ -216,3 +218,163 @@ def test_each_effect_has_its_own_stream_keyed_by_name_wearer_and_run():
     assert first('gaze_noise', wearer=1) != base
     assert first('gaze_noise', run=(2, 2, 0)) != base
     assert first('gaze_noise', seed=8) != base
+
+
+# ---- the wearer who can be wrong (issue 12) -----------------------------------------------------
+
+def test_new_effect_parameters_out_of_range_name_the_field():
+    with pytest.raises(EffectError,
+                       match=r'^cue_misreading\.direction_p must be <= 0\.5 -, got 0\.7$'):
+        make_effect('cue_misreading', {'direction_p': 0.7})
+    with pytest.raises(EffectError,
+                       match=r'^surface_resistance\.threshold_kpa_deg must be > 0 kPa deg'):
+        make_effect('surface_resistance', {'threshold_kpa_deg': 0.0})
+    with pytest.raises(EffectError, match=r'^relative_perception\.fraction must be > 0'):
+        make_effect('relative_perception', {'fraction': 0.0})
+    with pytest.raises(EffectError, match=r'^hololens_view\.dummies must be a whole number'):
+        make_effect('hololens_view', {'dummies': 2.5})
+    with pytest.raises(EffectError, match=r'^hololens_view\.confirm_s must be >= 0 s'):
+        make_effect('hololens_view', {'confirm_s': -1.0})
+
+
+def test_cue_misreading_flips_directions_at_the_stated_rate_with_a_fixed_number_of_draws():
+    cue = started('cue_misreading', direction_p=0.3, magnitude_sd=0.2)
+    flips, logs = [], []
+    for _ in range(4000):
+        cue.read()
+        flips += [cue.factor_h < 0, cue.factor_v < 0]
+        logs.append(math.log(abs(cue.factor_h)))
+    assert np.mean(flips) == pytest.approx(0.3, abs=0.02)
+    assert np.std(logs) == pytest.approx(0.2, rel=0.05)
+    assert np.mean(logs) == pytest.approx(0.0, abs=0.01)
+    # A correct read (the wearer felt the resistance) has the right directions, and consumes the
+    # same draws: the next reads are the same as if it had been an ordinary read.
+    a, b = started('cue_misreading', direction_p=0.5), started('cue_misreading', direction_p=0.5)
+    a.read(correct_direction=True)
+    b.read()
+    assert a.sign_h == a.sign_v == 1.0
+    for _ in range(20):
+        a.read(), b.read()
+        assert (a.factor_h, a.factor_v) == (b.factor_h, b.factor_v)
+
+
+def test_cue_misreading_of_zero_reads_exactly():
+    cue = started('cue_misreading', direction_p=0.0, magnitude_sd=0.0)
+    for _ in range(100):
+        cue.read()
+        assert (cue.factor_h, cue.factor_v) == (1.0, 1.0)
+
+
+def _resistance_steps(exerted_of_step, v_yaw=-30.0, threshold=1500.0):
+    """Steps until surface_resistance fires for a wearer turning right at v_yaw deg/s while
+    the suit pulls left with exerted_of_step(i) kPa."""
+    r = started('surface_resistance', threshold_kpa_deg=threshold)
+    for i in range(100000):
+        if r.accumulate([exerted_of_step(i), 0.0, 0.0, 0.0], v_yaw, 0.0, DT):
+            return i + 1
+    return None
+
+
+def test_surface_resistance_fires_sooner_with_rising_pressure_and_faster_wrong_moves():
+    constant = _resistance_steps(lambda i: 100.0)
+    rising = _resistance_steps(lambda i: 100.0 + 2.0 * i)        # Eq. 5 adding pressure
+    assert constant == math.ceil(1500.0 / (100.0 * 30.0 * DT))   # J = p * speed * t
+    assert rising < constant
+    assert _resistance_steps(lambda i: 100.0, v_yaw=-60.0) < constant
+    # Moving the way the suit pulls builds nothing.
+    assert _resistance_steps(lambda i: 100.0, v_yaw=+30.0) is None
+
+
+def test_surface_resistance_counts_the_net_pull_not_a_residual_on_the_other_side():
+    r = started('surface_resistance', threshold_kpa_deg=10.0)
+    # Turning left under a strong right pull and a 10 kPa left residual: resisted by 190 kPa.
+    for _ in range(10):
+        r.accumulate([10.0, 200.0, 0.0, 0.0], 30.0, 0.0, DT)
+    assert r.fired >= 1
+    r = started('surface_resistance', threshold_kpa_deg=10.0)
+    for _ in range(1000):                          # turning right with it: never
+        r.accumulate([10.0, 200.0, 0.0, 0.0], -30.0, 0.0, DT)
+    assert r.fired == 0 and r.impulse == 0.0
+
+
+def test_relative_perception_notices_a_rise_not_a_level_nor_the_onset():
+    rel = started('relative_perception', fraction=0.14, settle_s=0.2)
+    # The onset: the pressure rises from 0 within the first settle_s: no notice.
+    for i in range(20):
+        assert not rel.rise([200.0 * (i + 1) / 20, 0, 0, 0])
+    for _ in range(300):                            # a steady level: no notice
+        assert not rel.rise([200.0, 0, 0, 0])
+    assert not rel.rise([220.0, 0, 0, 0])          # +10 %: below the fraction
+    assert rel.rise([230.0, 0, 0, 0])              # +15 %: noticed
+    assert rel.noticed == 1
+
+
+def test_relative_perception_differs_from_weber_perception():
+    """weber_perception is a dead band on the percept: a +10 % change is not felt at all.
+    relative_perception leaves the percept alone and notices rises above its fraction."""
+    weber = started('weber_perception', fraction=0.14)
+    weber.percept([200.0, 0, 0, 0])
+    assert weber.percept([220.0, 0, 0, 0])[0] == 200.0
+    assert not hasattr(make_effect('relative_perception'), 'percept')
+
+
+def _view(**params):
+    v = started('hololens_view', **params)
+    v.present((30.0, 0.0), (60.0, 30.0))
+    return v
+
+
+def test_hololens_view_sees_only_on_the_display_and_in_the_central_field():
+    v = _view(search_base_s=0.0, search_per_item_s=0.0)
+    # 30 deg to the side: within the 30 deg central field, outside the 43 deg wide display.
+    assert not v.update(0.0, 0.0, 0.0, True)
+    assert not v.update(0.0, 10.0, 0.0, False)     # on the display, outside the central field
+    assert v.update(0.0, 10.0, 0.0, True)          # 20 deg: both
+    # Stopped, the wearer scans with the head: 15 deg more on each side.
+    v = _view(search_base_s=0.0, search_per_item_s=0.0)
+    assert v.update(0.0, 0.0, 0.0, False, still=True)
+
+
+def test_hololens_view_search_time_grows_with_the_dummies_in_view_and_the_key_waits_for_confirm():
+    v = _view(search_base_s=0.4, search_per_item_s=0.025, confirm_s=0.5)
+    t = 0.0
+    while not v.update(t, 20.0, 0.0, True):
+        t += DT
+    n, need = v.searches[0]
+    assert n == sum(1 for d in v.dummy_pos if v.in_display(20.0, 0.0, *d))
+    assert need == pytest.approx(0.4 + 0.025 * n)
+    assert t == pytest.approx(need, abs=DT)
+    assert v.key_ready_t == pytest.approx(t + 0.5)
+    # Leaving the view restarts the search.
+    v = _view(search_base_s=0.4, search_per_item_s=0.0)
+    v.update(0.0, 20.0, 0.0, True)
+    v.update(0.3, 20.0, 0.0, True)
+    assert not v.update(0.35, -40.0, 0.0, True)
+    assert not v.update(0.5, 20.0, 0.0, True) and not v.update(0.85, 20.0, 0.0, True)
+    assert v.update(0.9, 20.0, 0.0, True)
+    assert math.isinf(started('hololens_view').key_ready_t)
+
+
+def test_hololens_view_dummies_are_the_papers_fifty_in_the_region_per_target():
+    v = _view()
+    assert len(v.dummy_pos) == 50
+    assert all(abs(y) <= 60.0 and abs(p) <= 30.0 for y, p in v.dummy_pos)
+    first = list(v.dummy_pos)
+    v.present((0.0, 10.0))
+    assert v.dummy_pos != first and _view().dummy_pos == first      # seeded, new per target
+
+
+def test_a_scene_with_a_new_effect_out_of_range_is_one_scene_error_naming_the_field():
+    from fabric_guidance.sim.scene import SceneError, load_scene, scene_from_dict
+    base = load_scene('paper-fitted-speed')
+    data = {'name': 'x', 'seed': 1, 'protocol': {'kind': 'speed'},
+            'population': {'laws': {d: {'a': 20.0, 'b': 0.6, 'c': 20.0}
+                                    for d in ('left', 'right', 'down', 'up')}},
+            'effects': [{'hololens_view': {'scan_deg': 120.0}}]}
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data, 'scene.yaml')
+    msg = str(err.value)
+    assert '\n' not in msg
+    assert msg.startswith('scene.yaml: field "effects[0].hololens_view" '
+                          'hololens_view.scan_deg must be <= 90')
+    assert base.effect('cue_misreading') is not None

@@ -274,3 +274,64 @@ def test_calibration_failure_is_an_outcome_with_its_reason():
     numb_scene = scene(population={'subjects': 1, 'laws': numb})
     out = calibrate_wearer(numb_scene, sample_wearer(numb_scene, 0))
     assert not out.ok and out.error.startswith('calibration failed: up:') and 'distinct angles' in out.error
+
+
+# ---- the wearer who can be wrong (issue 12) ----------------------------------------------------
+
+def test_cue_misreading_of_zero_leaves_the_trajectory_bit_identical():
+    base = NOISY
+    exact = [{'cue_misreading': {'direction_p': 0.0, 'magnitude_sd': 0.0, 'still_gain': 0.0}}]
+    for cond in (1, 2, 3):
+        a, _ = trace(scene(base), cond, seconds=4.0)
+        b, loop = trace(scene(base + exact), cond, seconds=4.0)
+        assert loop.senses.cue is not None and loop.senses.cue.reads >= 1
+        assert np.array_equal(a, b)
+
+
+def test_new_effects_not_listed_leave_no_state_in_the_loop():
+    _, loop = trace(scene(NOISY), 1)
+    assert loop.view is None and loop.senses.cue is None and not loop.senses._cue_on
+    assert loop.key_ready_t == -math.inf
+    assert loop.wearer.cue is None
+
+
+def test_a_misreading_wearer_turns_the_wrong_way_and_resistance_turns_them_back():
+    misread = [{'cue_misreading': {'direction_p': 0.5, 'magnitude_sd': 0.0}},
+               {'surface_resistance': {'threshold_kpa_deg': 500.0}}]
+    quiet = [{'regulator_lag': {}}, {'body_dynamics': {}}]
+    # Find a repetition whose first read misreads the horizontal direction (seeded: fixed).
+    for rep in range(20):
+        sc = scene(quiet + misread)
+        w = sample_wearer(sc, 0)
+        loop = ClosedLoop(sc, w, trial_run(2, rep), 2, exact_cal(sc, w))
+        loop.warm_up()
+        loop.present(40.0, 0.0, visible=False)
+        ys = []
+        for _ in range(int(6.0 / loop.dt)):
+            loop.step()
+            ys.append(loop.wearer.gaze_yaw)
+        if loop.senses.rereads['resistance']:
+            break
+    else:
+        pytest.fail('no repetition misread the direction with direction_p = 0.5')
+    assert min(ys) < -2.0                       # went right, away from the target on the left
+    assert ys[-1] > 30.0                        # and, after the resistance, to the left
+    # On the arm (condition 3) the same wearer feels no resistance.
+    loop = ClosedLoop(sc, w, trial_run(3, rep), 3, exact_cal(sc, w))
+    loop.warm_up()
+    loop.present(40.0, 0.0, visible=False)
+    for _ in range(int(6.0 / loop.dt)):
+        loop.step()
+    assert loop.senses.rereads['resistance'] == 0 and loop.senses.resistance.fired == 0
+
+
+def test_hololens_view_delays_the_capture_until_the_target_is_found():
+    view = [{'hololens_view': {'search_base_s': 0.5, 'search_per_item_s': 0.0, 'confirm_s': 0.3}}]
+    quiet = [{'body_dynamics': {}}]
+    a, la = trace(scene(quiet), 2, target=(10.0, 0.0), seconds=2.0)
+    b, lb = trace(scene(quiet + view), 2, target=(10.0, 0.0), seconds=2.0)
+    # Without the view the eyes catch the target at once; with it only after 0.5 s of search.
+    assert lb.view.found_t is not None
+    assert lb.key_ready_t == pytest.approx(lb.view.found_t + 0.3)
+    n = int(0.4 / la.dt)
+    assert abs(a[n, 0] - 10.0) < abs(b[n, 0] - 10.0)

@@ -44,7 +44,8 @@ from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
 from .effects import RunContext, by_stage
-from .wearer import SceneWearer, Senses, angle_between_deg, gaze_from_angles  # noqa: F401 (re-exported)
+from .wearer import (SceneWearer, Senses, angle_between_deg, gaze_from_angles,  # noqa: F401
+                     haversine)
 
 #: Seconds of simulated time before a run starts: the gaze stream, its loss and latency state
 #: settle with the wearer at rest, facing front (the HoloLens streams before a trial begins).
@@ -151,9 +152,15 @@ class ClosedLoop:
         self.cond = condition_of(condition) if condition is not None else None
         self.layout = (self.cond.layout if self.cond is not None else 'suit') or 'suit'
         self._haptic = self.cond is None or self.cond.haptic     # calibration drives the suit too
-        self.senses = Senses(stages, self._haptic)
+        self.senses = Senses(stages, self._haptic, cue=self.cond is not None)
         self.wearer = SceneWearer(wearer.suit_laws, wearer.arm_laws, self.p_max, body)
         self.wearer.set_layout(self.layout)
+        # hololens_view: the target is captured only once seen on the display and found among
+        # the dummies; the key press counts only after confirm_s (key_ready_t).
+        self.view = stages['view'][0] if stages['view'] else None
+        self._track_seen = self.senses._cue_on
+        self._central_hav = body.central_field_hav if body is not None else 0.0
+        self._prev_torso = None
 
         self.controller: GuidanceController | None = None
         if self.cond is not None and self.cond.haptic:
@@ -212,6 +219,11 @@ class ClosedLoop:
         self.visible = bool(visible)
         self.mode = 'follow'
         self.wearer.acting = False
+        self.senses.searching = self.visible
+        if self.view is not None:
+            proto = self.scene.protocol
+            self.view.present(self.target if self.visible else None,
+                              (proto.horizontal_deg, proto.vertical_deg))
         self._vent()                           # the node vents on a new target
         self.speech_due = bool(self.cond is not None and self.cond.speech)
 
@@ -223,7 +235,15 @@ class ClosedLoop:
         self.mode = 'front'
         self.front_visible = front_visible
         self.wearer.go_front()
+        if self.view is not None:
+            self.view.present(None)
         self._vent()
+
+    @property
+    def key_ready_t(self) -> float:
+        """The earliest time a key press on the active target counts: -inf without
+        hololens_view, else confirm_s after the wearer found the target (inf before)."""
+        return -math.inf if self.view is None else self.view.key_ready_t
 
     # ---- internals ----------------------------------------------------------------------------
     def _vent(self) -> None:
@@ -323,7 +343,25 @@ class ClosedLoop:
         self.pressure = self.senses.step(t, self.command, wearer, follow)
         # The body moves; the eyes catch a visible target (or the front when returning).
         if follow:
-            wearer.move(self.target if self.visible else None)
+            capture = self.target if self.visible else None
+            if capture is not None and (self.view is not None or self._track_seen):
+                gy, gp = wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch
+                central = (self._central_hav > 0.0
+                           and haversine(gy, gp, capture[0], capture[1]) <= self._central_hav)
+                if self.view is not None:
+                    still = False
+                    prev = self._prev_torso
+                    ty, tp = wearer.torso_yaw, wearer.torso_pitch
+                    if prev is not None:
+                        lim = self.view.still_dps * self.dt
+                        still = (ty - prev[0]) ** 2 + (tp - prev[1]) ** 2 < lim * lim
+                    self._prev_torso = (ty, tp)
+                    if not self.view.update(t, gy, gp, central, still):
+                        capture = None
+                self.senses.seen = capture is not None and central
+            elif self._track_seen:
+                self.senses.seen = False
+            wearer.move(capture)
         else:
             wearer.move(_FRONT if self.front_visible else None)
         # The gaze sample of the end of this step, through the gaze effects.

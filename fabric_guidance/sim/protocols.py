@@ -147,6 +147,8 @@ def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, rep
         if still_since is None:
             still_since = loop.t
         if loop.t - still_since >= proto.settle_s - 1e-9:
+            # A wearer who misread the cue presses here too: they believe they are there
+            # (only resistance or a rise of the pressure, during the move, corrects them).
             timed_out = False
             break
     gy, gp = w.gaze_yaw, w.gaze_pitch
@@ -189,6 +191,8 @@ def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol)
             inside_since = t
         if t - inside_since < dwell:
             continue
+        if goal is target and t < loop.key_ready_t:
+            continue                  # hololens_view: not yet found and confirmed
         inside_since = None
         if goal is target:
             finds.append((t - appeared, angle_between_deg(w.gaze_yaw, w.gaze_pitch, target[0], target[1]),

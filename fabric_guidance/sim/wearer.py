@@ -151,6 +151,8 @@ class SceneWearer:
         self._inverse = {'suit': self._prepare(suit_laws), 'arm': self._prepare(arm_laws or suit_laws)}
         self.layout = 'suit'
         self.body = body
+        #: effects.CueMisreading of the run, or None (the cue is read exactly); Senses sets it.
+        self.cue = None
         self.face_front()
 
     @staticmethod
@@ -168,6 +170,8 @@ class SceneWearer:
         self.goal_yaw = self.goal_pitch = 0.0
         self.anchor = None
         self.acting = False   # has acted on a guidance percept since the last reset_acting()
+        self.new_read = False  # a cue was read this step (the first percept of a guidance)
+        self._last_felt = None
 
     @property
     def gaze_yaw(self) -> float:
@@ -194,16 +198,32 @@ class SceneWearer:
         return out
 
     def feel(self, pressures: Sequence[float]) -> None:
+        self._last_felt = pressures
         left, right, down, up = self.perceived_angles(pressures)
         if not (left > 0.0 or right > 0.0 or down > 0.0 or up > 0.0):
             self.anchor = None
             self.goal_yaw, self.goal_pitch = self.torso_yaw, self.torso_pitch
             return
+        cue = self.cue
         if self.anchor is None:
             self.anchor = (self.torso_yaw, self.torso_pitch)
+            if cue is not None:
+                # The first percept of a guidance: the cue is read (and may be misread).
+                cue.p = cue.arm_direction_p if self.layout == 'arm' else cue.direction_p
+                cue.read()
+                self.new_read = True
         self.acting = True
-        self.goal_yaw = _clip(self.anchor[0] + left - right, YAW_LIMIT_DEG)
-        self.goal_pitch = _clip(self.anchor[1] + up - down, PITCH_LIMIT_DEG)
+        if cue is None or (cue.factor_h == 1.0 and cue.factor_v == 1.0):
+            self.goal_yaw = _clip(self.anchor[0] + left - right, YAW_LIMIT_DEG)
+            self.goal_pitch = _clip(self.anchor[1] + up - down, PITCH_LIMIT_DEG)
+        else:
+            self.goal_yaw = _clip(self.anchor[0] + cue.factor_h * (left - right), YAW_LIMIT_DEG)
+            self.goal_pitch = _clip(self.anchor[1] + cue.factor_v * (up - down), PITCH_LIMIT_DEG)
+
+    def feel_again(self) -> None:
+        """The cue was read again: the goal follows the new reading of the last percept."""
+        if self._last_felt is not None and self.anchor is not None:
+            self.feel(self._last_felt)
 
     def hear(self, horizontal: float, vertical: float) -> None:
         self.anchor = None
@@ -247,15 +267,38 @@ class Senses:
     cannot drift apart.
 
     stages: effects.by_stage() of the run's started effects; skip: names of pressure effects
-    realised elsewhere (the graph's mock PLC is the regulator).
+    realised elsewhere (the graph's mock PLC is the regulator); cue: False switches the cue
+    effects off (Algorithm 1: a slow, supervised procedure, where the wearer is not misled).
+
+    The cue effects (issue 12), in the haptic conditions while the wearer follows: the wearer
+    reads the cue through cue_misreading; surface_resistance (suit only) makes them read it
+    again with the right direction once a wrong move has built up enough resistance;
+    relative_perception (suit only) makes them read it again, with the right direction, when
+    the pressure rises; and after standing still for cue_misreading.reread_s without seeing the
+    visible target they look for (`searching` and `seen`, set by the engine) they read it
+    again. Every read restarts the resistance and the rise detection. In the ROS graph
+    (wearer_sim) `seen` stays False: hololens_view is headless only.
     """
 
-    def __init__(self, stages, haptic: bool, skip=()):
+    def __init__(self, stages, haptic: bool, skip=(), cue: bool = True):
         self.pressure_fx = [e.pressure for e in stages['pressure'] if e.name not in skip]
         self.percept_fx = [e.percept for e in stages['percept']]
         self.delay = stages['delay'][0] if stages['delay'] else None
         self.speech = stages['speech'][0] if stages['speech'] else None
         self.haptic = haptic
+        cue_fx = {e.name: e for e in stages.get('cue', ())}
+        self.cue = cue_fx.get('cue_misreading')
+        self.resistance = cue_fx.get('surface_resistance')
+        self.relative = cue_fx.get('relative_perception')
+        self._cue_on = haptic and bool(cue_fx) and cue
+        self.seen = False          # the wearer sees the target (engine: visual capture)
+        # The wearer looks for a visible object (speed task); with nothing to look for (the
+        # accuracy task) standing still means "arrived", not "lost": no re-read.
+        self.searching = True
+        self._prev = None          # torso (yaw, pitch, t) of the last cue step
+        self._still_s = 0.0
+        self._stills = 0           # 'still' re-reads of this guidance
+        self.rereads = {'resistance': 0, 'rise': 0, 'still': 0}
         self.pending: tuple[float, int, str] | None = None   # (time heard, number, text)
         self.heard: tuple[int, float, float] | None = None    # (number, h, v) of the last phrase heard
         self.heard_phrases: list[str] = []
@@ -263,6 +306,61 @@ class Senses:
         self._acted_on: int | None = None
         if self.delay is not None:
             self.delay.reset((0.0, 0.0, 0.0, 0.0) if haptic else None)
+
+    def reread(self, wearer: 'SceneWearer', why: str, correct: bool = False) -> None:
+        """The wearer reads the cue again (why: resistance, rise or still)."""
+        if why == 'still':
+            self._stills += 1
+        if self.cue is not None:
+            boost = (1.0 + self.cue.still_gain) ** min(self._stills, 2) if self._stills else 1.0
+            self.cue.read(correct_direction=correct, boost=boost)
+        self.rereads[why] += 1
+        self._restart()
+
+    def _restart(self) -> None:
+        self._still_s = 0.0
+        if self.resistance is not None:
+            self.resistance.impulse = 0.0
+        if self.relative is not None:
+            self.relative.restart()
+
+    def _cue_step(self, t: float, exerted, wearer: 'SceneWearer') -> None:
+        if wearer.new_read:
+            wearer.new_read = False
+            self._stills = 0
+            self._restart()
+        if wearer.anchor is None:          # nothing felt: no cue to read
+            self._prev = None
+            return
+        ty, tp = wearer.torso_yaw, wearer.torso_pitch
+        prev = self._prev
+        self._prev = (ty, tp, t)
+        if prev is None or t <= prev[2]:
+            return
+        dt = t - prev[2]
+        vy, vp = (ty - prev[0]) / dt, (tp - prev[1]) / dt
+        suit = wearer.layout == 'suit'
+        resistance = self.resistance
+        if suit and resistance is not None and resistance.accumulate(exerted, vy, vp, dt):
+            self.reread(wearer, 'resistance', correct=True)
+            wearer.feel_again()
+            return
+        if suit and self.relative is not None and self.relative.rise(exerted):
+            self.reread(wearer, 'rise', correct=True)
+            wearer.feel_again()
+            return
+        cue = self.cue
+        if cue is None:
+            return
+        if not self.searching:
+            return
+        if vy * vy + vp * vp < cue.still_dps * cue.still_dps and not self.seen:
+            self._still_s += dt
+            if self._still_s >= cue.reread_s - 1e-9:
+                self.reread(wearer, 'still')
+                wearer.feel_again()
+        else:
+            self._still_s = 0.0
 
     def say(self, t: float, text: str) -> None:
         """Condition 4's phrase is spoken at t; the wearer hears it after speech_latency."""
@@ -287,7 +385,13 @@ class Senses:
             if self.delay is not None:
                 p = self.delay.delay((p[0], p[1], p[2], p[3]))
             if follow:
+                if self._cue_on:
+                    wearer.cue = self.cue
                 wearer.feel(p)
+                if self._cue_on:
+                    self._cue_step(t, exerted, wearer)
+            elif self._cue_on:
+                self._prev = None
             return exerted
         pending = self.pending
         if pending is not None and t >= pending[0] - 1e-9:
