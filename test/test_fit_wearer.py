@@ -86,3 +86,13 @@ def test_the_fitted_accuracy_scene_ends_where_the_paper_does():
     for c in (1, 2, 3):
         assert summary[4]['h_error_deg'] < summary[c]['h_error_deg']
         assert summary[4]['v_error_deg'] < summary[c]['v_error_deg']
+
+
+def test_without_a_table_the_targets_are_the_papers_as_shipped():
+    """An installed package has no test/: the default is experiments.paper, the same numbers."""
+    from fabric_guidance.experiments import paper
+    mean, se, n = fit_wearer.paper_targets()
+    csv_mean, csv_se, _ = fit_wearer.paper_targets(TABLE)
+    np.testing.assert_allclose(mean, csv_mean)
+    np.testing.assert_allclose(se, csv_se)
+    assert n == 15 and list(mean) == [paper.speed_means()[c] for c in (1, 2, 3, 4)]

@@ -57,7 +57,9 @@ def test_every_parameter_of_every_listed_effect_and_the_population_and_dwell():
     keys = _keys(S.assumed_parameters(spd, acc))
     expect = [f'{e}.{p}' for e in spd.effect_names for p, (default,
                                                            _) in REGISTRY[e].parameters().items()
-              if (spd.effect(e).params_dict.get(p, default)) is not None]
+              if (spd.effect(e).params_dict.get(p, default)) is not None
+              and (e, p) not in S.MEASURED]
+    assert 'speech_latency.per_word_s' not in keys     # fitted by fit-wearer: not an assumption
     assert [k for k in keys if not k.startswith(('population.', 'protocol.'))] == expect
     assert keys[-5:] == ['population.spread.a', 'population.spread.b', 'population.spread.c',
                          'population.arm_spread', 'protocol.dwell_s']
@@ -120,8 +122,11 @@ def test_apply_sets_one_parameter_in_the_scenes_it_belongs_to():
 def test_a_longer_reaction_delay_costs_targets_and_accuracy():
     """Acting on the percept later: fewer targets in 40 s and a larger key-press error (paired,
     same wearers and targets); a shorter one does not cost targets."""
+    # The untuned scenes: there the delay's cost is not masked by the fitted wearer's re-reads,
+    # which in a 2-wearer quick run can outweigh it.
     result = S.run_sensitivity(S.quick_settings(parameters=('reaction_delay.mean_s',), seeds=1,
-                                                workers=1))
+                                                workers=1, speed_scene='paper-speed',
+                                                accuracy_scene='paper-accuracy'))
     base = result.baseline
     runs = {r.side: r for r in result.runs}
     assert runs['high'].value == pytest.approx(2 * 0.25)
@@ -159,7 +164,9 @@ def test_quick_run_writes_table_report_and_tornado(quick_run):
         moved = frame[frame['side'] != 'baseline']
         assert (moved[f'd_{h}'] == moved[h] - frame[frame['side'] == 'baseline'][h].iloc[0]).all()
     md = (out / 'sensitivity.md').read_text()
-    assert 'speech_latency' not in md and '| baseline |' in md
+    # no row of a speech_latency parameter (the fitted one may be named among the skipped)
+    assert not [ln for ln in md.splitlines() if ln.startswith('|') and 'speech_latency' in ln]
+    assert '| baseline |' in md
     assert '![sensitivity](sensitivity.png)' in md
     # sorted by the largest move in seed SDs
     zs = [float(line.rsplit('|', 2)[1].split()[0]) for line in md.splitlines()

@@ -6,7 +6,8 @@ move is wrong (surface_resistance.threshold_kpa_deg), how long confirming a foun
 (hololens_view.confirm_s), and how long the synthesized speech takes per word
 (speech_latency.per_word_s). They are fitted to the paper's four per-condition mean numbers of
 identified targets and nothing else: the means of the columns of the paper's table
-(test/data/table-identified-targets.csv, or --table; computed from the file, never typed in).
+(experiments/paper.py, transcribed from the paper; or a CSV given with --table). Computed from
+the table, never typed in.
 
 Objective: sum over the conditions of ((model mean - paper mean) / paper SE)^2, with
 SE = paper SD / sqrt(15). One evaluation is the full speed protocol of the scene (15 wearers,
@@ -38,11 +39,8 @@ import time
 import numpy as np
 
 from ..paths import config_path
+from . import paper
 
-#: The paper's per-subject table of identified targets (Yokoe et al. 2025, the speed table):
-#: the repository's copy (test/data, checked against the paper's file by test_stats).
-PAPER_TABLE = (Path(__file__).resolve().parents[2] / 'test' / 'data'
-               / 'table-identified-targets.csv')
 #: Its columns, in condition order 1-4 (sim.protocols.CONDITION_NAMES).
 COLUMNS = ('surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech')
 
@@ -81,8 +79,12 @@ FREE = (
 MODEL_EFFECTS = ('cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view')
 
 
-def paper_targets(path: Path = PAPER_TABLE) -> tuple[np.ndarray, np.ndarray, int]:
-    """(means, standard errors, subjects) of the paper's table, per condition 1-4."""
+def paper_targets(path: Path | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """(means, standard errors, subjects) of the paper's table (experiments.paper, or the CSV at
+    `path`), per condition 1-4."""
+    if path is None:
+        table = paper.speed_table()[list(COLUMNS)].to_numpy(dtype=float)
+        return table.mean(axis=0), table.std(axis=0, ddof=1) / math.sqrt(len(table)), len(table)
     try:
         with open(path, newline='') as f:
             rows = list(csv.DictReader(f))
@@ -127,7 +129,7 @@ def objective(means: np.ndarray, target: np.ndarray, se: np.ndarray) -> float:
 
 
 def fit(base, budget: int, seed: int | None, workers: int, subjects=None, stream=sys.stdout,
-        table: Path = PAPER_TABLE):
+        table: Path | None = None):
     """Nelder-Mead on the unit cube; returns (best values, best means, best objective, log)."""
     from scipy.optimize import minimize
 
@@ -196,8 +198,8 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
         f'# {new_name}: {base_name} plus a wearer who can be wrong (issue 12), its free human',
         '# parameters fitted by `fabric-guidance fit-wearer` '
         '(fabric_guidance/experiments/fit_wearer.py)',
-        "# to the paper's four per-condition mean numbers of identified targets (the means of",
-        '# table-identified-targets.csv) and nothing else, on the speed protocol with seed '
+        "# to the paper's four per-condition mean numbers of identified targets (the means of its",
+        '# per-subject table) and nothing else, on the speed protocol with seed '
         f'{seed} ({budget} evaluations',
         '# at most: Latin hypercube, then Nelder-Mead). '
         f'Objective: sum of ((model - paper) / SE)^2 = {obj:.2f}.',
@@ -227,7 +229,7 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
 
 
 def write_scenes(out: Path, values: dict, means, obj: float, seed: int, budget: int,
-                 table: Path = PAPER_TABLE) -> list[Path]:
+                 table: Path | None = None) -> list[Path]:
     from ..sim.scene import load_scene
     target, se, _ = paper_targets(table)
     out.mkdir(parents=True, exist_ok=True)
@@ -261,8 +263,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--workers', type=int, default=2, help='processes per evaluation (default 2)')
     p.add_argument('--subjects', type=int, default=None,
                    help='only the first N wearers (for a quick check)')
-    p.add_argument('--table', type=Path, default=PAPER_TABLE,
-                   help="the paper's per-subject table of identified targets (CSV)")
+    p.add_argument('--table', type=Path, default=None,
+                   help="a per-subject table of identified targets (CSV; default: the paper's, "
+                        "experiments/paper.py)")
     return p
 
 

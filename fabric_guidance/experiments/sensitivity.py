@@ -52,15 +52,17 @@ from ..sim.engine import package_channel_map
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene, load_scene
+from .fit_wearer import FREE
 from .report import _image_path, _md_table
 from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, _as_protocol, calibration_key
 
 PROG = 'fabric-guidance sensitivity'
 HELP = 'vary every assumed human parameter low and high: how much each moves the headline figures'
 
-#: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. Extend it (or
-#: pass --exclude, or give the scene a `measured`/`fitted` list) once a value is measured.
-MEASURED: set[tuple[str, str]] = set()
+#: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. The four that
+#: fit-wearer fits to the paper's speed means are here; extend it (or pass --exclude, or give the
+#: scene a `measured`/`fitted` list) once a value is measured.
+MEASURED: set[tuple[str, str]] = {(f.effect, f.param) for f in FREE}
 #: Scene attributes that may list measured or fitted parameters as 'effect.parameter'.
 SCENE_MEASURED_KEYS = ('measured', 'fitted')
 #: Where a scene's value is 0, x0.5 and x2 stay 0: the high side takes this value instead

@@ -73,8 +73,8 @@ HELP = 'sweep the knobs that buy accuracy with time; table, plots and a reading 
 
 #: The scenes both the sweep and the sensitivity analysis run on by default: the one place to
 #: switch them (e.g. to the fitted scenes).
-DEFAULT_SPEED_SCENE = 'paper-speed'
-DEFAULT_ACCURACY_SCENE = 'paper-accuracy'
+DEFAULT_SPEED_SCENE = 'paper-fitted-speed'
+DEFAULT_ACCURACY_SCENE = 'paper-fitted-accuracy'
 
 KNOBS = ('acceptance_tolerance', 'gain', 'calibration_points', 'control_rate', 'rate_threshold',
          'fit_tolerance')
