@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 
 from .feedback import FRONT, PAPER_P_MAX
-from .safe_input import WEARER_PATTERN, WEARER_RULE, InputFileError, excerpt, load_yaml
+from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 
@@ -285,12 +285,7 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> 'Calibration':
-        path = Path(path)
-        try:
-            data = load_yaml(path, 'calibration file')
-        except InputFileError as exc:
-            raise CalibrationFileError(str(exc)) from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(load_yaml(path, 'calibration file', CalibrationFileError), source=str(path))
 
 
 # Phases of the procedure.

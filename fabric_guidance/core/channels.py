@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .safe_input import InputFileError, excerpt, load_yaml
+from .safe_input import excerpt, load_yaml
 from .geometry import DIRECTIONS
 
 
@@ -97,9 +97,4 @@ class ChannelMap:
 
     @classmethod
     def load(cls, path: str | Path) -> 'ChannelMap':
-        path = Path(path)
-        try:
-            data = load_yaml(path, 'channel map')
-        except InputFileError as exc:
-            raise ChannelMapError(str(exc)) from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(load_yaml(path, 'channel map', ChannelMapError), source=str(path))

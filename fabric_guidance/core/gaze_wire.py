@@ -128,19 +128,11 @@ def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
     if type(msg) is not dict:
         raise WireFormatError('not_object', f'datagram is a JSON {type(msg).__name__}, not an object')
 
-    version = _field(msg, 'version')
-    if type(version) is _HugeInt:
-        raise WireFormatError('version', f'version of {_INT_CHARS}+ digits is not supported')
-    if type(version) is not int:
-        raise WireFormatError('type', f'version must be an integer, got {_json_type(version)}')
+    version = _integer(msg, 'version', ('version', f'version of {_INT_CHARS}+ digits is not supported'))
     if version != WIRE_VERSION:
         raise WireFormatError('version', f'version {version} is not supported (expected {WIRE_VERSION})')
 
-    seq = _field(msg, 'seq')
-    if type(seq) is _HugeInt:
-        raise WireFormatError('range', f'seq of {_INT_CHARS}+ digits is outside 0..{SEQ_MODULUS - 1}')
-    if type(seq) is not int:
-        raise WireFormatError('type', f'seq must be an integer, got {_json_type(seq)}')
+    seq = _integer(msg, 'seq', ('range', f'seq of {_INT_CHARS}+ digits is outside 0..{SEQ_MODULUS - 1}'))
     if not 0 <= seq < SEQ_MODULUS:
         raise WireFormatError('range', f'seq {seq} is outside 0..{SEQ_MODULUS - 1}')
 
@@ -307,7 +299,18 @@ def _json_type(value: Any) -> str:
         return 'a boolean'
     if type(value) in (int, float):
         return f'the number {value!r}'
-    return {str: 'a string', list: 'an array', dict: 'an object', _HugeInt: 'a huge integer'}.get(type(value), type(value).__name__)
+    names = {str: 'a string', list: 'an array', dict: 'an object', _HugeInt: 'a huge integer'}
+    return names.get(type(value), type(value).__name__)
+
+
+def _integer(msg: dict, name: str, huge: tuple[str, str]) -> int:
+    """An integer field; `huge` is the (reason, message) for one too long to parse."""
+    value = _field(msg, name)
+    if type(value) is _HugeInt:
+        raise WireFormatError(*huge)
+    if type(value) is not int:
+        raise WireFormatError('type', f'{name} must be an integer, got {_json_type(value)}')
+    return value
 
 
 def _number(value: Any, name: str, index: int | None = None) -> float:

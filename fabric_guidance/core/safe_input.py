@@ -85,8 +85,14 @@ def parse_yaml(text: str | bytes, source: str):
         raise InputFileError(f'cannot read {source}: unusable value: {excerpt(str(exc), 80)}') from None
 
 
-def load_yaml(path: str | Path, what: str = 'file'):
-    """Read and parse a YAML file; InputFileError naming `what` and the path on any failure."""
+def load_yaml(path: str | Path, what: str = 'file', error: type[ValueError] | None = None):
+    """Read and parse a YAML file; InputFileError (or `error`, the caller's own kind) naming
+    `what` and the path on any failure."""
+    if error is not None:
+        try:
+            return load_yaml(path, what)
+        except InputFileError as exc:
+            raise error(str(exc)) from None
     path = Path(path)
     source = f'{what} {path}'
     try:
