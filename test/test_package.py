@@ -66,3 +66,37 @@ def test_analyze_is_a_subcommand_of_the_cli(capsys):
     table = ROOT / 'test' / 'data' / 'table-identified-targets.csv'
     assert main(['analyze', str(table)]) == 0
     assert 'Friedman chi-square = 16.837' in capsys.readouterr().out
+
+
+def _sim_imports():
+    """{module: set of sim modules it imports}, function-level imports included."""
+    sim = ROOT / 'fabric_guidance' / 'sim'
+    names = {p.stem for p in sim.glob('*.py')}
+    graph = {}
+    for path in sim.glob('*.py'):
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                mods = [node.module] if node.module else [a.name for a in node.names]
+                found |= {m.split('.')[0] for m in mods if m.split('.')[0] in names}
+        graph[path.stem] = found - {path.stem}
+    return graph
+
+
+def test_no_module_of_sim_imports_another_in_a_cycle():
+    graph = _sim_imports()
+    done, stack = set(), []
+
+    def visit(name):
+        if name in stack:
+            raise AssertionError('import cycle in sim/: ' + ' -> '.join(stack[stack.index(name):] + [name]))
+        if name in done:
+            return
+        stack.append(name)
+        for dep in sorted(graph[name]):
+            visit(dep)
+        stack.pop()
+        done.add(name)
+
+    for name in sorted(graph):
+        visit(name)

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 from functools import lru_cache
 import math
-import re
 from typing import Sequence
 
 from ..core.calibration import ACCEPT_ALL, APPLY, Calibration, CalibrationProcedure, DONE, FAILED
@@ -81,23 +80,6 @@ class FastPowerLaw(PowerLaw):
             if t == t:
                 return self.a * t ** self.b + self.c
         return PowerLaw.pressure(self, theta)
-
-
-_PHRASE_H = re.compile(r'(\d+) to the (left|right)')
-_PHRASE_V = re.compile(r'(\d+) (upward|downward)')
-
-
-def parse_phrase(text: str) -> tuple[float, float]:
-    """What a listener takes from core.speech.phrase: (horizontal, vertical) degrees,
-    positive left / up."""
-    h = v = 0.0
-    m = _PHRASE_H.search(text)
-    if m:
-        h = float(m.group(1)) * (1.0 if m.group(2) == 'left' else -1.0)
-    m = _PHRASE_V.search(text)
-    if m:
-        v = float(m.group(1)) * (1.0 if m.group(2) == 'upward' else -1.0)
-    return h, v
 
 
 def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | None = None,
@@ -416,4 +398,4 @@ def run_calibration(scene, wearer, name: str | None = None) -> Calibration:
 
 __all__ = ['CALIBRATION_RUN', 'ClosedLoop', 'FastPowerLaw', 'scene_controller', 'yaw_pitch',
            'WARMUP_S', 'angle_between_deg', 'package_channel_map',
-           'parse_phrase', 'run_calibration', 'trial_run']
+           'run_calibration', 'trial_run']

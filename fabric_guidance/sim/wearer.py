@@ -22,6 +22,7 @@ import numpy as np
 from ..core.feedback import PAPER_P_MAX
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
+from ..core.speech import parse_phrase
 
 
 def gaze_from_angles(yaw_deg: float, pitch_deg: float) -> np.ndarray:
@@ -395,7 +396,6 @@ class Senses:
             return exerted
         pending = self.pending
         if pending is not None and t >= pending[0] - 1e-9:
-            from .engine import parse_phrase
             self.pending = None
             self.heard = (pending[1],) + parse_phrase(pending[2])
             self.heard_phrases.append(pending[2])
