@@ -9,7 +9,7 @@ headless with the scene's effects (as the paper calibrates before the trials), g
 scene's first condition to four targets drawn from the scene's protocol ranges with its seed
 (the targets wearer 0 meets first in the headless protocol); the scene's controller
 settings go to pressure_controller, its acceptance rule to target_selector, regulator_lag to
-the mock PLC and every wearer-side effect to wearer_sim (nodes/wearer_sim.py SceneSide).
+the mock PLC and every wearer-side effect to wearer_sim (sim/scene_wearer.py SceneSide).
 """
 from __future__ import annotations
 
@@ -174,7 +174,7 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
     """Load the scene, calibrate its wearer 0 headless by Algorithm 1 with the scene's effects
     (population.calibrate_wearer), save the calibration into log_dir and draw the targets.
     Raises ValueError (SceneError, a failed calibration) with the reason."""
-    from .nodes.wearer_sim import REALISED_ELSEWHERE, load_scene_file
+    from .sim.scene_wearer import REALISED_ELSEWHERE, load_scene_file
     from .sim.population import calibrate_wearer, sample_wearer
     from .sim.wearer import gaze_from_angles
     scene = load_scene_file(str(scene_ref))
