@@ -33,3 +33,15 @@ def test_a_wearer_the_scene_lacks_is_one_line_naming_the_parameter():
     scene = load_scene_file('ideal')
     with pytest.raises(ValueError, match=r'^parameter wearer_index: the scene ideal has wearers 0\.\.'):
         SceneSide(scene, scene.population.subjects, 1, DT)
+
+
+def test_hololens_view_is_reported_as_headless_only_not_as_realised_by_wearer_sim():
+    from fabric_guidance.core import condition
+    from fabric_guidance.sim.scene_plan import effects_where
+    scene = load_scene_file('paper-fitted-speed')
+    assert 'hololens_view' in scene.effect_names
+    assert 'hololens_view' not in SceneSide(scene, 0, 1, DT).applied_effects()
+    where = effects_where(scene, condition(1), 0.15)
+    assert 'hololens_view' not in where['wearer_sim']
+    assert where['headless only (not realised in the graph)'] == ['hololens_view']
+    assert where['mock_plc'] == ['regulator_lag (regulator_tau_s 0.15 s)']

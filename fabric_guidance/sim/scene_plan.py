@@ -17,7 +17,7 @@ from ..paths import config_path
 
 from .population import calibrate_wearer, sample_wearer
 from .protocols import _draw_target, _targets
-from .scene_wearer import REALISED_ELSEWHERE, load_scene_file
+from .scene_wearer import HEADLESS_ONLY, REALISED_ELSEWHERE, load_scene_file
 from .wearer import gaze_from_angles
 
 #: With a scene: targets drawn from its protocol ranges, this many, this far from the eye [m].
@@ -81,19 +81,7 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
         yaw, pitch = _draw_target(rng if speed else _targets(scene, 0, i), scene.protocol)
         targets.append((f'{scene.name.replace("-", "_")}_{i + 1}', yaw, pitch,
                         eye + SCENE_TARGET_DISTANCE_M * gaze_from_angles(yaw, pitch)))
-    where: dict[str, list[str]] = {}
-    for name in scene.effect_names:
-        e = scene.effect(name).build()
-        if name == 'regulator_lag':
-            where.setdefault('mock_plc', []).append(f'regulator_lag (regulator_tau_s {tau:g} s)')
-        elif name in REALISED_ELSEWHERE:
-            where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
-        elif (e.stage in ('pressure', 'percept') and not cond.haptic) or (e.stage == 'speech' and not cond.speech):
-            where.setdefault(f'unused in condition {cond.number}', []).append(name)
-        else:
-            where.setdefault('wearer_sim', []).append(name)
-    if 'mock_plc' not in where:
-        where = {'mock_plc': [f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'], **where}
+    where = effects_where(scene, cond, tau)
     rate = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
     return ScenePlan(scene, wearer, cal_path, cond.number, targets, tau, rate, where)
 
@@ -101,3 +89,30 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
 def _eye_height() -> float:
     params = yaml.safe_load(config_path('sim.yaml').read_text())['wearer_sim']['ros__parameters']
     return float(params.get('eye_height_m', 1.2))
+
+
+#: Where the demo report lists the effects the graph does not realise.
+HEADLESS_ONLY_LABEL = 'headless only (not realised in the graph)'
+
+
+def effects_where(scene, cond, regulator_tau_s: float) -> dict[str, list[str]]:
+    """Where in the graph each of the scene's effects is realised under condition `cond`:
+    {place: effect names}, the places mock_plc, wearer_sim, unused in the condition, or
+    headless only."""
+    tau = regulator_tau_s
+    where: dict[str, list[str]] = {}
+    for name in scene.effect_names:
+        e = scene.effect(name).build()
+        if name == 'regulator_lag':
+            where.setdefault('mock_plc', []).append(f'regulator_lag (regulator_tau_s {tau:g} s)')
+        elif name in REALISED_ELSEWHERE:
+            where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
+        elif name in HEADLESS_ONLY:
+            where.setdefault(HEADLESS_ONLY_LABEL, []).append(name)
+        elif (e.stage in ('pressure', 'percept') and not cond.haptic) or (e.stage == 'speech' and not cond.speech):
+            where.setdefault(f'unused in condition {cond.number}', []).append(name)
+        else:
+            where.setdefault('wearer_sim', []).append(name)
+    if 'mock_plc' not in where:
+        where = {'mock_plc': [f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'], **where}
+    return where

@@ -18,7 +18,7 @@ engine.trial_run(condition, 0)), so the same scene file gives the same effect pa
 random streams (datagram seq k carries the k-th gaze_noise draw). The graph runs in real time
 on DDS, UDP and Modbus, so a run is not bit-identical with the headless engine's.
 regulator_lag is not applied here: the mock PLC's regulator_tau_s is the regulator
-(fabric-guidance demo --scene sets it from the scene).
+(fabric-guidance demo --scene sets it from the scene). hololens_view is headless only.
 """
 from __future__ import annotations
 
@@ -34,6 +34,9 @@ from .wearer import SceneWearer, Senses
 
 #: Effects the node does not apply because another part of the graph realises them.
 REALISED_ELSEWHERE = {'regulator_lag': 'mock_plc (regulator_tau_s)'}
+#: Effects the graph does not realise at all: the simulated wearer has no HoloLens display to
+#: search (the headless engine's visual search and key confirmation).
+HEADLESS_ONLY = frozenset({'hololens_view'})
 _FRONT = (0.0, 0.0)
 
 
@@ -97,7 +100,7 @@ class SceneSide:
         """The scene's effects this side applies (the others are realised elsewhere or unused)."""
         out = []
         for e in self.effects:
-            if e.name in REALISED_ELSEWHERE:
+            if e.name in REALISED_ELSEWHERE or e.name in HEADLESS_ONLY:
                 continue
             if e.stage in ('pressure', 'percept') and not self.haptic:
                 continue
