@@ -24,7 +24,8 @@ A trial is a pure function of (scene, wearer, condition, repetition), so results
 depend on the number of worker processes or on which wearers run.
 
 Command line: python -m fabric_guidance.sim.protocols paper-speed [--subjects N] [--workers W]
-[--csv OUT.csv] [--stats]  (--stats: experiments.stats' Friedman and Dunn-Bonferroni, as the paper)
+[--csv OUT.csv]; the paper's statistics (Friedman, Dunn-Bonferroni) on the same run:
+fabric-guidance experiment --scene paper-speed --out DIR (experiments/experiment.py).
 """
 from __future__ import annotations
 
@@ -409,7 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
     parser.add_argument('--csv', type=Path, metavar='OUT.csv', help='write one row per trial here')
     parser.add_argument('--stats', action='store_true',
-                        help="the paper's statistics (Friedman, Dunn-Bonferroni) on the per-wearer means")
+                        help="where the paper's statistics are: `fabric-guidance experiment --scene SCENE "
+                             "--out DIR` (the simulator sits below experiments/)")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
 
@@ -421,12 +423,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.csv is not None:
         trials_frame(results, condition_names=False).to_csv(args.csv, index=False)
         print(f'trials: {args.csv}')
-    if args.stats and results:
-        from ..experiments.stats import analyze_trials, format_analysis
-        frame = trials_frame(results)
-        for measure, higher in MEASURES[scene.protocol.kind].items():
-            print(f'\n{measure}:')
-            print(format_analysis(analyze_trials(frame, measure, higher_is_better=higher)), end='')
+    if args.stats:
+        print(f'statistics: fabric-guidance experiment --scene {args.scene} --out DIR')
     return 0
 
 
