@@ -70,8 +70,8 @@ def test_tuning_and_evaluation_trials_use_disjoint_seeds():
     assert not {k.run for k in moving} & ({k.run for k in tune} | {k.run for k in ev})
     # Different targets, not just different keys.
     for r in range(6):
-        a = protocols._draw_target(tune[r].targets(sc, 0), sc.protocol)
-        b = protocols._draw_target(ev[r].targets(sc, 0), sc.protocol)
+        a = protocols.draw_target(tune[r].targets(sc, 0), sc.protocol)
+        b = protocols.draw_target(ev[r].targets(sc, 0), sc.protocol)
         assert a != b
     # The evaluation trials are the protocol's own condition-1 trials.
     assert [k.run for k in ev] == [trial_run(1, r) for r in range(6)]

@@ -68,7 +68,7 @@ from ..core.geometry import wrap_deg
 from .effects import generator
 from .engine import ClosedLoop, FastPowerLaw, package_channel_map, scene_controller, trial_run
 from .population import calibrate_wearer, sample_wearer, subject_indices
-from .protocols import _draw_target, _targets, speed_loop, speed_measures
+from .protocols import draw_target, speed_loop, speed_measures, target_stream
 from .scene import Scene
 from .wearer import angle_between_deg, hav_limit, haversine
 
@@ -175,12 +175,12 @@ class TrialKey:
     def target_stream(self) -> tuple[str, tuple[int, ...]]:
         """(stream name, key) of the targets generator (with the scene seed and the wearer)."""
         if self.phase == 'evaluation':
-            return ('targets', (int(self.repetition),))          # protocols._targets
+            return ('targets', (int(self.repetition),))          # protocols.target_stream
         return (f'beyond-{self.phase}-targets', (int(self.repetition),))
 
     def targets(self, scene: Scene, subject: int) -> np.random.Generator:
         if self.phase == 'evaluation':
-            return _targets(scene, subject, self.repetition)
+            return target_stream(scene, subject, self.repetition)
         name, key = self.target_stream
         return generator(scene.seed, name, subject, key)
 
@@ -289,7 +289,7 @@ def draw_motion(scene: Scene, subject: int, key: TrialKey, speed_dps: float) -> 
     """The moving target of a trial: start as a speed-protocol target, a uniform random
     heading; the same start and heading for every law and speed (common random numbers)."""
     rng = key.targets(scene, subject)
-    yaw0, pitch0 = _draw_target(rng, scene.protocol)
+    yaw0, pitch0 = draw_target(rng, scene.protocol)
     heading = float(rng.uniform(0.0, 360.0))
     return TargetMotion(yaw0, pitch0, float(speed_dps), heading, scene.protocol.horizontal_deg,
                         scene.protocol.vertical_deg)

@@ -16,7 +16,7 @@ from ..core import condition as condition_of
 from ..paths import config_path
 
 from .population import calibrate_wearer, sample_wearer
-from .protocols import _draw_target, _targets
+from .protocols import draw_target, target_stream
 from .scene_wearer import HEADLESS_ONLY, REALISED_ELSEWHERE, load_scene_file
 from .wearer import gaze_from_angles
 
@@ -75,10 +75,10 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
     # of repetition 0, or the accuracy trials' targets of repetitions 0, 1, ... (the same streams).
     eye = np.array([0.0, 0.0, _eye_height()])
     speed = scene.protocol.kind == 'speed'
-    rng = _targets(scene, 0, 0)
+    rng = target_stream(scene, 0, 0)
     targets = []
     for i in range(SCENE_TARGETS):
-        yaw, pitch = _draw_target(rng if speed else _targets(scene, 0, i), scene.protocol)
+        yaw, pitch = draw_target(rng if speed else target_stream(scene, 0, i), scene.protocol)
         targets.append((f'{scene.name.replace("-", "_")}_{i + 1}', yaw, pitch,
                         eye + SCENE_TARGET_DISTANCE_M * gaze_from_angles(yaw, pitch)))
     where = effects_where(scene, cond, tau)
