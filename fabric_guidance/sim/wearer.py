@@ -1,4 +1,4 @@
-"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, headless.py) and SceneWearer (the
+"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, worked_example.py) and SceneWearer (the
 scene simulator, engine.py).
 
 SimulatedWearer reads the suit's pressure per direction (left, right, down, up), interprets
