@@ -1,5 +1,5 @@
-"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, worked_example.py) and SceneWearer (the
-scene simulator, engine.py).
+"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, worked_example.py) and
+SceneWearer (the scene simulator, engine.py).
 
 SimulatedWearer reads the suit's pressure per direction (left, right, down, up), interprets
 it through their own power law (their sensitivity, which the calibration has to discover) as
