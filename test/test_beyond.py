@@ -1,5 +1,6 @@
-"""Beyond the paper in simulation: a per-wearer gain and moving targets (sim/beyond.py) and the
-`beyond` command (experiments/beyond.py)."""
+"""Beyond the paper in simulation: a per-wearer gain (sim/per_wearer_gain.py) and moving targets
+(sim/moving_targets.py) on the loop built as the node builds it (sim/node_loop.py), both run
+together (sim/discussion_studies.py), and the `beyond` command (experiments/beyond.py)."""
 from dataclasses import replace
 import math
 
@@ -10,9 +11,11 @@ import pytest
 from fabric_guidance.core.feedback import GuidanceController
 from fabric_guidance.experiments import beyond as beyond_cmd
 from fabric_guidance.sim import protocols
-from fabric_guidance.sim.beyond import (GAIN_GRID, LAWS, BeyondLoop, BeyondSettings, TargetMotion, TrialKey,
-                                        choose_gain, evaluation_keys, moving_trial, run_beyond, speed_trial,
-                                        tune_gain, tuning_keys)
+from fabric_guidance.sim.discussion_studies import BeyondSettings, run_beyond
+from fabric_guidance.sim.moving_targets import LAWS, TargetMotion, moving_trial
+from fabric_guidance.sim.node_loop import NodeLoop
+from fabric_guidance.sim.per_wearer_gain import GAIN_GRID, choose_gain, speed_trial, tune_gain
+from fabric_guidance.sim.study_trials import TrialKey, evaluation_keys, tuning_keys
 from fabric_guidance.sim.engine import ClosedLoop, gaze_from_angles, trial_run
 from fabric_guidance.sim.population import calibrate_wearer, sample_wearer
 from fabric_guidance.sim.scene import load_scene
@@ -90,9 +93,9 @@ def test_the_wearers_own_gain_reaches_the_controller_only_with_use_wearer_gain()
     sc = short()
     w, cal = wearer_and_cal(sc)
     own = cal.with_gain(0.3)
-    assert {d.gain for d in BeyondLoop(sc, w, (9,), 1, own, use_wearer_gain=True).controller.directions} == {0.3}
-    assert {d.gain for d in BeyondLoop(sc, w, (9,), 1, own).controller.directions} == {0.05}
-    assert {d.gain for d in BeyondLoop(sc, w, (9,), 1, cal, use_wearer_gain=True).controller.directions} == {0.05}
+    assert {d.gain for d in NodeLoop(sc, w, (9,), 1, own, use_wearer_gain=True).controller.directions} == {0.3}
+    assert {d.gain for d in NodeLoop(sc, w, (9,), 1, own).controller.directions} == {0.05}
+    assert {d.gain for d in NodeLoop(sc, w, (9,), 1, cal, use_wearer_gain=True).controller.directions} == {0.05}
 
 
 # ---- 2. moving targets ------------------------------------------------------------------------
@@ -122,8 +125,8 @@ def test_with_a_static_target_follow_target_and_the_papers_law_give_identical_ru
 def test_with_a_static_target_the_loops_pressure_trace_is_the_engines():
     sc = short(exact=False)
     w, cal = wearer_and_cal(sc, 4)
-    loops = [ClosedLoop(sc, w, (12, 1, 0), 1, cal), BeyondLoop(sc, w, (12, 1, 0), 1, cal),
-             BeyondLoop(sc, w, (12, 1, 0), 1, cal, follow_target=True)]
+    loops = [ClosedLoop(sc, w, (12, 1, 0), 1, cal), NodeLoop(sc, w, (12, 1, 0), 1, cal),
+             NodeLoop(sc, w, (12, 1, 0), 1, cal, follow_target=True)]
     traces = []
     for loop in loops:
         loop.warm_up()
@@ -136,7 +139,7 @@ def test_with_a_static_target_the_loops_pressure_trace_is_the_engines():
     assert traces[0] == traces[1] == traces[2]
 
 
-class FrozenWearerLoop(BeyondLoop):
+class FrozenWearerLoop(NodeLoop):
     """The wearer holds still whatever they feel."""
 
     def __init__(self, *args, **kwargs):
@@ -186,7 +189,7 @@ def test_a_moving_target_changes_the_pressure_with_follow_target_while_the_weare
     assert command[0] == pytest.approx(after[0])               # and the suit is commanded so
 
 
-class CheckedLoop(BeyondLoop):
+class CheckedLoop(NodeLoop):
     """Checks every control step against core GuidanceController.update on the same inputs."""
 
     def __init__(self, *args, **kwargs):

@@ -8,7 +8,7 @@
 
 Statistics as the paper's: per-wearer means, Friedman test and Dunn-Bonferroni on the Friedman
 mean ranks (experiments.stats; for two conditions the same block test). How the simulation is
-set up: fabric_guidance/sim/beyond.py.
+set up: fabric_guidance/sim/per_wearer_gain.py and sim/moving_targets.py.
 
 Writes DIR/beyond.md (report), DIR/*.csv (one row per trial; gain_choice.csv one row per
 wearer) and DIR/*.png (violin plots); prints a summary. Deterministic for a scene.
@@ -221,7 +221,8 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
            f'{n_in} simulated wearers calibrated by Algorithm 1, {n_ex} excluded'
            + (': ' + '; '.join(f'{w}: {e}' for w, e in results.exclusions) if n_ex else '') + '. '
            f'{results.sim_s:.0f} simulated s in {results.wall_s:.1f} wall s. '
-           'Set-up and keys of every trial: `fabric_guidance/sim/beyond.py`. Statistics: per-wearer means, '
+           'Set-up and keys of every trial: `fabric_guidance/sim/per_wearer_gain.py`, '
+           '`sim/moving_targets.py`. Statistics: per-wearer means, '
            'Friedman test, Dunn-Bonferroni on the Friedman mean ranks (`fabric_guidance/experiments/stats.py`), '
            'as the paper.', '', '## Summary', '']
     doc += [f'- {line.strip()}' for line in summary_lines(results, parts)] + ['']
@@ -316,7 +317,7 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sim.beyond import QUICK, BeyondSettings, run_beyond
+    from ..sim.discussion_studies import QUICK, BeyondSettings, run_beyond
     from ..sim.scene import SceneError, load_scene
     try:
         scene = load_scene(args.scene)
