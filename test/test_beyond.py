@@ -11,7 +11,7 @@ import pytest
 from fabric_guidance.core.feedback import GuidanceController
 from fabric_guidance.experiments import beyond as beyond_cmd
 from fabric_guidance.sim import protocols
-from fabric_guidance.sim.discussion_studies import BeyondSettings, run_beyond
+from fabric_guidance.sim.discussion_studies import StudySettings, run_studies
 from fabric_guidance.sim.moving_targets import LAWS, TargetMotion, moving_trial
 from fabric_guidance.sim.node_loop import NodeLoop
 from fabric_guidance.sim.per_wearer_gain import GAIN_GRID, choose_gain, speed_trial, tune_gain
@@ -229,14 +229,14 @@ def test_the_live_target_loop_steps_the_law_as_guidance_controller_update_does(f
 
 # ---- the whole study and the command ----------------------------------------------------------
 
-TINY = BeyondSettings(grid=(0.05, 0.3), tuning_reps=1, evaluation_reps=1, speeds_dps=(20.0,), moving_reps=1,
+TINY = StudySettings(grid=(0.05, 0.3), tuning_reps=1, evaluation_reps=1, speeds_dps=(20.0,), moving_reps=1,
                       moving_s=4.0)
 
 
 def test_the_study_is_deterministic_for_any_number_of_workers():
     sc = short(trial_s=8.0)
-    a = run_beyond(sc, 2, TINY, workers=1)
-    b = run_beyond(sc, 2, TINY, workers=2)
+    a = run_studies(sc, 2, TINY, workers=1)
+    b = run_studies(sc, 2, TINY, workers=2)
     pd.testing.assert_frame_equal(a.gain_grid_frame(), b.gain_grid_frame())
     pd.testing.assert_frame_equal(a.moving_frame(), b.moving_frame())
     assert [w.tuned_gain for w in a.wearers] == [w.tuned_gain for w in b.wearers]

@@ -57,7 +57,7 @@ def _error(message) -> None:
 
 
 def analyze(results) -> dict:
-    """Every analysis of a BeyondResults: a dict of named parts for the report and the summary."""
+    """Every analysis of a StudyResults: a dict of named parts for the report and the summary."""
     out: dict = {}
     analyze_gain(results, out)
     analyze_moving(results, out)
@@ -120,7 +120,7 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sim.discussion_studies import QUICK, BeyondSettings, run_beyond
+    from ..sim.discussion_studies import QUICK, StudySettings, run_studies
     from ..sim.scene import SceneError, load_scene
     try:
         scene = load_scene(args.scene)
@@ -137,12 +137,12 @@ def run(args: argparse.Namespace) -> int:
     except (SceneError, ValueError) as exc:
         _error(exc)
         return 2
-    settings = QUICK if args.quick else BeyondSettings()
+    settings = QUICK if args.quick else StudySettings()
 
     def progress(done, total, subject):
         print(f'  wearer S{subject + 1:02d} done ({done}/{total})', file=sys.stderr, flush=True)
 
-    results = run_beyond(scene, subjects, settings, args.workers, progress)
+    results = run_studies(scene, subjects, settings, args.workers, progress)
     parts = analyze(results)
     out: Path = args.out
     try:

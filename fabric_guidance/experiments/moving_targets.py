@@ -18,7 +18,7 @@ MOVING_MEASURES = {'find_s': 'time to find (s)', 'tracking_error_deg': 'tracking
 
 
 def analyze_moving(results, out: dict) -> None:
-    """The moving-target analyses of a BeyondResults, into the parts dict `out`."""
+    """The moving-target analyses of a StudyResults, into the parts dict `out`."""
     moving = results.moving_frame()
     out['moving_trials'] = moving
     out['moving'] = {}

@@ -17,7 +17,7 @@ GAIN_ARMS = {'paper': 'G = 0.05 (paper)', 'own': 'own G (tuned)', 'oracle': 'bes
 
 
 def analyze_gain(results, out: dict) -> None:
-    """The gain study's analyses of a BeyondResults, into the parts dict `out`."""
+    """The gain study's analyses of a StudyResults, into the parts dict `out`."""
     from scipy import stats as ss
     gain_trials = results.gain_trials_frame(GAIN_ARMS)
     out['gain_trials'] = gain_trials

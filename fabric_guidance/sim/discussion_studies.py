@@ -23,7 +23,10 @@ from .study_trials import TrialKey, evaluation_keys
 
 
 @dataclass(frozen=True)
-class BeyondSettings:
+class StudySettings:
+    """How much of both studies runs: the G grid and trial counts of the gain study, the speeds,
+    trial counts, length and scenarios of the moving-target study."""
+
     grid: tuple[float, ...] = GAIN_GRID
     tuning_reps: int = 4             # tuning speed trials per G
     evaluation_reps: int = 6         # the paper: six speed trials per condition
@@ -49,7 +52,7 @@ class BeyondSettings:
 
 
 #: A short run for tests and a first look.
-QUICK = BeyondSettings(grid=(0.0, 0.05, 0.2, 0.5), tuning_reps=2, evaluation_reps=2, speeds_dps=(10.0, 20.0),
+QUICK = StudySettings(grid=(0.0, 0.05, 0.2, 0.5), tuning_reps=2, evaluation_reps=2, speeds_dps=(10.0, 20.0),
                        moving_reps=2, moving_s=8.0)
 
 
@@ -65,7 +68,7 @@ class WearerResult:
     sim_s: float = 0.0
 
 
-def run_wearer(scene: Scene, subject: int, settings: BeyondSettings = BeyondSettings()) -> WearerResult:
+def run_wearer(scene: Scene, subject: int, settings: StudySettings = StudySettings()) -> WearerResult:
     """Calibrate one wearer by Algorithm 1, tune their G, run the evaluation grid and the
     moving-target trials. A pure function of (scene, subject, settings)."""
     package_channel_map()
@@ -108,9 +111,11 @@ def _context():
 
 
 @dataclass
-class BeyondResults:
+class StudyResults:
+    """Both studies' trials per wearer, with the frames the analyses read."""
+
     scene: Scene
-    settings: BeyondSettings
+    settings: StudySettings
     wearers: list                # WearerResult, by subject
     wall_s: float = 0.0
 
@@ -167,13 +172,13 @@ class BeyondResults:
         return pd.DataFrame([r for w in self.included for r in w.moving_rows])
 
 
-def run_beyond(scene: Scene, subjects: Iterable[int] | int | None = None,
-               settings: BeyondSettings = BeyondSettings(), workers: int = 2,
-               progress: Callable[[int, int, int], None] | None = None) -> BeyondResults:
+def run_studies(scene: Scene, subjects: Iterable[int] | int | None = None,
+               settings: StudySettings = StudySettings(), workers: int = 2,
+               progress: Callable[[int, int, int], None] | None = None) -> StudyResults:
     """Both studies on the scene's wearers (all, the first n, or these indices), in parallel
     over wearers. Deterministic: the same for any number of workers."""
     if scene.protocol.kind != 'speed':
-        raise ValueError(f'run_beyond needs a speed scene (paper-speed), got a {scene.protocol.kind} scene')
+        raise ValueError(f'run_studies needs a speed scene (paper-speed), got a {scene.protocol.kind} scene')
     if not isinstance(workers, int) or workers < 1:
         raise ValueError(f'workers must be a whole number >= 1, got {workers!r}')
     indices = subject_indices(scene, subjects)
@@ -192,7 +197,7 @@ def run_beyond(scene: Scene, subjects: Iterable[int] | int | None = None,
                 results[res.subject] = res
                 if progress is not None:
                     progress(done, len(jobs), res.subject)
-    return BeyondResults(scene, settings, [results[i] for i in indices], time.perf_counter() - start)
+    return StudyResults(scene, settings, [results[i] for i in indices], time.perf_counter() - start)
 
 
-__all__ = ['BeyondResults', 'BeyondSettings', 'QUICK', 'WearerResult', 'run_beyond', 'run_wearer']
+__all__ = ['StudyResults', 'StudySettings', 'QUICK', 'WearerResult', 'run_studies', 'run_wearer']
