@@ -45,3 +45,17 @@ def test_hololens_view_is_reported_as_headless_only_not_as_realised_by_wearer_si
     assert 'hololens_view' not in where['wearer_sim']
     assert where['headless only (not realised in the graph)'] == ['hololens_view']
     assert where['mock_plc'] == ['regulator_lag (regulator_tau_s 0.15 s)']
+
+
+def test_the_wearer_sees_a_visible_target_in_the_central_field_as_in_the_engine():
+    # Senses.seen stops the cue effects' 'still' re-reads while the target is in view; the
+    # engine sets it from visual capture, and so must the graph's wearer.
+    scene = load_scene_file('paper-fitted-speed')
+    side = SceneSide(scene, 0, 1, DT)
+    assert side.senses._cue_on
+    side.step((0.0, 0.0, 0.0, 0.0), True, (5.0, 2.0))      # near the gaze: in the central field
+    assert side.senses.seen
+    side.step((0.0, 0.0, 0.0, 0.0), True, (-170.0, 0.0))   # behind the wearer
+    assert not side.senses.seen
+    side.step((0.0, 0.0, 0.0, 0.0), True, None)            # no target position yet
+    assert not side.senses.seen

@@ -30,7 +30,7 @@ from .effects import RunContext, by_stage
 from .engine import trial_run
 from .population import sample_wearer
 from .scene import load_scene
-from .wearer import SceneWearer, Senses
+from .wearer import SceneWearer, Senses, haversine
 
 #: Effects the node does not apply because another part of the graph realises them.
 REALISED_ELSEWHERE = {'regulator_lag': 'mock_plc (regulator_tau_s)'}
@@ -84,6 +84,10 @@ class SceneSide:
         self.wearer.set_layout(self.layout)
         self.haptic = self.cond.haptic
         self.senses = Senses(stages, self.haptic, skip=REALISED_ELSEWHERE)
+        # Senses.seen (the cue effects' re-reads) from visual capture, as the engine sets it
+        # without hololens_view (headless only): the target inside the central field.
+        self._track_seen = self.senses._cue_on
+        self._central_hav = body.central_field_hav if body is not None else 0.0
         # The speed protocol's targets are objects the wearer can see (visual capture); the
         # accuracy protocol's are angles with nothing to see (engine: present(visible=False)).
         self.visible = scene.protocol.kind == 'speed'
@@ -130,7 +134,14 @@ class SceneSide:
         wearer = self.wearer
         self.senses.step(self.t, [float(x) for x in pressures], wearer, follow)
         if follow:
-            wearer.move(target if self.visible else None)
+            capture = target if self.visible else None
+            if capture is not None and self._track_seen:
+                gy, gp = wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch
+                self.senses.seen = (self._central_hav > 0.0
+                                    and haversine(gy, gp, capture[0], capture[1]) <= self._central_hav)
+            elif self._track_seen:
+                self.senses.seen = False
+            wearer.move(capture)
         else:
             wearer.move(_FRONT if self.visible else None)
         self.step_index += 1

@@ -278,7 +278,8 @@ class Senses:
     the pressure rises; and after standing still for cue_misreading.reread_s without seeing the
     visible target they look for (`searching` and `seen`, set by the engine) they read it
     again. Every read restarts the resistance and the rise detection. In the ROS graph
-    (wearer_sim) `seen` stays False: hololens_view is headless only.
+    (sim.scene_wearer.SceneSide) `seen` comes from visual capture alone: hololens_view is
+    headless only.
     """
 
     def __init__(self, stages, haptic: bool, skip=(), cue: bool = True):
