@@ -89,7 +89,8 @@ def test_no_module_of_sim_imports_another_in_a_cycle():
 
     def visit(name):
         if name in stack:
-            raise AssertionError('import cycle in sim/: ' + ' -> '.join(stack[stack.index(name):] + [name]))
+            cycle = stack[stack.index(name):] + [name]
+            raise AssertionError('import cycle in sim/: ' + ' -> '.join(cycle))
         if name in done:
             return
         stack.append(name)
@@ -108,10 +109,12 @@ def test_sim_imports_nothing_above_it():
     for path in (ROOT / 'fabric_guidance' / 'sim').glob('*.py'):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.level == 2 and node.module:
-                assert node.module.split('.')[0] not in above, f'sim/{path.name} imports ..{node.module}'
+                assert node.module.split('.')[0] not in above, \
+                    f'sim/{path.name} imports ..{node.module}'
             if isinstance(node, (ast.Import, ast.ImportFrom)):
-                mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or '']
+                mods = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                        else [node.module or ''])
                 for m in mods:
                     parts = m.split('.')
-                    assert not (parts[0] == 'fabric_guidance' and len(parts) > 1 and parts[1] in above), \
-                        f'sim/{path.name} imports {m}'
+                    assert not (parts[0] == 'fabric_guidance' and len(parts) > 1
+                                and parts[1] in above), f'sim/{path.name} imports {m}'

@@ -31,7 +31,8 @@ def test_the_same_scene_and_wearer_give_the_same_samples():
 
 def test_a_wearer_the_scene_lacks_is_one_line_naming_the_parameter():
     scene = load_scene_file('ideal')
-    with pytest.raises(ValueError, match=r'^parameter wearer_index: the scene ideal has wearers 0\.\.'):
+    with pytest.raises(ValueError,
+                       match=r'^parameter wearer_index: the scene ideal has wearers 0\.\.'):
         SceneSide(scene, scene.population.subjects, 1, DT)
 
 

@@ -9,7 +9,8 @@ import pandas as pd
 from .stats import BlockAnalysis, analyze_trials
 
 
-def analyze_arms(frame: pd.DataFrame, measure: str, higher: bool, conditions) -> BlockAnalysis | None:
+def analyze_arms(frame: pd.DataFrame, measure: str, higher: bool,
+                 conditions) -> BlockAnalysis | None:
     if frame.empty or frame['subject'].nunique() < 2:
         return None
     # The wearers' names (S01, ...) as the subject ids of the tables.

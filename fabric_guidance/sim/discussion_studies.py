@@ -48,12 +48,13 @@ class StudySettings:
             raise ValueError(f'moving_s must be > 0, got {self.moving_s}')
         unknown = [s for s in self.scenarios if s not in SCENARIOS]
         if unknown or not self.scenarios:
-            raise ValueError(f'scenarios must be a non-empty subset of {SCENARIOS}, got {self.scenarios}')
+            raise ValueError(f'scenarios must be a non-empty subset of {SCENARIOS}, '
+                             f'got {self.scenarios}')
 
 
 #: A short run for tests and a first look.
-QUICK = StudySettings(grid=(0.0, 0.05, 0.2, 0.5), tuning_reps=2, evaluation_reps=2, speeds_dps=(10.0, 20.0),
-                       moving_reps=2, moving_s=8.0)
+QUICK = StudySettings(grid=(0.0, 0.05, 0.2, 0.5), tuning_reps=2, evaluation_reps=2,
+                      speeds_dps=(10.0, 20.0), moving_reps=2, moving_s=8.0)
 
 
 @dataclass
@@ -68,7 +69,8 @@ class WearerResult:
     sim_s: float = 0.0
 
 
-def run_wearer(scene: Scene, subject: int, settings: StudySettings = StudySettings()) -> WearerResult:
+def run_wearer(scene: Scene, subject: int,
+               settings: StudySettings = StudySettings()) -> WearerResult:
     """Calibrate one wearer by Algorithm 1, tune their G, run the evaluation grid and the
     moving-target trials. A pure function of (scene, subject, settings)."""
     package_channel_map()
@@ -93,9 +95,11 @@ def run_wearer(scene: Scene, subject: int, settings: StudySettings = StudySettin
             for r in range(settings.moving_reps):
                 key = TrialKey('moving', r)
                 for law in LAWS:
-                    m = moving_trial(scene, wearer, cal, law, speed, key, settings.moving_s, scenario == 'seen')
-                    res.moving_rows.append(dict(subject=subject, wearer=wearer.name, scenario=scenario,
-                                                speed_dps=float(speed), law=law, repetition=r, **m))
+                    m = moving_trial(scene, wearer, cal, law, speed, key, settings.moving_s,
+                                     scenario == 'seen')
+                    res.moving_rows.append(dict(subject=subject, wearer=wearer.name,
+                                                scenario=scenario, speed_dps=float(speed),
+                                                law=law, repetition=r, **m))
                     res.sim_s += 1.0 + settings.moving_s
     return res
 
@@ -145,10 +149,12 @@ class StudyResults:
         for w in self.included:
             tune = gain_means(r for r in w.gain_rows if r['phase'] == 'tuning')
             ev = gain_means(r for r in w.gain_rows if r['phase'] == 'evaluation')
-            rows.append(dict(subject=w.subject, wearer=w.wearer, tuned_gain=w.tuned_gain, oracle_gain=w.oracle_gain,
+            rows.append(dict(subject=w.subject, wearer=w.wearer, tuned_gain=w.tuned_gain,
+                             oracle_gain=w.oracle_gain,
                              tuning_identified_at_tuned=tune[w.tuned_gain][0],
                              tuning_identified_at_paper=tune[paper][0],
-                             identified_paper_gain=ev[paper][0], identified_own_gain=ev[w.tuned_gain][0],
+                             identified_paper_gain=ev[paper][0],
+                             identified_own_gain=ev[w.tuned_gain][0],
                              identified_oracle_gain=ev[w.oracle_gain][0]))
         return pd.DataFrame(rows)
 
@@ -178,7 +184,8 @@ def run_studies(scene: Scene, subjects: Iterable[int] | int | None = None,
     """Both studies on the scene's wearers (all, the first n, or these indices), in parallel
     over wearers. Deterministic: the same for any number of workers."""
     if scene.protocol.kind != 'speed':
-        raise ValueError(f'run_studies needs a speed scene (paper-speed), got a {scene.protocol.kind} scene')
+        raise ValueError(f'run_studies needs a speed scene (paper-speed), got a '
+                         f'{scene.protocol.kind} scene')
     if not isinstance(workers, int) or workers < 1:
         raise ValueError(f'workers must be a whole number >= 1, got {workers!r}')
     indices = subject_indices(scene, subjects)
@@ -197,7 +204,8 @@ def run_studies(scene: Scene, subjects: Iterable[int] | int | None = None,
                 results[res.subject] = res
                 if progress is not None:
                     progress(done, len(jobs), res.subject)
-    return StudyResults(scene, settings, [results[i] for i in indices], time.perf_counter() - start)
+    return StudyResults(scene, settings, [results[i] for i in indices],
+                        time.perf_counter() - start)
 
 
 __all__ = ['StudyResults', 'StudySettings', 'QUICK', 'WearerResult', 'run_studies', 'run_wearer']

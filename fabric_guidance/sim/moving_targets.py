@@ -76,7 +76,8 @@ class TargetMotion:
         """Position s seconds after it appeared."""
         a = math.radians(self.heading_deg)
         d = self.speed_dps * s
-        return (_fold(self.yaw0 + d * math.cos(a), self.half_h), _fold(self.pitch0 + d * math.sin(a), self.half_v))
+        return (_fold(self.yaw0 + d * math.cos(a), self.half_h),
+                _fold(self.pitch0 + d * math.sin(a), self.half_v))
 
 
 def draw_motion(scene: Scene, subject: int, key: TrialKey, speed_dps: float) -> TargetMotion:
@@ -89,8 +90,8 @@ def draw_motion(scene: Scene, subject: int, key: TrialKey, speed_dps: float) -> 
                         scene.protocol.vertical_deg)
 
 
-def moving_trial(scene: Scene, wearer, calibration: Calibration, law: str, speed_dps: float, key: TrialKey,
-                 duration_s: float = 15.0, seen: bool = True) -> dict:
+def moving_trial(scene: Scene, wearer, calibration: Calibration, law: str, speed_dps: float,
+                 key: TrialKey, duration_s: float = 15.0, seen: bool = True) -> dict:
     """One moving-target trial under `law` (LAWS); the measures as a dict."""
     if law not in LAWS:
         raise ValueError(f'law must be one of {LAWS}, got {law!r}')
@@ -125,7 +126,8 @@ def moving_trial(scene: Scene, wearer, calibration: Calibration, law: str, speed
         if loop.t - inside_since >= dwell - 1e-9:
             find_s = loop.t - t0
     return dict(start_h_deg=motion.yaw0, start_v_deg=motion.pitch0, heading_deg=motion.heading_deg,
-                found=find_s is not None, find_s=find_s if find_s is not None else float(duration_s),
+                found=find_s is not None,
+                find_s=find_s if find_s is not None else float(duration_s),
                 tracking_error_deg=math.fsum(errors) / len(errors),
                 late_error_deg=math.fsum(errors[half:]) / len(errors[half:]))
 

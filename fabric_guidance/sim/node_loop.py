@@ -66,7 +66,8 @@ class NodeLoop(ClosedLoop):
         h = wrap_deg(gy - y0)
         v = gp - p0
         d0, d1, d2, d3 = self.controller.directions
-        self._set_command((d0.step(ht, h, t), d1.step(-ht, -h, t), d2.step(-vt, -v, t), d3.step(vt, v, t)))
+        self._set_command((d0.step(ht, h, t), d1.step(-ht, -h, t), d2.step(-vt, -v, t),
+                           d3.step(vt, v, t)))
 
 
 __all__ = ['NodeLoop']

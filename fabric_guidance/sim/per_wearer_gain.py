@@ -31,7 +31,8 @@ from .study_trials import CONDITION, TrialKey, tuning_keys
 GAIN_GRID: tuple[float, ...] = tuple(round(0.05 * i, 2) for i in range(11))
 
 
-def speed_trial(scene: Scene, wearer, calibration: Calibration, key: TrialKey, gain: float | None = None) -> dict:
+def speed_trial(scene: Scene, wearer, calibration: Calibration, key: TrialKey,
+                gain: float | None = None) -> dict:
     """One speed trial (condition 1) as protocols.speed_trial runs it, with G = gain (None: the
     scene's) carried in the calibration and used as the node's use_wearer_gain does."""
     proto = scene.protocol
@@ -76,8 +77,9 @@ def run_gain_grid(scene: Scene, wearer, calibration: Calibration, grid: Sequence
     rows = []
     for g in grid:
         for key in keys:
-            rows.append(dict(subject=wearer.index, wearer=wearer.name, phase=key.phase, gain=float(g),
-                             repetition=key.repetition, **speed_trial(scene, wearer, calibration, key, g)))
+            rows.append(dict(subject=wearer.index, wearer=wearer.name, phase=key.phase,
+                             gain=float(g), repetition=key.repetition,
+                             **speed_trial(scene, wearer, calibration, key, g)))
     return rows
 
 

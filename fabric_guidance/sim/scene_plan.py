@@ -46,8 +46,8 @@ class ScenePlan:
     def effects_line(self) -> str:
         scene = self.scene
         if not scene.effects:
-            return (f'scene {scene.name}: no effect listed (the ideal wearer); mock_plc regulator_tau_s '
-                    f'{self.regulator_tau_s:g} s (no lag)')
+            return (f'scene {scene.name}: no effect listed (the ideal wearer); '
+                    f'mock_plc regulator_tau_s {self.regulator_tau_s:g} s (no lag)')
         return (f'scene {scene.name}: effects realised in the graph: ' +
                 '; '.join(f'{w}: {", ".join(names)}' for w, names in self.where.items()))
 
@@ -59,7 +59,8 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
     scene = load_scene_file(str(scene_ref))
     cond = condition_of(condition if condition is not None else scene.conditions[0])
     wearer = sample_wearer(scene, 0)
-    say(f'scene {scene.name} ({scene.source}): wearer {wearer.name} (index 0) of {scene.population.subjects}, '
+    say(f'scene {scene.name} ({scene.source}): wearer {wearer.name} (index 0) of '
+        f'{scene.population.subjects}, '
         f'condition {cond.number}; effects: {", ".join(scene.effect_names) or "none"}')
     t0 = time.monotonic()
     outcome = calibrate_wearer(scene, wearer)
@@ -67,7 +68,8 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
         raise ValueError(f'the calibration of wearer {wearer.name} failed: {outcome.error}')
     cal_path = outcome.calibration.save(log_dir / f'{scene.name}-{wearer.name}.yaml')
     worst = max(outcome.angle_error_deg.values())
-    say(f'Algorithm 1 on {wearer.name}, headless with the scene\'s effects ({time.monotonic() - t0:.1f} s): '
+    say(f'Algorithm 1 on {wearer.name}, headless with the scene\'s effects '
+        f'({time.monotonic() - t0:.1f} s): '
         f'fitted laws within {worst:.1f} deg of the true ones over 0-60 deg; saved to {cal_path}')
     lag = scene.effect('regulator_lag')
     tau = float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S
@@ -109,10 +111,12 @@ def effects_where(scene, cond, regulator_tau_s: float) -> dict[str, list[str]]:
             where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
         elif name in HEADLESS_ONLY:
             where.setdefault(HEADLESS_ONLY_LABEL, []).append(name)
-        elif (e.stage in ('pressure', 'percept') and not cond.haptic) or (e.stage == 'speech' and not cond.speech):
+        elif ((e.stage in ('pressure', 'percept') and not cond.haptic)
+              or (e.stage == 'speech' and not cond.speech)):
             where.setdefault(f'unused in condition {cond.number}', []).append(name)
         else:
             where.setdefault('wearer_sim', []).append(name)
     if 'mock_plc' not in where:
-        where = {'mock_plc': [f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'], **where}
+        none = f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'
+        where = {'mock_plc': [none], **where}
     return where

@@ -61,14 +61,16 @@ class SceneSide:
     head pose of its datagram).
     """
 
-    def __init__(self, scene, wearer_index: int, condition: int, dt: float, layout: str | None = None):
+    def __init__(self, scene, wearer_index: int, condition: int, dt: float,
+                 layout: str | None = None):
         n = scene.population.subjects
         if not 0 <= wearer_index < n:
-            raise ValueError(f'parameter wearer_index: the scene {scene.name} has wearers 0..{n - 1}, '
-                             f'got {wearer_index}')
+            raise ValueError(f'parameter wearer_index: the scene {scene.name} has wearers '
+                             f'0..{n - 1}, got {wearer_index}')
         spec = sample_wearer(scene, wearer_index)
         if spec.error:
-            raise ValueError(f'wearer {wearer_index} of scene {scene.name} is not usable: {spec.error}')
+            raise ValueError(f'wearer {wearer_index} of scene {scene.name} is not usable: '
+                             f'{spec.error}')
         self.scene, self.spec, self.dt = scene, spec, float(dt)
         self.cond = condition_of(condition)
         self.layout = layout or self.cond.layout or 'suit'
@@ -137,8 +139,8 @@ class SceneSide:
             capture = target if self.visible else None
             if capture is not None and self._track_seen:
                 gy, gp = wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch
-                self.senses.seen = (self._central_hav > 0.0
-                                    and haversine(gy, gp, capture[0], capture[1]) <= self._central_hav)
+                hav = haversine(gy, gp, capture[0], capture[1])
+                self.senses.seen = self._central_hav > 0.0 and hav <= self._central_hav
             elif self._track_seen:
                 self.senses.seen = False
             wearer.move(capture)
