@@ -42,7 +42,7 @@ from ..core.geometry import DIRECTIONS, wrap_deg
 from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
-from .effects import RunContext, by_stage
+from .effects import RunContext, start_effects
 from .wearer import (SceneWearer, Senses, angle_between_deg, gaze_from_angles,  # noqa: F401
                      haversine)
 
@@ -119,10 +119,7 @@ class ClosedLoop:
         self.dt = 1.0 / scene.sim_rate_hz
         self.run_key = tuple(int(x) for x in run)
         ctx = RunContext(self.dt, scene.seed, int(wearer.index), self.run_key)
-        self.effects = [spec.build() for spec in scene.effects]
-        for e in self.effects:
-            e.start(ctx)
-        stages = by_stage(self.effects)
+        self.effects, stages = start_effects(scene.effects, ctx)
         self._gaze_fx = [e.gaze for e in stages['gaze']]
         body = stages['body'][0] if stages['body'] else None
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from ..core import condition as condition_of
 from ..paths import share_dir
-from .effects import RunContext, by_stage
+from .effects import RunContext, start_effects
 from .engine import trial_run
 from .population import sample_wearer
 from .scene import load_scene
@@ -76,10 +76,7 @@ class SceneSide:
         self.layout = layout or self.cond.layout or 'suit'
         self.run_key = trial_run(self.cond.number, 0)
         ctx = RunContext(self.dt, scene.seed, int(wearer_index), self.run_key)
-        self.effects = [s.build() for s in scene.effects]
-        for e in self.effects:
-            e.start(ctx)
-        stages = by_stage(self.effects)
+        self.effects, stages = start_effects(scene.effects, ctx)
         self.gaze_fx = [e.gaze for e in stages['gaze']]
         body = stages['body'][0] if stages['body'] else None
         self.wearer = SceneWearer(spec.suit_laws, spec.arm_laws, scene.controller.p_max_kpa, body)
