@@ -10,6 +10,8 @@ scene's first condition to four targets drawn from the scene's protocol ranges w
 (the targets wearer 0 meets first in the headless protocol); the scene's controller
 settings go to pressure_controller, its acceptance rule to target_selector, regulator_lag to
 the mock PLC and every wearer-side effect to wearer_sim (sim/scene_wearer.py SceneSide).
+The plan (wearer, calibration, targets, where each effect runs) is sim/scene_plan.py's; this
+module starts the graph, watches it (SessionWatch) and reports.
 """
 from __future__ import annotations
 
