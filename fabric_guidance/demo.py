@@ -9,7 +9,9 @@ headless with the scene's effects (as the paper calibrates before the trials), g
 scene's first condition to four targets drawn from the scene's protocol ranges with its seed
 (the targets wearer 0 meets first in the headless protocol); the scene's controller
 settings go to pressure_controller, its acceptance rule to target_selector, regulator_lag to
-the mock PLC and every wearer-side effect to wearer_sim (nodes/wearer_sim.py SceneSide).
+the mock PLC and every wearer-side effect to wearer_sim (sim/scene_wearer.py SceneSide).
+The plan (wearer, calibration, targets, where each effect runs) is sim/scene_plan.py's; this
+module starts the graph, watches it (SessionWatch) and reports.
 """
 from __future__ import annotations
 
@@ -32,17 +34,11 @@ from .core.task import angular_error_deg
 from .paths import config_path
 from .plc import PlcClient, RegisterMap
 from .process_graph import Graph, Probe, free_port, wait_until
+from .sim.scene_plan import ScenePlan, plan_scene
 
 SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
 #: Nodes in start order: the PLC side first so plc_output finds its PLC.
 NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'wearer_sim')
-#: With a scene: targets drawn from its protocol ranges, this many, this far from the eye [m].
-SCENE_TARGETS = 4
-SCENE_TARGET_DISTANCE_M = 2.0
-#: wearer_sim steps at the scene's sim_rate_hz, but not faster than this (real time) [Hz].
-MAX_SCENE_GAZE_RATE_HZ = 120.0
-#: mock_plc regulator_tau_s when the scene lists no regulator_lag: the mock's "no lag" [s].
-NO_REGULATOR_LAG_S = 0.0
 
 
 @dataclass
@@ -145,84 +141,6 @@ class SessionWatch:
             if self.records and self.records[-1].found is None:
                 rec = self.records[-1]
                 rec.peak_kpa = np.maximum(rec.peak_kpa, self.cmap.to_directions(data, self.layout))
-
-
-@dataclass
-class ScenePlan:
-    """What a scene changes in the demo: the wearer, their calibration, the node overrides and
-    the targets, and where each of the scene's effects is realised."""
-
-    scene: object                         # sim.scene.Scene
-    wearer: object                        # sim.population.WearerSpec
-    calibration_file: Path
-    condition: int
-    targets: list[tuple[str, float, float, np.ndarray]]   # name, yaw, pitch (deg), position (m)
-    regulator_tau_s: float
-    gaze_rate_hz: float
-    where: dict[str, list[str]]           # where -> the effects realised there (or unused)
-
-    def effects_line(self) -> str:
-        scene = self.scene
-        if not scene.effects:
-            return (f'scene {scene.name}: no effect listed (the ideal wearer); mock_plc regulator_tau_s '
-                    f'{self.regulator_tau_s:g} s (no lag)')
-        return (f'scene {scene.name}: effects realised in the graph: ' +
-                '; '.join(f'{w}: {", ".join(names)}' for w, names in self.where.items()))
-
-
-def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePlan:
-    """Load the scene, calibrate its wearer 0 headless by Algorithm 1 with the scene's effects
-    (population.calibrate_wearer), save the calibration into log_dir and draw the targets.
-    Raises ValueError (SceneError, a failed calibration) with the reason."""
-    from .nodes.wearer_sim import REALISED_ELSEWHERE, load_scene_file
-    from .sim.population import calibrate_wearer, sample_wearer
-    from .sim.wearer import gaze_from_angles
-    scene = load_scene_file(str(scene_ref))
-    cond = condition_of(condition if condition is not None else scene.conditions[0])
-    wearer = sample_wearer(scene, 0)
-    say(f'scene {scene.name} ({scene.source}): wearer {wearer.name} (index 0) of {scene.population.subjects}, '
-        f'condition {cond.number}; effects: {", ".join(scene.effect_names) or "none"}')
-    t0 = time.monotonic()
-    outcome = calibrate_wearer(scene, wearer)
-    if not outcome.ok:
-        raise ValueError(f'the calibration of wearer {wearer.name} failed: {outcome.error}')
-    cal_path = outcome.calibration.save(log_dir / f'{scene.name}-{wearer.name}.yaml')
-    worst = max(outcome.angle_error_deg.values())
-    say(f'Algorithm 1 on {wearer.name}, headless with the scene\'s effects ({time.monotonic() - t0:.1f} s): '
-        f'fitted laws within {worst:.1f} deg of the true ones over 0-60 deg; saved to {cal_path}')
-    lag = scene.effect('regulator_lag')
-    tau = float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S
-    # The targets wearer 0 meets first in the headless protocol: the speed trial's first draws
-    # of repetition 0, or the accuracy trials' targets of repetitions 0, 1, ... (the same streams).
-    from .sim.protocols import _draw_target, _targets
-    eye = np.array([0.0, 0.0, _eye_height()])
-    speed = scene.protocol.kind == 'speed'
-    rng = _targets(scene, 0, 0)
-    targets = []
-    for i in range(SCENE_TARGETS):
-        yaw, pitch = _draw_target(rng if speed else _targets(scene, 0, i), scene.protocol)
-        targets.append((f'{scene.name.replace("-", "_")}_{i + 1}', yaw, pitch,
-                        eye + SCENE_TARGET_DISTANCE_M * gaze_from_angles(yaw, pitch)))
-    where: dict[str, list[str]] = {}
-    for name in scene.effect_names:
-        e = scene.effect(name).build()
-        if name == 'regulator_lag':
-            where.setdefault('mock_plc', []).append(f'regulator_lag (regulator_tau_s {tau:g} s)')
-        elif name in REALISED_ELSEWHERE:
-            where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
-        elif (e.stage in ('pressure', 'percept') and not cond.haptic) or (e.stage == 'speech' and not cond.speech):
-            where.setdefault(f'unused in condition {cond.number}', []).append(name)
-        else:
-            where.setdefault('wearer_sim', []).append(name)
-    if 'mock_plc' not in where:
-        where = {'mock_plc': [f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'], **where}
-    rate = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
-    return ScenePlan(scene, wearer, cal_path, cond.number, targets, tau, rate, where)
-
-
-def _eye_height() -> float:
-    params = yaml.safe_load(config_path('sim.yaml').read_text())['wearer_sim']['ros__parameters']
-    return float(params.get('eye_height_m', 1.2))
 
 
 def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Path | None = None,

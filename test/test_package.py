@@ -11,7 +11,7 @@ ROS_MODULES = ('rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_msgs', 
 
 
 def test_importing_the_core_loads_no_ros_module():
-    code = ('import sys, fabric_guidance.core, fabric_guidance.sim.headless; '
+    code = ('import sys, fabric_guidance.core, fabric_guidance.sim.worked_example; '
             f'print([m for m in sys.modules if m.split(".")[0].startswith({ROS_MODULES!r})])')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True, cwd=ROOT)
     assert out.stdout.strip() == '[]'
@@ -66,3 +66,55 @@ def test_analyze_is_a_subcommand_of_the_cli(capsys):
     table = ROOT / 'test' / 'data' / 'table-identified-targets.csv'
     assert main(['analyze', str(table)]) == 0
     assert 'Friedman chi-square = 16.837' in capsys.readouterr().out
+
+
+def _sim_imports():
+    """{module: set of sim modules it imports}, function-level imports included."""
+    sim = ROOT / 'fabric_guidance' / 'sim'
+    names = {p.stem for p in sim.glob('*.py')}
+    graph = {}
+    for path in sim.glob('*.py'):
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                mods = [node.module] if node.module else [a.name for a in node.names]
+                found |= {m.split('.')[0] for m in mods if m.split('.')[0] in names}
+        graph[path.stem] = found - {path.stem}
+    return graph
+
+
+def test_no_module_of_sim_imports_another_in_a_cycle():
+    graph = _sim_imports()
+    done, stack = set(), []
+
+    def visit(name):
+        if name in stack:
+            cycle = stack[stack.index(name):] + [name]
+            raise AssertionError('import cycle in sim/: ' + ' -> '.join(cycle))
+        if name in done:
+            return
+        stack.append(name)
+        for dep in sorted(graph[name]):
+            visit(dep)
+        stack.pop()
+        done.add(name)
+
+    for name in sorted(graph):
+        visit(name)
+
+
+def test_sim_imports_nothing_above_it():
+    """sim/ sits on core and paths: it imports no experiments, nodes, bag, demo or cli."""
+    above = ('experiments', 'nodes', 'bag', 'bench', 'demo', 'cli', 'replay', 'subcommand')
+    for path in (ROOT / 'fabric_guidance' / 'sim').glob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 2 and node.module:
+                assert node.module.split('.')[0] not in above, \
+                    f'sim/{path.name} imports ..{node.module}'
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                mods = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                        else [node.module or ''])
+                for m in mods:
+                    parts = m.split('.')
+                    assert not (parts[0] == 'fabric_guidance' and len(parts) > 1
+                                and parts[1] in above), f'sim/{path.name} imports {m}'

@@ -10,7 +10,8 @@ from hypothesis import given, settings, strategies as st
 from fabric_guidance.core import GuidanceController, PowerLaw, phrase
 from fabric_guidance.core.task import angular_error_deg
 from fabric_guidance.sim import effects as fx
-from fabric_guidance.sim.engine import ClosedLoop, FastPowerLaw, parse_phrase, run_calibration, trial_run
+from fabric_guidance.core.speech import parse_phrase
+from fabric_guidance.sim.engine import ClosedLoop, FastPowerLaw, run_calibration, trial_run
 from fabric_guidance.sim.population import calibrate_wearer, law_angle_error_deg, law_error_kpa, sample_wearer
 from fabric_guidance.sim.scene import scene_from_dict
 from fabric_guidance.sim.wearer import PITCH_LIMIT_DEG, YAW_LIMIT_DEG, angle_between_deg, gaze_from_angles

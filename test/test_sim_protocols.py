@@ -211,3 +211,19 @@ def test_command_line_runs_a_scene_file(tmp_path, capsys):
     out = capsys.readouterr().out
     assert 'scene ideal: accuracy protocol, 1 wearers included' in out and 'condition 4 (synthesized speech)' in out
     assert len((tmp_path / 'out.csv').read_text().splitlines()) == 1 + 4
+
+
+def test_stats_points_to_the_experiment_command_and_loads_no_experiments_module(tmp_path):
+    import subprocess
+    import sys
+    data = base(protocol={'kind': 'accuracy'}, repetitions=1)
+    data['population']['subjects'] = 1
+    data['calibration']['exact'] = True
+    path = tmp_path / 'tiny.yaml'
+    path.write_text(yaml.safe_dump(data))
+    code = ('import sys; from fabric_guidance.sim.protocols import main; main(sys.argv[1:]); '
+            'print([m for m in sys.modules if m.startswith("fabric_guidance.experiments")])')
+    out = subprocess.run([sys.executable, '-c', code, str(path), '--workers', '1', '--stats'],
+                         capture_output=True, text=True, check=True, cwd=ROOT).stdout.splitlines()
+    assert out[-1] == '[]'
+    assert out[-2] == f'statistics: fabric-guidance experiment --scene {path} --out DIR'

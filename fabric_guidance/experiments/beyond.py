@@ -8,7 +8,8 @@
 
 Statistics as the paper's: per-wearer means, Friedman test and Dunn-Bonferroni on the Friedman
 mean ranks (experiments.stats; for two conditions the same block test). How the simulation is
-set up: fabric_guidance/sim/beyond.py.
+set up: fabric_guidance/sim/per_wearer_gain.py and sim/moving_targets.py; the analyses, plots
+and report sections of each study: experiments/per_wearer_gain.py, experiments/moving_targets.py.
 
 Writes DIR/beyond.md (report), DIR/*.csv (one row per trial; gain_choice.csv one row per
 wearer) and DIR/*.png (violin plots); prints a summary. Deterministic for a scene.
@@ -19,24 +20,16 @@ Also runs alone: python -m fabric_guidance.experiments.beyond --out DIR [--subje
 from __future__ import annotations
 
 import argparse
-import math
 import os
 from pathlib import Path
 import sys
 
-import pandas as pd
-
 from .. import subcommand
-from .report import _image_path, _md_table, analysis_markdown
-from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
+from .moving_targets import analyze_moving, moving_plots, moving_report, moving_summary
+from .per_wearer_gain import analyze_gain, gain_plots, gain_report, gain_summary
 
 PROG = 'fabric-guidance beyond'
 HELP = "beyond the paper, in simulation: a per-wearer gain G and moving targets, with the paper's statistics"
-
-#: Names of the compared arms (the columns of the analyses and the plots' labels).
-GAIN_ARMS = {'paper': 'G = 0.05 (paper)', 'own': 'own G (tuned)', 'oracle': 'best G (oracle)'}
-LAW_NAMES = {'paper': 'paper: theta_t at start', 'live': 'live theta_t, no shift', 'follow': 'follow_target'}
-MOVING_MEASURES = {'find_s': 'time to find (s)', 'tracking_error_deg': 'tracking error (deg)'}
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -63,59 +56,12 @@ def _error(message) -> None:
 # Analyses
 
 
-def _analyze(frame: pd.DataFrame, measure: str, higher: bool, conditions) -> BlockAnalysis | None:
-    if frame.empty or frame['subject'].nunique() < 2:
-        return None
-    # The wearers' names (S01, ...) as the subject ids of the tables.
-    return analyze_trials(frame.assign(subject=frame['wearer']), measure, higher_is_better=higher,
-                          conditions=list(conditions))
-
-
 def analyze(results) -> dict:
-    """Every analysis of a BeyondResults: a dict of named parts for the report and the summary."""
-    from scipy import stats as ss
+    """Every analysis of a StudyResults: a dict of named parts for the report and the summary."""
     out: dict = {}
-    gain_trials = results.gain_trials_frame(GAIN_ARMS)
-    out['gain_trials'] = gain_trials
-    out['gain_choice'] = results.gain_choice_frame()
-    out['gain_grid'] = results.gain_grid_frame()
-    if not gain_trials.empty:
-        main = gain_trials[gain_trials['condition'].isin([GAIN_ARMS['paper'], GAIN_ARMS['own']])]
-        out['gain'] = _analyze(main, 'identified', True, [GAIN_ARMS['paper'], GAIN_ARMS['own']])
-        ref = gain_trials[gain_trials['condition'].isin([GAIN_ARMS['paper'], GAIN_ARMS['oracle']])]
-        out['gain_oracle'] = _analyze(ref, 'identified', True, [GAIN_ARMS['paper'], GAIN_ARMS['oracle']])
-        grid = out['gain_grid']
-        ev = grid[grid['phase'] == 'evaluation']
-        table = ev.groupby(['wearer', 'gain'])['identified'].mean().unstack('gain')
-        table.columns = [f'G={g:g}' for g in table.columns]
-        out['grid_table'] = table
-        out['grid'] = analyze_blocks(table, higher_is_better=True) if len(table) >= 2 else None
-        choice = out['gain_choice']
-        if len(choice) >= 3 and choice['tuned_gain'].nunique() > 1 and choice['oracle_gain'].nunique() > 1:
-            rho, p = ss.spearmanr(choice['tuned_gain'], choice['oracle_gain'])
-            out['tuned_vs_oracle'] = (float(rho), float(p))
-        else:
-            out['tuned_vs_oracle'] = None
-    moving = results.moving_frame()
-    out['moving_trials'] = moving
-    out['moving'] = {}
-    if not moving.empty:
-        for scenario in results.settings.scenarios:
-            for speed in results.settings.speeds_dps:
-                part = moving[(moving['scenario'] == scenario) & (moving['speed_dps'] == float(speed))].copy()
-                part['condition'] = part['law'].map(LAW_NAMES)
-                for measure in MOVING_MEASURES:
-                    out['moving'][(scenario, float(speed), measure)] = _analyze(part, measure, False,
-                                                                                 LAW_NAMES.values())
+    analyze_gain(results, out)
+    analyze_moving(results, out)
     return out
-
-
-def _pair_p(a: BlockAnalysis | None, x: str, y: str) -> float:
-    return math.nan if a is None else float(a.pair(x, y)['p_adjusted'])
-
-
-def _verdict(p: float) -> str:
-    return 'n/a' if math.isnan(p) else ('significant' if p < 0.05 else 'not significant')
 
 
 # ---------------------------------------------------------------------------------------------
@@ -123,19 +69,9 @@ def _verdict(p: float) -> str:
 
 
 def make_plots(parts: dict, out: Path) -> dict:
-    from .plots import violin_plot
     plots = {}
-    if parts.get('gain') is not None:
-        plots['gain'] = violin_plot(parts['gain'], 'identified targets per 40 s trial (per wearer)',
-                                    out / 'gain_identified.png', significance=parts['gain'],
-                                    title='Condition 1: paper G vs own G')
-    for (scenario, speed, measure), a in parts['moving'].items():
-        if a is None:
-            continue
-        name = f'moving_{scenario}_{speed:g}dps_{measure}.png'
-        plots[(scenario, speed, measure)] = violin_plot(
-            a, f'{MOVING_MEASURES[measure]} (per wearer)', out / name, significance=a,
-            title=f'Target moving {speed:g} deg/s, {scenario}: {MOVING_MEASURES[measure]}')
+    gain_plots(parts, out, plots)
+    moving_plots(parts, out, plots)
     return plots
 
 
@@ -143,74 +79,12 @@ def make_plots(parts: dict, out: Path) -> dict:
 # Text
 
 
-def _fmt_gains(values) -> str:
-    counts = pd.Series(values).value_counts().sort_index()
-    return ', '.join(f'{g:g} (x{n})' for g, n in counts.items())
-
-
 def summary_lines(results, parts: dict) -> list[str]:
     """The findings as plain sentences with their numbers (the report's summary and stdout)."""
     lines = []
-    paper_g = results.scene.controller.gain
-    a = parts.get('gain')
-    choice = parts.get('gain_choice')
-    if a is not None:
-        m, s = a.summary['mean'], a.summary['sd']
-        pa, po = GAIN_ARMS['paper'], GAIN_ARMS['own']
-        p = _pair_p(a, pa, po)
-        lines.append(f'Per-wearer gain ({a.n} wearers): tuned G = {_fmt_gains(choice["tuned_gain"])}; '
-                     f'{int((choice["tuned_gain"] == paper_g).sum())} of {len(choice)} wearers kept the paper\'s '
-                     f'{paper_g:g}.')
-        lines.append(f'  identified per trial: paper G {m[pa]:.2f} (SD {s[pa]:.2f}), own G {m[po]:.2f} '
-                     f'(SD {s[po]:.2f}); difference {m[po] - m[pa]:+.2f}; Friedman p = {format_p(a.p)}, '
-                     f'Dunn-Bonferroni p = {format_p(p)} ({_verdict(p)}); own G better for '
-                     f'{int((choice["identified_own_gain"] > choice["identified_paper_gain"]).sum())}, worse for '
-                     f'{int((choice["identified_own_gain"] < choice["identified_paper_gain"]).sum())}, equal for '
-                     f'{int((choice["identified_own_gain"] == choice["identified_paper_gain"]).sum())} wearers.')
-        ref = parts.get('gain_oracle')
-        if ref is not None:
-            ro = GAIN_ARMS['oracle']
-            lines.append(f'  oracle (best G chosen on the evaluation trials themselves, optimistic): '
-                         f'{ref.summary["mean"][ro]:.2f} (SD {ref.summary["sd"][ro]:.2f}), '
-                         f'{ref.summary["mean"][ro] - ref.summary["mean"][pa]:+.2f} over the paper\'s G.')
-        grid = parts.get('grid')
-        if grid is not None:
-            lo, hi = grid.summary['mean'].min(), grid.summary['mean'].max()
-            lines.append(f'  G over the whole grid (evaluation trials): mean identified {lo:.2f} to {hi:.2f}; '
-                         f'Friedman across {grid.k} gains chi2 = {grid.chi2:.2f}, p = {format_p(grid.p)}.')
-        tv = parts.get('tuned_vs_oracle')
-        if tv is not None:
-            lines.append(f'  tuned G vs oracle G across wearers: Spearman rho = {tv[0]:+.2f} (p = {format_p(tv[1])}).')
-    for scenario in results.settings.scenarios:
-        for speed in results.settings.speeds_dps:
-            bits = []
-            for measure, unit in (('find_s', 's'), ('tracking_error_deg', 'deg')):
-                a = parts['moving'].get((scenario, float(speed), measure))
-                if a is None:
-                    continue
-                m = a.summary['mean']
-                p = _pair_p(a, LAW_NAMES['paper'], LAW_NAMES['follow'])
-                p_live = _pair_p(a, LAW_NAMES['live'], LAW_NAMES['follow'])
-                bits.append(f'{MOVING_MEASURES[measure].split(" (")[0]} paper {m[LAW_NAMES["paper"]]:.2f} / live '
-                            f'{m[LAW_NAMES["live"]]:.2f} / follow {m[LAW_NAMES["follow"]]:.2f} {unit} '
-                            f'(Friedman p = {format_p(a.p)}; follow vs paper p = {format_p(p)}, '
-                            f'vs live p = {format_p(p_live)})')
-            if bits:
-                lines.append(f'Moving target {speed:g} deg/s, {scenario}: ' + '; '.join(bits) + '.')
+    gain_summary(results, parts, lines)
+    moving_summary(results, parts, lines)
     return lines
-
-
-def _found_table(moving: pd.DataFrame) -> list[str]:
-    rows = []
-    for (scenario, speed), part in moving.groupby(['scenario', 'speed_dps'], sort=False):
-        row = [scenario, f'{speed:g}']
-        for law in LAW_NAMES:
-            g = part[part['law'] == law]
-            per = g.groupby('subject')
-            row.append(f'{100 * g["found"].mean():.0f} % / {per["find_s"].mean().mean():.2f} s / '
-                       f'{per["tracking_error_deg"].mean().mean():.1f} / {per["late_error_deg"].mean().mean():.1f}')
-        rows.append(row)
-    return _md_table(['target', 'deg/s'] + [LAW_NAMES[k] for k in LAW_NAMES], rows, 'lr' + 'l' * len(LAW_NAMES))
 
 
 def report_text(results, parts: dict, plots: dict, out: Path) -> str:
@@ -221,86 +95,16 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
            f'{n_in} simulated wearers calibrated by Algorithm 1, {n_ex} excluded'
            + (': ' + '; '.join(f'{w}: {e}' for w, e in results.exclusions) if n_ex else '') + '. '
            f'{results.sim_s:.0f} simulated s in {results.wall_s:.1f} wall s. '
-           'Set-up and keys of every trial: `fabric_guidance/sim/beyond.py`. Statistics: per-wearer means, '
+           'Set-up and keys of every trial: `fabric_guidance/sim/per_wearer_gain.py`, '
+           '`sim/moving_targets.py`. Statistics: per-wearer means, '
            'Friedman test, Dunn-Bonferroni on the Friedman mean ranks (`fabric_guidance/experiments/stats.py`), '
            'as the paper.', '', '## Summary', '']
     doc += [f'- {line.strip()}' for line in summary_lines(results, parts)] + ['']
     doc += ['These are results of a model whose wearers, suit and effects are assumptions '
             '(config/scenes/paper-speed.yaml); they say what the options do in this model, not on people.', '']
 
-    # ---- 1
-    doc += ['## 1. Per-wearer adjustment gain', '',
-            f'Condition 1 (suit, adjusted), speed protocol ({sc.protocol.trial_s:g} s trials). For each wearer every '
-            f'G of the grid {", ".join(f"{g:g}" for g in st.grid)} ran on {st.tuning_reps} TUNING trials (targets '
-            'and effect streams of their own); the wearer\'s G is the one with the most identified targets '
-            '(ties: shorter time to find, then nearest the paper\'s G). It is stored in the calibration '
-            '(`Calibration.with_gain`) and used as the pressure_controller node does with `use_wearer_gain`. '
-            f'The {st.evaluation_reps} EVALUATION trials per G are the paper-speed protocol\'s own condition-1 '
-            'trials (disjoint seeds from the tuning). The oracle G is the best on the evaluation trials themselves: '
-            'an optimistic bound, not a usable method.', '']
-    choice = parts.get('gain_choice')
-    if choice is not None and not choice.empty:
-        rows = [[r.wearer, f'{r.tuned_gain:g}', f'{r.oracle_gain:g}', f'{r.tuning_identified_at_tuned:.2f}',
-                 f'{r.tuning_identified_at_paper:.2f}', f'{r.identified_paper_gain:.2f}',
-                 f'{r.identified_own_gain:.2f}',
-                 f'{r.identified_oracle_gain:.2f}'] for r in choice.itertuples()]
-        doc += _md_table(['wearer', 'tuned G', 'oracle G', 'tuning: at tuned G', 'tuning: at paper G',
-                          'eval: paper G', 'eval: own G', 'eval: oracle G'], rows, 'lrrrrrrr')
-        doc += ['', 'Mean identified targets per trial.', '']
-    if parts.get('gain') is not None:
-        doc += ['### Paper G vs own G (evaluation trials)', ''] + analysis_markdown(parts['gain'], level=3) + ['']
-        if 'gain' in plots:
-            doc += [f'![gain]({_image_path(plots["gain"], out)})', '']
-    if parts.get('gain_oracle') is not None:
-        a = parts['gain_oracle']
-        pa, ro = GAIN_ARMS['paper'], GAIN_ARMS['oracle']
-        doc += ['### For reference: paper G vs the oracle G', '',
-                f'{ro}: mean {a.summary["mean"][ro]:.2f} (SD {a.summary["sd"][ro]:.2f}) vs {a.summary["mean"][pa]:.2f} '
-                f'(SD {a.summary["sd"][pa]:.2f}); Friedman p = {format_p(a.p)}. Chosen on the same trials it is '
-                'scored on, so it is biased upward: it bounds what any per-wearer G could give here.', '']
-    grid = parts.get('grid')
-    if grid is not None:
-        rows = [[c, f'{grid.summary.at[c, "mean"]:.2f}', f'{grid.summary.at[c, "sd"]:.2f}',
-                 f'{grid.summary.at[c, "mean_rank"]:.2f}'] for c in grid.conditions]
-        doc += ['### Does G matter at all? Every G on the evaluation trials', '']
-        doc += _md_table(['G', 'mean identified', 'SD', 'mean rank'], rows, 'lrrr')
-        doc += ['', f'Friedman across the {grid.k} gains: chi-square = {grid.chi2:.2f}, df = {grid.df}, '
-                    f'p = {format_p(grid.p)}, Kendall\'s W = {grid.kendall_w:.3f}.', '']
-        tv = parts.get('tuned_vs_oracle')
-        if tv is not None:
-            doc += [f'Is the tuned G the wearer\'s real best? Spearman correlation of tuned and oracle G across '
-                    f'wearers: rho = {tv[0]:+.2f}, p = {format_p(tv[1])}.', '']
-
-    # ---- 2
-    doc += ['## 2. Moving targets', '',
-            f'A target starts as a speed-protocol target (within +-{sc.protocol.horizontal_deg:g} deg horizontally, '
-            f'+-{sc.protocol.vertical_deg:g} deg vertically) and moves at {", ".join(f"{s:g}" for s in st.speeds_dps)} '
-            'deg/s (in the horizontal and vertical angles) in a random direction, reflected at the edges of that '
-            f'range; {st.moving_reps} trials per speed, {st.moving_s:g} s each, guidance throughout (condition 1, the '
-            f'scene\'s G = {sc.controller.gain:g}). The same targets and effect streams for the three laws:', '',
-            f'- **{LAW_NAMES["paper"]}**: Eq. 5 as the paper built it for static targets: theta_t is taken once, '
-            'when guidance begins.',
-            f'- **{LAW_NAMES["live"]}**: Eq. 5 fed the moving target every control step, without the shift: what '
-            'the pressure_controller node does with `follow_moving_target` false.',
-            f'- **{LAW_NAMES["follow"]}**: the same with `follow_target`: a change of theta_t shifts the pressure by '
-            'f(new) - f(old).', '',
-            'Time to find: until the tracked gaze has first stayed within '
-            f'{sc.protocol.acceptance_deg:g} deg of the moving target for {sc.protocol.dwell_s:g} s (censored at '
-            f'{st.moving_s:g} s when never). Tracking error: angle between the true gaze and the target, mean over the '
-            'trial. *seen*: the target is visible, the eyes catch it once it is in the central field (as in the speed '
-            'protocol); *unseen*: no visual capture, the suit alone guides (as in the accuracy protocol).', '',
-            'Per cell: found within the trial / mean time to find / mean tracking error (deg) / mean error over '
-            'the second half (deg), means over wearers.', '']
-    moving = parts.get('moving_trials')
-    if moving is not None and not moving.empty:
-        doc += _found_table(moving) + ['']
-    for (scenario, speed, measure), a in parts['moving'].items():
-        if a is None:
-            continue
-        doc += [f'### {speed:g} deg/s, {scenario}: {MOVING_MEASURES[measure]}', ''] + analysis_markdown(a, level=3)
-        doc += ['']
-        if (scenario, speed, measure) in plots:
-            doc += [f'![{scenario} {speed:g} {measure}]({_image_path(plots[(scenario, speed, measure)], out)})', '']
+    doc += gain_report(results, parts, plots, out)
+    doc += moving_report(results, parts, plots, out)
     doc += ['## Files', '',
             '- `gain_grid.csv`: every tuning and evaluation trial of the G grid (phase, gain, repetition, '
             'identified, presented, mean_find_s).',
@@ -316,7 +120,7 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sim.beyond import QUICK, BeyondSettings, run_beyond
+    from ..sim.discussion_studies import QUICK, StudySettings, run_studies
     from ..sim.scene import SceneError, load_scene
     try:
         scene = load_scene(args.scene)
@@ -333,12 +137,12 @@ def run(args: argparse.Namespace) -> int:
     except (SceneError, ValueError) as exc:
         _error(exc)
         return 2
-    settings = QUICK if args.quick else BeyondSettings()
+    settings = QUICK if args.quick else StudySettings()
 
     def progress(done, total, subject):
         print(f'  wearer S{subject + 1:02d} done ({done}/{total})', file=sys.stderr, flush=True)
 
-    results = run_beyond(scene, subjects, settings, args.workers, progress)
+    results = run_studies(scene, subjects, settings, args.workers, progress)
     parts = analyze(results)
     out: Path = args.out
     try:

@@ -9,28 +9,11 @@ Two wearers:
 
 - scene_file '' (default): fabric_guidance.sim.wearer.SimulatedWearer with the parameters
   `laws` and `tau_s`: deterministic, no noise, no delay (what `make demo` runs).
-- scene_file set: wearer `wearer_index` of the scene's population (sim.population.sample_wearer),
-  a sim.wearer.SceneWearer with the scene's body_dynamics if listed, and the scene's
-  wearer-side effects (sim.effects) applied every timer tick, in the order of the headless
-  engine (sim.engine.ClosedLoop.step):
-
-      measured_pressure (the mock PLC realises regulator_lag)
-        -> per-direction mean (ChannelMap.to_directions, the condition's layout)
-        -> [pressure] suit_hysteresis -> [percept] weber_perception -> [delay] reaction_delay
-        -> SceneWearer.feel -> SceneWearer.move (visual capture of the active target)
-        -> gaze -> [gaze] gaze_noise, datagram_loss (not sent), datagram_latency (sent later)
-        -> UDP datagram
-      condition 4: speech -> [speech] speech_latency -> engine.parse_phrase
-        -> [delay] reaction_delay -> SceneWearer.hear
-
-  The simulation steps at dt = 1/gaze_rate_hz locked to the wall clock (a late timer tick runs
-  the steps it missed, up to MAX_CATCH_UP_STEPS), one datagram per step at most. The effects
-  are started with the engine's seeding, RunContext(dt, scene seed, wearer_index,
-  engine.trial_run(condition, 0)), so the same scene file gives the same effect parameters and
-  random streams (datagram seq k carries the k-th gaze_noise draw). The graph runs in real time on DDS, UDP and Modbus,
-  so a run is not bit-identical with the headless engine's. regulator_lag is not applied
-  here: the mock PLC's regulator_tau_s is the regulator (fabric-guidance demo --scene sets it
-  from the scene).
+- scene_file set: wearer `wearer_index` of the scene's population with the scene's
+  wearer-side effects: fabric_guidance.sim.scene_wearer.SceneSide (the order of the effects, the
+  seeding and what the graph realises elsewhere are described there), stepped at
+  dt = 1/gaze_rate_hz locked to the wall clock (a late timer tick runs the steps it missed, up
+  to MAX_CATCH_UP_STEPS), one datagram per step at most.
 
 Subscribes  measured_pressure (Float64MultiArray, kPa), active_target (String); with a scene
             also target (PointStamped: visual capture) and speech (String, condition 4)
@@ -38,7 +21,6 @@ Sends       UDP gaze datagrams to bridge_host:bridge_port
 """
 from __future__ import annotations
 
-from pathlib import Path
 import socket
 import sys
 import time
@@ -51,7 +33,8 @@ from std_msgs.msg import Float64MultiArray, String
 from ..core import ChannelMap, PowerLaw, condition as condition_of, ray_orientation
 from ..core.gaze_wire import encode_datagram, ros_to_unity_point, ros_to_unity_quaternion
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
-from ..paths import resolve, share_dir
+from ..paths import resolve
+from ..sim.scene_wearer import REALISED_ELSEWHERE, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
 from .common import (ACTIVE_TARGET, COMMAND_QOS, EVENT_QOS, LATCHED_QOS, MEASURED_PRESSURE, SPEECH, TARGET,
                      declare, run)
@@ -61,121 +44,6 @@ PRESSURE_TIMEOUT_S = 0.5
 #: With a scene, simulation steps run locked to the wall clock: a late tick runs the steps it
 #: missed, up to this many; a longer stall (the process was not scheduled) is not replayed.
 MAX_CATCH_UP_STEPS = 5
-#: Effects the node does not apply because another part of the graph realises them.
-REALISED_ELSEWHERE = {'regulator_lag': 'mock_plc (regulator_tau_s)'}
-_FRONT = (0.0, 0.0)
-
-
-def load_scene_file(value: str):
-    """A scene from a path (relative: to the working directory, else to the package share)
-    or the name of one of config/scenes/."""
-    from ..sim.scene import load_scene
-    path = Path(value).expanduser()
-    if not path.is_absolute() and not path.exists() and (share_dir() / path).exists():
-        path = share_dir() / path
-    return load_scene(path if path.suffix in ('.yaml', '.yml') or path.exists() else value)
-
-
-class SceneSide:
-    """The wearer side of a scene's closed loop, one step per call, without ROS: what
-    sim.engine.ClosedLoop.step does from the command onward, minus regulator_lag (the PLC's).
-
-    step(pressures, follow, target) takes the measured pressure per direction (left, right,
-    down, up, kPa), whether the wearer follows the guidance (a target is active) or returns to
-    the front, and the active target's (yaw, pitch) from the eye (degrees) or None; it returns
-    the gaze sample to send, (seq, t, yaw, pitch), or None when datagram_loss / latency hold it.
-    `sent_true_gaze` is then the wearer's true (yaw, pitch) when that sample was taken (the
-    head pose of its datagram).
-    """
-
-    def __init__(self, scene, wearer_index: int, condition: int, dt: float, layout: str | None = None):
-        from ..sim.effects import RunContext, by_stage
-        from ..sim.engine import trial_run
-        from ..sim.population import sample_wearer
-        from ..sim.wearer import SceneWearer, Senses
-        n = scene.population.subjects
-        if not 0 <= wearer_index < n:
-            raise ValueError(f'parameter wearer_index: the scene {scene.name} has wearers 0..{n - 1}, '
-                             f'got {wearer_index}')
-        spec = sample_wearer(scene, wearer_index)
-        if spec.error:
-            raise ValueError(f'wearer {wearer_index} of scene {scene.name} is not usable: {spec.error}')
-        self.scene, self.spec, self.dt = scene, spec, float(dt)
-        self.cond = condition_of(condition)
-        self.layout = layout or self.cond.layout or 'suit'
-        self.run_key = trial_run(self.cond.number, 0)
-        ctx = RunContext(self.dt, scene.seed, int(wearer_index), self.run_key)
-        self.effects = [s.build() for s in scene.effects]
-        for e in self.effects:
-            e.start(ctx)
-        stages = by_stage(self.effects)
-        self.gaze_fx = [e.gaze for e in stages['gaze']]
-        body = stages['body'][0] if stages['body'] else None
-        self.wearer = SceneWearer(spec.suit_laws, spec.arm_laws, scene.controller.p_max_kpa, body)
-        self.wearer.set_layout(self.layout)
-        self.haptic = self.cond.haptic
-        self.senses = Senses(stages, self.haptic, skip=REALISED_ELSEWHERE)
-        # The speed protocol's targets are objects the wearer can see (visual capture); the
-        # accuracy protocol's are angles with nothing to see (engine: present(visible=False)).
-        self.visible = scene.protocol.kind == 'speed'
-        self.step_index = 0
-        self.seq = 0
-        self._true: dict[int, tuple[float, float]] = {}   # seq -> true gaze, until sent or dropped
-        self.sent_true_gaze = (0.0, 0.0)
-
-    @property
-    def t(self) -> float:
-        return self.step_index * self.dt
-
-    def applied_effects(self) -> list[str]:
-        """The scene's effects this side applies (the others are realised elsewhere or unused)."""
-        out = []
-        for e in self.effects:
-            if e.name in REALISED_ELSEWHERE:
-                continue
-            if e.stage in ('pressure', 'percept') and not self.haptic:
-                continue
-            if e.stage == 'speech' and not self.cond.speech:
-                continue
-            out.append(e.name)
-        return out
-
-    def present(self) -> None:
-        """A new target became active: follow the guidance from here (engine.present)."""
-        self.wearer.acting = False
-
-    def withdraw(self) -> None:
-        """No target: return to the front, forget a phrase not yet heard (engine.withdraw)."""
-        self.senses.forget()
-        self.wearer.go_front()
-
-    def hear_phrase(self, text: str) -> None:
-        """Condition 4's phrase was spoken now; the wearer has heard it after speech_latency."""
-        self.senses.say(self.t, text)
-
-    @property
-    def heard_phrases(self) -> list[str]:
-        return self.senses.heard_phrases
-
-    def step(self, pressures, follow: bool, target: tuple[float, float] | None):
-        wearer = self.wearer
-        self.senses.step(self.t, [float(x) for x in pressures], wearer, follow)
-        if follow:
-            wearer.move(target if self.visible else None)
-        else:
-            wearer.move(_FRONT if self.visible else None)
-        self.step_index += 1
-        self.seq += 1
-        sample = (self.seq, self.t, wearer.gaze_yaw, wearer.gaze_pitch)
-        self._true[self.seq] = sample[2:]
-        for fx in self.gaze_fx:
-            sample = fx(self.t, sample)
-        if sample is not None:
-            self.sent_true_gaze = self._true[sample[0]]
-            self._true = {k: v for k, v in self._true.items() if k > sample[0]}
-        elif len(self._true) > 1000:   # a long loss burst: forget the oldest
-            self._true = dict(list(self._true.items())[-100:])
-        return sample
 
 
 class WearerSim(Node):

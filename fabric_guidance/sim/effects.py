@@ -847,9 +847,20 @@ def by_stage(effects) -> dict[str, list[Effect]]:
     return out
 
 
+def start_effects(specs, ctx: RunContext) -> tuple[list[Effect], dict[str, list[Effect]]]:
+    """A run's effects built from the scene's specs and started with its context: (the effects
+    in the scene's order, by_stage() of them). The engine and the graph's wearer both start
+    them so, which keeps their seeding the same."""
+    effects = [spec.build() for spec in specs]
+    for e in effects:
+        e.start(ctx)
+    return effects, by_stage(effects)
+
+
 __all__ = ['HOLOLENS2_FOV_DEG', 'REGISTRY', 'STAGES', 'BodyDynamics', 'CueMisreading',
            'HololensView',
            'RelativePerception', 'SurfaceResistance', 'DatagramLatency', 'DatagramLoss', 'Draws',
            'Effect', 'EffectError',
            'GazeNoise', 'ReactionDelay', 'RegulatorLag', 'RunContext', 'SpeechLatency', 'SuitHysteresis',
-           'WeberPerception', 'by_stage', 'effect_class', 'generator', 'make_effect', 'seed_sequence', 'stream_key']
+           'WeberPerception', 'by_stage', 'effect_class', 'generator', 'make_effect', 'seed_sequence',
+           'start_effects', 'stream_key']

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 from functools import lru_cache
 import math
-import re
 from typing import Sequence
 
 from ..core.calibration import ACCEPT_ALL, APPLY, Calibration, CalibrationProcedure, DONE, FAILED
@@ -43,7 +42,7 @@ from ..core.geometry import DIRECTIONS, wrap_deg
 from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
-from .effects import RunContext, by_stage
+from .effects import RunContext, start_effects
 from .wearer import (SceneWearer, Senses, angle_between_deg, gaze_from_angles,  # noqa: F401
                      haversine)
 
@@ -83,23 +82,6 @@ class FastPowerLaw(PowerLaw):
         return PowerLaw.pressure(self, theta)
 
 
-_PHRASE_H = re.compile(r'(\d+) to the (left|right)')
-_PHRASE_V = re.compile(r'(\d+) (upward|downward)')
-
-
-def parse_phrase(text: str) -> tuple[float, float]:
-    """What a listener takes from core.speech.phrase: (horizontal, vertical) degrees,
-    positive left / up."""
-    h = v = 0.0
-    m = _PHRASE_H.search(text)
-    if m:
-        h = float(m.group(1)) * (1.0 if m.group(2) == 'left' else -1.0)
-    m = _PHRASE_V.search(text)
-    if m:
-        v = float(m.group(1)) * (1.0 if m.group(2) == 'upward' else -1.0)
-    return h, v
-
-
 def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | None = None,
                      follow_target: bool = False) -> GuidanceController:
     """The controller the node builds (bag.controller_io.ControllerSetup.make_controller) from a
@@ -137,10 +119,7 @@ class ClosedLoop:
         self.dt = 1.0 / scene.sim_rate_hz
         self.run_key = tuple(int(x) for x in run)
         ctx = RunContext(self.dt, scene.seed, int(wearer.index), self.run_key)
-        self.effects = [spec.build() for spec in scene.effects]
-        for e in self.effects:
-            e.start(ctx)
-        stages = by_stage(self.effects)
+        self.effects, stages = start_effects(scene.effects, ctx)
         self._gaze_fx = [e.gaze for e in stages['gaze']]
         body = stages['body'][0] if stages['body'] else None
 
@@ -416,4 +395,4 @@ def run_calibration(scene, wearer, name: str | None = None) -> Calibration:
 
 __all__ = ['CALIBRATION_RUN', 'ClosedLoop', 'FastPowerLaw', 'scene_controller', 'yaw_pitch',
            'WARMUP_S', 'angle_between_deg', 'package_channel_map',
-           'parse_phrase', 'run_calibration', 'trial_run']
+           'run_calibration', 'trial_run']

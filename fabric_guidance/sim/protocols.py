@@ -24,7 +24,8 @@ A trial is a pure function of (scene, wearer, condition, repetition), so results
 depend on the number of worker processes or on which wearers run.
 
 Command line: python -m fabric_guidance.sim.protocols paper-speed [--subjects N] [--workers W]
-[--csv OUT.csv] [--stats]  (--stats: experiments.stats' Friedman and Dunn-Bonferroni, as the paper)
+[--csv OUT.csv]; the paper's statistics (Friedman, Dunn-Bonferroni) on the same run:
+fabric-guidance experiment --scene paper-speed --out DIR (experiments/experiment.py).
 """
 from __future__ import annotations
 
@@ -107,12 +108,13 @@ def condition_order(scene: Scene, subject: int) -> tuple[int, ...]:
     return tuple(scene.conditions[i] for i in perm)
 
 
-def _targets(scene: Scene, subject: int, repetition: int) -> np.random.Generator:
+def target_stream(scene: Scene, subject: int, repetition: int) -> np.random.Generator:
     """Targets of repetition r: the same sequence in every condition (common random numbers)."""
     return generator(scene.seed, 'targets', subject, (repetition,))
 
 
-def _draw_target(rng: np.random.Generator, protocol) -> tuple[float, float]:
+def draw_target(rng: np.random.Generator, protocol) -> tuple[float, float]:
+    """The next target (yaw, pitch) in degrees, uniform over the protocol's ranges."""
     h, v = rng.uniform(-1.0, 1.0, 2)
     return float(h * protocol.horizontal_deg), float(v * protocol.vertical_deg)
 
@@ -124,7 +126,7 @@ def _draw_target(rng: np.random.Generator, protocol) -> tuple[float, float]:
 def accuracy_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repetition: int) -> dict:
     """One accuracy trial; the measures as a dict (TrialRecord's accuracy fields)."""
     proto: AccuracyProtocol = scene.protocol
-    h_t, v_t = _draw_target(_targets(scene, wearer.index, repetition), proto)
+    h_t, v_t = draw_target(target_stream(scene, wearer.index, repetition), proto)
     loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
     loop.warm_up()
     w = loop.wearer
@@ -171,7 +173,7 @@ def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol)
     t0 = loop.t
     end = t0 + proto.trial_s - 1e-9
     acc_hav, dwell = hav_limit(proto.acceptance_deg), proto.dwell_s
-    target = _draw_target(rng, proto)
+    target = draw_target(rng, proto)
     loop.present(*target, visible=True)
     appeared, finds = t0, []
     presented = 1
@@ -200,7 +202,7 @@ def speed_loop(loop: ClosedLoop, rng: np.random.Generator, proto: SpeedProtocol)
             loop.withdraw(front_visible=True)
             goal = (0.0, 0.0)
         else:
-            target = _draw_target(rng, proto)
+            target = draw_target(rng, proto)
             presented += 1
             appeared = t
             loop.present(*target, visible=True)
@@ -251,7 +253,7 @@ def speed_trial(scene: Scene, wearer: WearerSpec, calibration, cond: int, repeti
     """One speed trial; the measures as a dict (TrialRecord's speed fields)."""
     loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
     loop.warm_up()
-    return speed_measures(speed_loop(loop, _targets(scene, wearer.index, repetition), scene.protocol))
+    return speed_measures(speed_loop(loop, target_stream(scene, wearer.index, repetition), scene.protocol))
 
 
 TRIALS = {'speed': speed_trial, 'accuracy': accuracy_trial}
@@ -409,7 +411,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
     parser.add_argument('--csv', type=Path, metavar='OUT.csv', help='write one row per trial here')
     parser.add_argument('--stats', action='store_true',
-                        help="the paper's statistics (Friedman, Dunn-Bonferroni) on the per-wearer means")
+                        help="where the paper's statistics are: `fabric-guidance experiment --scene SCENE "
+                             "--out DIR` (the simulator sits below experiments/)")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
 
@@ -421,20 +424,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.csv is not None:
         trials_frame(results, condition_names=False).to_csv(args.csv, index=False)
         print(f'trials: {args.csv}')
-    if args.stats and results:
-        from ..experiments.stats import analyze_trials, format_analysis
-        frame = trials_frame(results)
-        for measure, higher in MEASURES[scene.protocol.kind].items():
-            print(f'\n{measure}:')
-            print(format_analysis(analyze_trials(frame, measure, higher_is_better=higher)), end='')
+    if args.stats:
+        print(f'statistics: fabric-guidance experiment --scene {args.scene} --out DIR')
     return 0
 
 
 __all__ = ['CONDITION_NAMES', 'Exclusion', 'MEASURES', 'ProtocolResults', 'TRIALS', 'TrialRecord', 'accuracy_trial',
            'condition_order', 'format_summary', 'run_protocol', 'run_subject', 'sequence_loop',
-           'speed_trial',
+           'speed_trial', 'draw_target', 'target_stream',
            'summarize',
            'trials_frame']
+
+# Old private names, imported by experiments/tradeoff.py until the merge of issue 15 (the lead
+# removes them then).
+_targets = target_stream
+_draw_target = draw_target
 
 
 if __name__ == '__main__':

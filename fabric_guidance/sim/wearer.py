@@ -1,5 +1,5 @@
-"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, headless.py) and SceneWearer (the
-scene simulator, engine.py).
+"""Simulated wearers: SimulatedWearer (the ROS wearer_sim node, worked_example.py) and
+SceneWearer (the scene simulator, engine.py).
 
 SimulatedWearer reads the suit's pressure per direction (left, right, down, up), interprets
 it through their own power law (their sensitivity, which the calibration has to discover) as
@@ -22,6 +22,7 @@ import numpy as np
 from ..core.feedback import PAPER_P_MAX
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
+from ..core.speech import parse_phrase
 
 
 def gaze_from_angles(yaw_deg: float, pitch_deg: float) -> np.ndarray:
@@ -277,7 +278,8 @@ class Senses:
     the pressure rises; and after standing still for cue_misreading.reread_s without seeing the
     visible target they look for (`searching` and `seen`, set by the engine) they read it
     again. Every read restarts the resistance and the rise detection. In the ROS graph
-    (wearer_sim) `seen` stays False: hololens_view is headless only.
+    (sim.scene_wearer.SceneSide) `seen` comes from visual capture alone: hololens_view is
+    headless only.
     """
 
     def __init__(self, stages, haptic: bool, skip=(), cue: bool = True):
@@ -395,7 +397,6 @@ class Senses:
             return exerted
         pending = self.pending
         if pending is not None and t >= pending[0] - 1e-9:
-            from .engine import parse_phrase
             self.pending = None
             self.heard = (pending[1],) + parse_phrase(pending[2])
             self.heard_phrases.append(pending[2])
