@@ -53,7 +53,7 @@ from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene, load_scene
 from .fit_wearer import FREE
-from .report import _image_path, _md_table
+from .report import image_path, md_table
 from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, _as_protocol, calibration_key
 
 PROG = 'fabric-guidance sensitivity'
@@ -490,7 +490,7 @@ def markdown_table(result: SensitivityResult) -> str:
         mark = ' **beyond noise**' if z >= NOISE_SDS else ''
         unit = f' {p.unit}' if p.unit and p.unit != '-' else ''
         rows.append([key, f'{_fmt(p.value)}{unit}', vals] + cells + [f'{z:.1f} ({h}){mark}'])
-    return '\n'.join(_md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
+    return '\n'.join(md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
 
 
 def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
@@ -591,7 +591,7 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
     if skipped:
         lines += ['Not swept (measured, fitted or excluded): '
                   + ', '.join(f'`{k}`' for k in skipped) + '.', '']
-    lines += ['## Tornado plot', '', f'![sensitivity]({_image_path(paths["png"], out)})', '']
+    lines += ['## Tornado plot', '', f'![sensitivity]({image_path(paths["png"], out)})', '']
     paths['md'].write_text('\n'.join(lines))
     return paths
 

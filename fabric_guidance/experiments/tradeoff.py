@@ -66,7 +66,7 @@ from ..sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial
 from ..sim.population import CalibrationOutcome, law_angle_error_deg, law_error_kpa, sample_wearer
 from ..sim.protocols import _targets, accuracy_trial, speed_loop
 from ..sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
-from .report import _image_path, _md_table
+from .report import image_path, md_table
 
 PROG = 'fabric-guidance tradeoff'
 HELP = 'sweep the knobs that buy accuracy with time; table, plots and a reading of the curves'
@@ -1200,7 +1200,7 @@ def plane_table(result: 'SweepResult') -> str:
             rows.append([knob, value, r.accuracy_metric, _fmt(rec['accuracy_mean']),
                          _fmt(rec['accuracy_se']),
                          _fmt(rec['time_mean']), _fmt(rec['time_se']), rec['wearers'], r.note])
-    return '\n'.join(_md_table(header, rows, 'llrrrrrrl'))
+    return '\n'.join(md_table(header, rows, 'llrrrrrrl'))
 
 
 def markdown_table(frame: pd.DataFrame) -> str:
@@ -1209,7 +1209,7 @@ def markdown_table(frame: pd.DataFrame) -> str:
     rows = [[r.knob, f'{r.value:g}', r.accuracy_metric, _fmt(r.accuracy_mean), _fmt(r.accuracy_sd),
              f'{_fmt(r.accuracy_p10)} to {_fmt(r.accuracy_p90)}', r.time_metric, _fmt(r.time_mean), _fmt(r.time_sd),
              f'{_fmt(r.time_p10)} to {_fmt(r.time_p90)}', int(r.n)] for r in frame.itertuples()]
-    return '\n'.join(_md_table(header, rows, 'lrlrrrlrrrr'))
+    return '\n'.join(md_table(header, rows, 'lrlrrrlrrrr'))
 
 
 def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
@@ -1246,7 +1246,7 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
                      f'({source}: {ref:g})')
     if s.plane:
         lines += ['', '## The plane', '', plane_text(result), '', plane_table(result), '',
-                  f'![plane]({_image_path(paths["plane"], out)})']
+                  f'![plane]({image_path(paths["plane"], out)})']
     lines += ['', '## Table', '', markdown_table(frame), '',
               'Guidance error: hypot of the horizontal and vertical absolute errors of the true '
               'gaze at the key '
@@ -1278,7 +1278,7 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
         lines.append(f'- **control_rate and G**: {gain_rate_reading(result)}')
     lines += ['', '## Plots', '']
     for knob in s.knobs:
-        lines += [f'![{knob}]({_image_path(paths[knob], out)})', '']
+        lines += [f'![{knob}]({image_path(paths[knob], out)})', '']
     paths['md'] = out / 'tradeoff.md'
     paths['md'].write_text('\n'.join(lines).rstrip() + '\n')
     result.readings = readings
