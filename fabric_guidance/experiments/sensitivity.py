@@ -54,7 +54,7 @@ from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene, load_scene
 from .fit_wearer import FREE
 from .report import image_path, md_table
-from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, _as_protocol, calibration_key
+from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, as_protocol, calibration_key
 
 PROG = 'fabric-guidance sensitivity'
 HELP = 'vary every assumed human parameter low and high: how much each moves the headline figures'
@@ -132,8 +132,8 @@ def check_settings(s: Settings) -> None:
 def load_scenes(s: Settings) -> tuple[Scene, Scene]:
     """(speed scene, accuracy scene) on the same wearers: the accuracy scene takes the speed
     scene's seed and population (as the trade-off's plane)."""
-    spd = _as_protocol(load_scene(s.speed_scene), 'speed')
-    acc = _as_protocol(load_scene(s.accuracy_scene), 'accuracy')
+    spd = as_protocol(load_scene(s.speed_scene), 'speed')
+    acc = as_protocol(load_scene(s.accuracy_scene), 'accuracy')
     acc = acc.replace(seed=spd.seed, population=spd.population)
     spd = spd.replace(conditions=SPEED_CONDITIONS, repetitions=s.speed_repetitions)
     acc = acc.replace(conditions=ACCURACY_CONDITIONS, repetitions=s.repetitions)

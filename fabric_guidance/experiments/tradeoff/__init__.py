@@ -19,13 +19,13 @@ from .report import markdown_table, write_outputs
 from .rows import Row
 from .runs import calibrate_measured, calibration_key, speed_trial_detail
 from .settings import (CSV_COLUMNS, DEFAULT_ACCURACY_SCENE, DEFAULT_GRIDS, DEFAULT_SPEED_SCENE,
-                       KNOBS, PLANE_CONDITIONS, QUICK_GRIDS, Settings, _as_protocol,
+                       KNOBS, PLANE_CONDITIONS, QUICK_GRIDS, Settings, as_protocol,
                        quick_settings)
 from .sweep import SweepResult, run_sweep
 
-__all__ = ['CSV_COLUMNS', 'DEFAULT_ACCURACY_SCENE', 'DEFAULT_GRIDS', 'DEFAULT_SPEED_SCENE', 'HELP',
-           'KNOBS', 'PLANE_CONDITIONS', 'PROG', 'QUICK_GRIDS', 'Row', 'Settings', 'SweepResult',
-           'add_parser', 'calibrate_measured', 'calibration_key', 'configure', 'diff_se',
-           'gain_rate_reading', 'main', 'markdown_table', 'pareto_front', 'plot_knob',
-           'plot_plane', 'quick_settings', 'read_curve', 'run', 'run_sweep', 'settings_from_args',
-           'speed_trial_detail', 'write_outputs']
+__all__ = ['CSV_COLUMNS', 'DEFAULT_ACCURACY_SCENE', 'DEFAULT_GRIDS', 'DEFAULT_SPEED_SCENE',
+           'HELP', 'KNOBS', 'PLANE_CONDITIONS', 'PROG', 'QUICK_GRIDS', 'Row', 'Settings',
+           'SweepResult', 'add_parser', 'as_protocol', 'calibrate_measured', 'calibration_key',
+           'configure', 'diff_se', 'gain_rate_reading', 'main', 'markdown_table', 'pareto_front',
+           'plot_knob', 'plot_plane', 'quick_settings', 'read_curve', 'run', 'run_sweep',
+           'settings_from_args', 'speed_trial_detail', 'write_outputs']

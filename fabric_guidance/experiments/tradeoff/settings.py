@@ -93,7 +93,7 @@ def quick_settings(**changes) -> Settings:
     return Settings(**base)
 
 
-def _as_protocol(scene: Scene, kind: str) -> Scene:
+def as_protocol(scene: Scene, kind: str) -> Scene:
     """The scene with a protocol of `kind`: its own, or that protocol's defaults (the paper's)."""
     if scene.protocol.kind == kind:
         return scene
@@ -103,8 +103,8 @@ def _as_protocol(scene: Scene, kind: str) -> Scene:
 
 def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
     """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
-    acc = _as_protocol(load_scene(settings.accuracy_scene), 'accuracy')
-    spd = _as_protocol(load_scene(settings.speed_scene), 'speed')
+    acc = as_protocol(load_scene(settings.accuracy_scene), 'accuracy')
+    spd = as_protocol(load_scene(settings.speed_scene), 'speed')
     # The plane puts one protocol's time against the other's error: both run on the same
     # wearers (the speed scene's seed and population; common random numbers), which also lets
     # the two share every calibration when the scenes list the same effects.
