@@ -35,8 +35,7 @@ def _fmt_law(law: PowerLaw) -> str:
 
 
 def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
-    def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+    say = subcommand.printer(stream)
 
     say('fabric_guidance worked example: the core on a simulated wearer (no ROS graph)')
     say()

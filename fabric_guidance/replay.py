@@ -49,8 +49,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args, stream=sys.stdout) -> int:
-    def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+    say = subcommand.printer(stream)
 
     from .bag.reader import bag_dir
     try:

@@ -3,7 +3,7 @@ from a module's HELP, docstring, configure(parser) and run(args)."""
 from __future__ import annotations
 
 import argparse
-from typing import Callable, Sequence
+from typing import Callable, Sequence, TextIO
 
 Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
 
@@ -22,3 +22,10 @@ def main(prog: str, doc: str | None, configure: Configure, run: Callable[[argpar
     """The module run on its own (`python -m ...`): the same options, no subcommand."""
     parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     return run(configure(parser).parse_args(argv))
+
+
+def printer(stream: TextIO) -> Callable[..., None]:
+    """say(line=''): print a line to stream and flush it, so progress shows as it happens."""
+    def say(line: str = '') -> None:
+        print(line, file=stream, flush=True)
+    return say

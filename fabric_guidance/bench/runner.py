@@ -212,8 +212,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args, stream=sys.stdout) -> int:
-    def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+    say = subcommand.printer(stream)
     plan = QUICK if args.quick else FULL
     if args.work is not None:
         results = run_all(plan, Path(args.work), say)
