@@ -3,6 +3,7 @@ from a module's HELP, docstring, configure(parser) and run(args)."""
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Callable, Sequence, TextIO
 
 Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
@@ -29,3 +30,8 @@ def printer(stream: TextIO) -> Callable[..., None]:
     def say(line: str = '') -> None:
         print(line, file=stream, flush=True)
     return say
+
+
+def error(prog: str, message) -> None:
+    """`prog: error: message` on stderr, always one line (a message's own line breaks folded)."""
+    print(f'{prog}: error: {" ".join(str(message).split())}', file=sys.stderr)

@@ -675,10 +675,6 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return replace(base, **changes)
 
 
-def _error(message) -> None:
-    print(f'{PROG}: error: {" ".join(str(message).split())}', file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
     """0 done, 2 bad arguments or scene, 1 an output could not be written."""
     try:
@@ -701,12 +697,12 @@ def run(args: argparse.Namespace) -> int:
         result = run_sensitivity(settings, progress=lambda line: print(line, file=sys.stderr,
                                                                        flush=True))
     except (ValueError, OSError) as exc:
-        _error(exc)
+        subcommand.error(PROG, exc)
         return 2
     try:
         paths = write_outputs(result, args.out)
     except OSError as exc:
-        _error(f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
+        subcommand.error(PROG, f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
         return 1
     print(markdown_table(result))
     print(f'\nsensitivity: {result.wall_s:.1f} s wall\ntable: {paths["csv"]}\n'

@@ -106,10 +106,6 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return replace(base, **changes)
 
 
-def _error(message: str) -> None:
-    print(f'{PROG}: error: {" ".join(str(message).split())}', file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
     """0 done, 2 bad arguments or scene, 1 an output could not be written."""
     try:
@@ -117,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         acc, _ = base_scenes(settings)
         check_settings(settings, acc)
     except (ValueError, OSError) as exc:
-        _error(exc)
+        subcommand.error(PROG, exc)
         return 2
     print(f'{PROG}: {len(settings.knobs)} knob(s), {settings.subjects} wearers, {settings.workers} worker(s)',
           file=sys.stderr, flush=True)
@@ -125,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         paths = write_outputs(result, args.out)
     except OSError as exc:
-        _error(f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
+        subcommand.error(PROG, f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
         return 1
     print(markdown_table(result.frame()))
     print()
