@@ -19,8 +19,9 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help='guidance condition (1 surface adjusted, 2 surface fixed, 3 arm '
                              "adjusted; 4 speech, with --scene only); default 1, or the scene's "
                              'first')
-    parser.add_argument('--scene', default=None, help='run a scene of the simulator (config/scenes '
-                        'name or file) through the graph')
+    parser.add_argument('--scene', default=None,
+                        help='run a scene of the simulator (config/scenes name or file) through '
+                             'the graph')
     parser.add_argument('--timeout', type=float, default=45.0,
                         help='give up after this many seconds')
     parser.add_argument('--out', type=Path, default=None,

@@ -40,15 +40,16 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
     say('fabric_guidance worked example: the core on a simulated wearer (no ROS graph)')
     say()
     wearer = SimulatedWearer(DEMO_WEARER, tau_s=0.4)
-    say(f'1. Calibration (Algorithm 1): 10 pressure steps per direction up to {PAPER_P_MAX:g} kPa, '
-        'Levenberg-Marquardt fit of P = a*theta^b + c')
+    say('1. Calibration (Algorithm 1): 10 pressure steps per direction up to '
+        f'{PAPER_P_MAX:g} kPa, Levenberg-Marquardt fit of P = a*theta^b + c')
     cal = calibrate(wearer, 'demo-wearer', dwell_s=2.0, rest_s=2.0, record_window_s=0.3)
-    say(f'   {"direction":<9} {"true a     b      c":<22} {"fitted a   b      c":<22} {"RMSE kPa":>8} '
-        f'{"R^2":>7} {"max|dP| 0-60deg":>15}')
+    say(f'   {"direction":<9} {"true a     b      c":<22} {"fitted a   b      c":<22} '
+        f'{"RMSE kPa":>8} {"R^2":>7} {"max|dP| 0-60deg":>15}')
     for d, true_law in zip(DIRECTIONS, DEMO_WEARER):
         fit = cal.directions[d]
-        say(f'   {d:<9} {_fmt_law(true_law):<22} {_fmt_law(fit.law):<22} {fit.fit["rmse_kpa"]:8.3f} '
-            f'{fit.fit["r2"]:7.4f} {within(true_law, fit.law):12.2f} kPa')
+        say(f'   {d:<9} {_fmt_law(true_law):<22} {_fmt_law(fit.law):<22} '
+            f'{fit.fit["rmse_kpa"]:8.3f} {fit.fit["r2"]:7.4f} '
+            f'{within(true_law, fit.law):12.2f} kPa')
     path = cal.save(out_dir / 'demo-wearer.yaml')
     say(f'   calibration file: {path}')
     say()
@@ -61,7 +62,8 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
         f'{"error deg":>9}  peak kPa ' + ' '.join(f'{d:>5}' for d in DIRECTIONS))
     results = guide(wearer, controller, DEMO_TARGETS, channel_map=cmap, layout=cond.layout)
     for r in results:
-        say(f'   {r.horizontal_deg:6.1f}, {r.vertical_deg:6.1f}   {phrase(r.horizontal_deg, r.vertical_deg):<30} '
+        spoken = phrase(r.horizontal_deg, r.vertical_deg)
+        say(f'   {r.horizontal_deg:6.1f}, {r.vertical_deg:6.1f}   {spoken:<30} '
             f'{"yes" if r.found else "no":<5} {r.time_s:6.2f} {r.final_error_deg:9.2f}           '
             + ' '.join(f'{r.peak_kpa[d]:5.0f}' for d in DIRECTIONS))
     found = sum(r.found for r in results)

@@ -11,17 +11,18 @@ Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
 
 def add(subparsers, name: str, help_text: str, doc: str | None, configure: Configure,
         run: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
-    """The subcommand `name` on an argparse subparsers object; `args.run(args)` dispatches to run."""
+    """The subcommand `name` on an argparse subparsers object; `args.run(args)` calls run."""
     parser = subparsers.add_parser(name, help=help_text, description=doc,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
     configure(parser).set_defaults(run=run)
     return parser
 
 
-def main(prog: str, doc: str | None, configure: Configure, run: Callable[[argparse.Namespace], int],
-         argv: Sequence[str] | None = None) -> int:
+def main(prog: str, doc: str | None, configure: Configure,
+         run: Callable[[argparse.Namespace], int], argv: Sequence[str] | None = None) -> int:
     """The module run on its own (`python -m ...`): the same options, no subcommand."""
-    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=prog, description=doc,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     return run(configure(parser).parse_args(argv))
 
 
