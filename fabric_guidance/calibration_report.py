@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         txt, png = write_fit_report(cal, out, source=str(args.file))
     except (CalibrationFileError, OSError, ValueError, ArithmeticError) as exc:
         # ArithmeticError: a value the file's checks let through that the drawing cannot take
-        print(f'{PROG}: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        subcommand.error(PROG, exc)
         return 2
     print(txt.read_text(), end='')
     print(f'\nreport: {txt}\nplot:   {png}', flush=True)

@@ -20,11 +20,14 @@ import argparse
 import math
 import sys
 
+from . import subcommand
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser('replay', help='replay a recorded session: offline through the controller, or '
-                              'republished with /clock for the graph', description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+PROG = 'fabric-guidance replay'
+HELP = ('replay a recorded session: offline through the controller, or republished with /clock '
+        'for the graph')
+
+
+def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('bag', help='the bag folder (or its .mcap file), e.g. written by demo --record')
     p.add_argument('--offline', action='store_true',
                    help='rerun the controller over the recorded inputs without DDS and compare its commands')
@@ -41,9 +44,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    return subcommand.add(subparsers, 'replay', HELP, __doc__, configure, run)
+
+
 def run(args, stream=sys.stdout) -> int:
-    def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+    say = subcommand.printer(stream)
 
     from .bag.reader import bag_dir
     try:
@@ -81,10 +87,8 @@ def run(args, stream=sys.stdout) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='fabric-guidance')
-    add_parser(parser.add_subparsers(dest='command', required=True))
-    return run(parser.parse_args(['replay', *(argv if argv is not None else sys.argv[1:])]))
+def main(argv: list[str] | None = None) -> int:
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 if __name__ == '__main__':

@@ -3,22 +3,36 @@ from a module's HELP, docstring, configure(parser) and run(args)."""
 from __future__ import annotations
 
 import argparse
-from typing import Callable, Sequence
+import sys
+from typing import Callable, Sequence, TextIO
 
 Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
 
 
 def add(subparsers, name: str, help_text: str, doc: str | None, configure: Configure,
         run: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
-    """The subcommand `name` on an argparse subparsers object; `args.run(args)` dispatches to run."""
+    """The subcommand `name` on an argparse subparsers object; `args.run(args)` calls run."""
     parser = subparsers.add_parser(name, help=help_text, description=doc,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
     configure(parser).set_defaults(run=run)
     return parser
 
 
-def main(prog: str, doc: str | None, configure: Configure, run: Callable[[argparse.Namespace], int],
-         argv: Sequence[str] | None = None) -> int:
+def main(prog: str, doc: str | None, configure: Configure,
+         run: Callable[[argparse.Namespace], int], argv: Sequence[str] | None = None) -> int:
     """The module run on its own (`python -m ...`): the same options, no subcommand."""
-    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=prog, description=doc,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     return run(configure(parser).parse_args(argv))
+
+
+def printer(stream: TextIO) -> Callable[..., None]:
+    """say(line=''): print a line to stream and flush it, so progress shows as it happens."""
+    def say(line: str = '') -> None:
+        print(line, file=stream, flush=True)
+    return say
+
+
+def error(prog: str, message) -> None:
+    """`prog: error: message` on stderr, always one line (a message's own line breaks folded)."""
+    print(f'{prog}: error: {" ".join(str(message).split())}', file=sys.stderr)

@@ -16,6 +16,7 @@ import sys
 import tempfile
 import time
 
+from .. import subcommand
 from ..paths import share_dir
 
 
@@ -192,10 +193,12 @@ def markdown(r: dict) -> str:
     return head + '\n\n' + '\n'.join(lines) + '\n'
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser('bench', help='benchmarks: gaze to regulator latency against the transports\' '
-                              'floor, component costs, memory, simulation and replay speed',
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+PROG = 'fabric-guidance bench'
+HELP = ("benchmarks: gaze to regulator latency against the transports' floor, component costs, "
+        'memory, simulation and replay speed')
+
+
+def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, default=Path('bench/results.json'),
                    help='the JSON file to write; the markdown table goes beside it (.md)')
     p.add_argument('--quick', action='store_true', help='few samples: a smoke run, not figures to quote')
@@ -204,9 +207,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    return subcommand.add(subparsers, 'bench', HELP, __doc__, configure, run)
+
+
 def run(args, stream=sys.stdout) -> int:
-    def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+    say = subcommand.printer(stream)
     plan = QUICK if args.quick else FULL
     if args.work is not None:
         results = run_all(plan, Path(args.work), say)
@@ -222,3 +228,11 @@ def run(args, stream=sys.stdout) -> int:
     say(table)
     say(f'written: {out}, {out.with_suffix(".md")}')
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return subcommand.main(PROG, __doc__, configure, run, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -36,16 +36,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return subcommand.add(subparsers, 'analyze', HELP, __doc__, configure, run)
 
 
-def _error(message: str) -> None:
-    print(f'{PROG}: error: {" ".join(str(message).split())}', file=sys.stderr)  # one line, always
-
-
 def run(args: argparse.Namespace) -> int:
     try:
         table = load_table(args.table)
         analysis = analyze_blocks(table, higher_is_better=not args.lower_is_better)
     except (ValueError, OSError) as exc:  # OSError: no such file, unreadable, a directory
-        _error(exc if isinstance(exc, ValueError) else f'{args.table}: {exc.strerror or exc}')
+        subcommand.error(PROG, exc if isinstance(exc, ValueError)
+                         else f'{args.table}: {exc.strerror or exc}')
         return 2
     print(format_analysis(analysis), end='', flush=True)
     label = args.label or f'{args.table.stem} (per subject)'
@@ -63,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
             args.report.write_text(text)
             print(f'report: {args.report}')
     except OSError as exc:
-        _error(f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
+        subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1
     return 0
 

@@ -38,6 +38,7 @@ import time
 
 import numpy as np
 
+from .. import subcommand
 from ..paths import config_path
 from . import paper
 
@@ -249,11 +250,11 @@ def write_scenes(out: Path, values: dict, means, obj: float, seed: int, budget: 
 # ---------------------------------------------------------------------------------------------
 # Command line
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser('fit-wearer', description=__doc__,
-                              help="fit the simulated wearer's human parameters to the paper's "
-                                   'speed means',
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+PROG = 'fabric-guidance fit-wearer'
+HELP = "fit the simulated wearer's human parameters to the paper's speed means"
+
+
+def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--budget', type=int, default=60,
                    help='objective evaluations at most (default 60)')
     p.add_argument('--out', type=Path, default=None,
@@ -267,6 +268,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="a per-subject table of identified targets (CSV; default: the paper's, "
                         "experiments/paper.py)")
     return p
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    return subcommand.add(subparsers, 'fit-wearer', HELP, __doc__, configure, run)
 
 
 def run(args) -> int:
@@ -305,9 +310,7 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='fabric-guidance')
-    add_parser(parser.add_subparsers(dest='command', required=True))
-    return run(parser.parse_args(['fit-wearer', *(argv if argv is not None else sys.argv[1:])]))
+    return subcommand.main(PROG, __doc__, configure, run, argv)
 
 
 if __name__ == '__main__':

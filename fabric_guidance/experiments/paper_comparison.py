@@ -33,7 +33,7 @@ import numpy as np
 from .. import subcommand
 from . import paper
 from .paper import ACCURACY_CLAIMS, CONDITIONS, SPEED_CLAIMS, Claim
-from .report import _md_table
+from .report import md_table
 from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
 
 PROG = 'fabric-guidance compare-paper'
@@ -136,7 +136,7 @@ def speed_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[str, 
         vals = [float(r.speed.means[name]) for r in seeds]
         inside = sum(abs(v - means[c]) <= ses[c] for v in vals)
         rows.append([str(c), f'{means[c]:.2f} +- {ses[c]:.2f}', _per_seed(vals), f'{inside}/{len(vals)}'])
-    lines += _md_table(['condition', 'paper (mean +- SE)', f'model, seeds {names}', 'within SE'], rows, 'lrrr')
+    lines += md_table(['condition', 'paper (mean +- SE)', f'model, seeds {names}', 'within SE'], rows, 'lrrr')
     lines += ['', '### Not fitted', '']
     rows = []
     for c, name in CONDITIONS.items():
@@ -149,7 +149,7 @@ def speed_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[str, 
         rows.append([f'subjects whose best is {c}', f'{paper.SPEED_BEST_COUNTS[c]}',
                      _per_seed([float(r.speed.best_counts[name]) for r in seeds], 0)])
     rows.append(['Friedman p', f'{format_p(table.p)} (table)', ' / '.join(format_p(r.speed.p) for r in seeds)])
-    lines += _md_table(['figure', 'paper', 'model: mean [min, max] over seeds, or per seed'], rows, 'lrr')
+    lines += md_table(['figure', 'paper', 'model: mean [min, max] over seeds, or per seed'], rows, 'lrr')
     lines += ['', 'Best-condition counts: a tie counts for every tied condition (the paper\'s counts sum to 16: '
               'subject B ties conditions 1 and 2).', '',
               '### Significance statements (Friedman, Dunn-Bonferroni on the per-subject means)', '']
@@ -160,7 +160,7 @@ def speed_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[str, 
         score[f'speed: {claim.text()}'] = [r.seed for r, (ok, _) in zip(seeds, per_seed) if ok]
         rows.append([claim.text(), claim.where, f'{"yes" if held else "no"} (p {format_p(p_table)})',
                      ' / '.join(f'{"yes" if ok else "no"} ({format_p(p)})' for ok, p in per_seed)])
-    lines += _md_table(['the paper says', 'where', "the paper's table re-analysed", 'model, per seed (p adj.)'],
+    lines += md_table(['the paper says', 'where', "the paper's table re-analysed", 'model, per seed (p adj.)'],
                        rows, 'llll')
     lines += ['', "The paper's own table, analysed per subject as the package does, supports only 1 > 4: the "
               'paper presumably tested all trials; its trial data are not published.', '']
@@ -183,7 +183,7 @@ def accuracy_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[st
             rows.append([f'{MEASURE_LABELS[measure]}, {c}',
                          _spread([float(r.accuracy[measure].means[name]) for r in seeds]),
                          _spread([float(r.accuracy[measure].medians[name]) for r in seeds])])
-    lines += _md_table(['measure, condition', 'mean of per-subject means (deg)', 'median of per-subject means (deg)'],
+    lines += md_table(['measure, condition', 'mean of per-subject means (deg)', 'median of per-subject means (deg)'],
                        rows, 'lrr')
     lines += ['']
     rows, score = [], {}
@@ -200,7 +200,7 @@ def accuracy_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[st
         score[key] = [r.seed for r, (ok, _) in zip(seeds, per_seed) if ok]
         rows.append([f'{MEASURE_LABELS[claim.measure]}: {claim.text()}', claim.where,
                      ' / '.join(f'{"yes" if ok else "no"} ({format_p(p)})' for ok, p in per_seed)])
-    lines += _md_table(['the paper says', 'where', 'model, per seed (p adj.)'], rows, 'lll')
+    lines += md_table(['the paper says', 'where', 'model, per seed (p adj.)'], rows, 'lll')
     lines += ['']
     return lines, score
 

@@ -14,18 +14,24 @@ def _cell(x) -> str:
     return str(x).replace('|', '\\|')
 
 
-def _md_table(header: Sequence[str], rows: Sequence[Sequence], align: str) -> list[str]:
-    """align: one of 'l' / 'r' per column."""
+def md_table(header: Sequence[str], rows: Sequence[Sequence], align: str) -> list[str]:
+    """A markdown table's lines; align: one of 'l' / 'r' per column."""
     marks = {'l': ':---', 'r': '---:'}
     return (['| ' + ' | '.join(map(_cell, header)) + ' |', '| ' + ' | '.join(marks[a] for a in align) + ' |']
             + ['| ' + ' | '.join(map(_cell, r)) + ' |' for r in rows])
 
 
-def _image_path(path, relative_to: Path | None) -> str:
+def image_path(path, relative_to: Path | None) -> str:
+    """How a report in the folder relative_to links the image at path (relative, with /)."""
     path = Path(path)
     if relative_to is not None:
         path = Path(os.path.relpath(path.resolve(), Path(relative_to).resolve()))
     return path.as_posix()
+
+
+# The old private names, for modules not yet moved to the public ones (experiments/beyond.py).
+_md_table = md_table
+_image_path = image_path
 
 
 def analysis_markdown(a: BlockAnalysis, level: int = 2) -> list[str]:
@@ -44,7 +50,7 @@ def analysis_markdown(a: BlockAnalysis, level: int = 2) -> list[str]:
         rows.append(row)
     if a.trial_sd is not None:
         header.insert(3, 'SD (all trials)')
-    out += _md_table(header, rows, 'l' + 'r' * (len(header) - 1))
+    out += md_table(header, rows, 'l' + 'r' * (len(header) - 1))
     out += ['', f'SD: sample SD (ddof = 1) of the {a.n} per-subject values. Mean rank: within-subject ranks, '
             '1 = smallest, ties averaged. Best for: subjects whose best value is in that condition.', '']
     out += [f'{h} Friedman test', '',
@@ -57,12 +63,12 @@ def analysis_markdown(a: BlockAnalysis, level: int = 2) -> list[str]:
     rows = [[condition_label(r.a), condition_label(r.b), f'{r.rank_diff:+.3f}', f'{r.z:+.3f}', format_p(r.p),
              format_p(r.p_adjusted), (stars(r.p_adjusted) or 'yes') if r.significant else 'ns']
             for r in a.pairwise.itertuples()]
-    out += _md_table(['a', 'b', 'dR', 'z', 'p', 'p (Bonferroni)', f'at {a.alpha:g}'], rows, 'llrrrrl')
+    out += md_table(['a', 'b', 'dR', 'z', 'p', 'p (Bonferroni)', f'at {a.alpha:g}'], rows, 'llrrrrl')
     out += ['', f'{h} Best condition per subject', '']
     rows = [[condition_label(c), int(a.summary.at[c, 'best_count']),
              ' '.join(f'{s} (tie)' if s in a.tied_best else str(s) for s, b in a.best.items() if c in b)]
             for c in a.conditions]
-    out += _md_table(['condition', 'subjects', 'which'], rows, 'lrl')
+    out += md_table(['condition', 'subjects', 'which'], rows, 'lrl')
     if a.notes:
         out += [''] + [f'- {n}' for n in a.notes]
     return out
@@ -81,10 +87,10 @@ def markdown_report(title: str, analyses: Mapping[str, BlockAnalysis], plots: Ma
     for name, a in analyses.items():
         out += [f'## {name}', ''] + analysis_markdown(a) + ['']
         if name in plots:
-            out += [f'![{name}]({_image_path(plots[name], rel)})', '']
+            out += [f'![{name}]({image_path(plots[name], rel)})', '']
     extra = [k for k in plots if k not in analyses]
     if extra:
         out += ['## Figures', '']
         for k in extra:
-            out += [f'![{k}]({_image_path(plots[k], rel)})', '']
+            out += [f'![{k}]({image_path(plots[k], rel)})', '']
     return '\n'.join(out).rstrip() + '\n'

@@ -53,8 +53,8 @@ from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene, load_scene
 from .fit_wearer import FREE
-from .report import _image_path, _md_table
-from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, _as_protocol, calibration_key
+from .report import image_path, md_table
+from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, as_protocol, calibration_key
 
 PROG = 'fabric-guidance sensitivity'
 HELP = 'vary every assumed human parameter low and high: how much each moves the headline figures'
@@ -132,8 +132,8 @@ def check_settings(s: Settings) -> None:
 def load_scenes(s: Settings) -> tuple[Scene, Scene]:
     """(speed scene, accuracy scene) on the same wearers: the accuracy scene takes the speed
     scene's seed and population (as the trade-off's plane)."""
-    spd = _as_protocol(load_scene(s.speed_scene), 'speed')
-    acc = _as_protocol(load_scene(s.accuracy_scene), 'accuracy')
+    spd = as_protocol(load_scene(s.speed_scene), 'speed')
+    acc = as_protocol(load_scene(s.accuracy_scene), 'accuracy')
     acc = acc.replace(seed=spd.seed, population=spd.population)
     spd = spd.replace(conditions=SPEED_CONDITIONS, repetitions=s.speed_repetitions)
     acc = acc.replace(conditions=ACCURACY_CONDITIONS, repetitions=s.repetitions)
@@ -490,7 +490,7 @@ def markdown_table(result: SensitivityResult) -> str:
         mark = ' **beyond noise**' if z >= NOISE_SDS else ''
         unit = f' {p.unit}' if p.unit and p.unit != '-' else ''
         rows.append([key, f'{_fmt(p.value)}{unit}', vals] + cells + [f'{z:.1f} ({h}){mark}'])
-    return '\n'.join(_md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
+    return '\n'.join(md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
 
 
 def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
@@ -591,7 +591,7 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
     if skipped:
         lines += ['Not swept (measured, fitted or excluded): '
                   + ', '.join(f'`{k}`' for k in skipped) + '.', '']
-    lines += ['## Tornado plot', '', f'![sensitivity]({_image_path(paths["png"], out)})', '']
+    lines += ['## Tornado plot', '', f'![sensitivity]({image_path(paths["png"], out)})', '']
     paths['md'].write_text('\n'.join(lines))
     return paths
 
@@ -675,10 +675,6 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return replace(base, **changes)
 
 
-def _error(message) -> None:
-    print(f'{PROG}: error: {" ".join(str(message).split())}', file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
     """0 done, 2 bad arguments or scene, 1 an output could not be written."""
     try:
@@ -701,12 +697,12 @@ def run(args: argparse.Namespace) -> int:
         result = run_sensitivity(settings, progress=lambda line: print(line, file=sys.stderr,
                                                                        flush=True))
     except (ValueError, OSError) as exc:
-        _error(exc)
+        subcommand.error(PROG, exc)
         return 2
     try:
         paths = write_outputs(result, args.out)
     except OSError as exc:
-        _error(f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
+        subcommand.error(PROG, f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
         return 1
     print(markdown_table(result))
     print(f'\nsensitivity: {result.wall_s:.1f} s wall\ntable: {paths["csv"]}\n'

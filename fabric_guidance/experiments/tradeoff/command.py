@@ -1,0 +1,141 @@
+"""`fabric-guidance tradeoff --out DIR`: what accuracy costs in time, knob by knob.
+
+Sweeps every knob of the package that buys accuracy with time, on the scene simulator
+(fabric_guidance.sim: the paper's protocols on simulated wearers calibrated by Algorithm 1,
+with the realistic effects of config/scenes/paper-accuracy.yaml and paper-speed.yaml), and
+writes for each knob value the accuracy and the time it costs, with their spread:
+
+  acceptance_tolerance  speed protocol: the true gaze error when a target counts (deg) against
+                        the time to find a target (s, from its appearance to the count).
+  gain                  Eq. 5's G. Accuracy protocol: guidance error (deg) against the time to
+                        the key press (s); speed protocol: error when a target counts against
+                        the time to find it.
+  calibration_points    Algorithm 1's pressure steps per direction. The calibration time
+                        (simulated seconds Algorithm 1 ran: about 4 x (rest + steps x dwell))
+                        against the accuracy protocol's guidance error, and against the fitted
+                        law's angle error versus the wearer's true law
+                        (sim.population.law_angle_error_deg, per direction).
+  control_rate          how often Eq. 5 runs (Hz). Accuracy protocol: guidance error against the
+                        time to the key press. Eq. 5 adds G*(f(theta_t) - f(theta)) once per
+                        control step, so the rate scales the law's effective gain per second
+                        (G x rate); the grid stops at the scene's 60 Hz gaze rate, which the
+                        scene files do not let the control rate exceed.
+  fit_tolerance         the Levenberg-Marquardt fit's xtol = ftol (core.power_law.fit_power_law,
+                        CalibrationProcedure's fit_tolerance). The points Algorithm 1 recorded
+                        for each wearer at the scene's settings are refitted at each tolerance:
+                        the fitted law's angle error (against the true law, and against the
+                        fully converged fit) against the fit's measured wall time (ms per fit).
+
+Guidance error of an accuracy trial: hypot of the horizontal and vertical absolute errors of the
+true gaze at the key press (the paper reports the two separately). Spread: mean, SD (ddof 1),
+10th and 90th percentiles over trials (accuracy protocol), found targets (speed protocol),
+wearer x direction (calibration law) or fits. Every knob value runs on the same wearers and the
+same targets (the simulator's common random numbers), so two values are compared on paired
+samples where the samples pair up.
+
+Outputs in DIR: tradeoff.csv (one row per knob value and curve: knob, value, accuracy_metric,
+accuracy_mean/sd/p10/p90, time_metric, time_mean/sd/p10/p90, n (accuracy samples), n_time (time
+samples), note: timeouts, targets found per trial, censored waits, excluded wearers, function
+evaluations per fit), tradeoff.md (the table, a reading of each curve generated from the
+numbers by the rules of read_curve(), the plots), <knob>.png (accuracy against time: mean, +-SD bars, p10-p90 shading, each point labelled with
+its value, the Pareto front drawn). The markdown table is printed; progress goes to stderr,
+one line per knob value.
+
+Also runs alone: python -m fabric_guidance.experiments.tradeoff --out DIR [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+import os
+from pathlib import Path
+import sys
+
+from ... import subcommand
+from .report import markdown_table, write_outputs
+from .settings import (DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, KNOBS, Settings, base_scenes,
+                       check_settings, quick_settings)
+from .sweep import run_sweep
+
+
+PROG = 'fabric-guidance tradeoff'
+HELP = 'sweep the knobs that buy accuracy with time; table, plots and a reading of the curves'
+
+
+def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for the table, report and plots')
+    parser.add_argument('--subjects', type=int, default=None,
+                        help=f'wearers per scene (default {Settings.subjects}; --quick 2)')
+    parser.add_argument('--repetitions', type=int, default=None,
+                        help=f'accuracy-protocol trials per wearer and value (default {Settings.repetitions}; '
+                             '--quick 2)')
+    parser.add_argument('--speed-repetitions', type=int, default=None,
+                        help=f'speed-protocol trials per wearer and value (default {Settings.speed_repetitions}; '
+                             '--quick 1)')
+    parser.add_argument('--knobs', default=','.join(KNOBS), help=f'comma-separated subset of {",".join(KNOBS)}')
+    parser.add_argument('--condition', type=int, default=1, choices=(1, 2, 3),
+                        help='guidance condition (1 suit adjusted, 2 suit fixed, 3 arm adjusted)')
+    parser.add_argument('--accuracy-scene', default=DEFAULT_ACCURACY_SCENE,
+                        help='scene for the accuracy-protocol curves (a speed scene gets the accuracy protocol\'s '
+                             'defaults)')
+    parser.add_argument('--speed-scene', default=DEFAULT_SPEED_SCENE,
+                        help='scene for the speed-protocol curves (an accuracy scene gets the speed protocol\'s '
+                             'defaults)')
+    parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
+    parser.add_argument('--quick', action='store_true',
+                        help='a tiny sweep: 2 wearers, 3 values per knob, 20 s speed trials (seconds, for a check)')
+    parser.add_argument('--no-plane', action='store_true',
+                        help='only the per-knob curves: no conditions 1-4, no plane.png (faster)')
+    return parser
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the `tradeoff` subcommand to an argparse subparsers object; dispatch to run(args)."""
+    return subcommand.add(subparsers, 'tradeoff', HELP, __doc__, configure, run)
+
+
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    base = quick_settings() if args.quick else Settings()
+    changes = dict(condition=args.condition, workers=args.workers, accuracy_scene=args.accuracy_scene,
+                   plane=not args.no_plane,
+                   speed_scene=args.speed_scene,
+                   knobs=tuple(k.strip() for k in args.knobs.split(',') if k.strip()))
+    for name in ('subjects', 'repetitions', 'speed_repetitions'):
+        if getattr(args, name) is not None:
+            changes[name] = getattr(args, name)
+    return replace(base, **changes)
+
+
+def run(args: argparse.Namespace) -> int:
+    """0 done, 2 bad arguments or scene, 1 an output could not be written."""
+    try:
+        settings = settings_from_args(args)
+        acc, _ = base_scenes(settings)
+        check_settings(settings, acc)
+    except (ValueError, OSError) as exc:
+        subcommand.error(PROG, exc)
+        return 2
+    print(f'{PROG}: {len(settings.knobs)} knob(s), {settings.subjects} wearers, {settings.workers} worker(s)',
+          file=sys.stderr, flush=True)
+    result = run_sweep(settings, progress=lambda line: print(line, file=sys.stderr, flush=True))
+    try:
+        paths = write_outputs(result, args.out)
+    except OSError as exc:
+        subcommand.error(PROG, f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
+        return 1
+    print(markdown_table(result.frame()))
+    print()
+    for (knob, am, tm), text in result.readings.items():
+        print(f'{knob} ({am} vs {tm}): {text}\n')
+    print(f'sweep: {result.wall_s:.1f} s wall; ' + ', '.join(f'{k} {v:.1f} s' for k, v in result.knob_wall_s.items()))
+    print(f'table: {paths["csv"]}\nreport: {paths["md"]}\nplots: '
+          + ', '.join(str(paths[k]) for k in ('plane',) + settings.knobs if k in paths))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return subcommand.main(PROG, __doc__, configure, run, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""The `fabric-guidance` command line: one table of subcommands, each module imported only when
+its subcommand runs (so `bench` works without scikit-posthocs, `example` without pandas)."""
+from __future__ import annotations
+
+import argparse
+from importlib import import_module
+import json
+import subprocess
+import sys
+
+import pytest
+
+from fabric_guidance.cli import SUBCOMMANDS
+
+#: Imported by the statistics and plotting subcommands only.
+HEAVY = ('pandas', 'scikit_posthocs', 'matplotlib')
+
+PROBE = '''
+import json, sys
+from fabric_guidance.cli import main
+try:
+    main(sys.argv[1:])
+except SystemExit:
+    pass
+print(json.dumps({"heavy": sorted(m for m in %r if m in sys.modules),
+                  "modules": sorted(m for m in sys.modules if m.startswith("fabric_guidance"))}))
+''' % (HEAVY,)
+
+
+def probe(*argv: str) -> dict:
+    """Run `fabric-guidance ARGV` in a fresh interpreter; what it had imported at the end."""
+    out = subprocess.run([sys.executable, '-c', PROBE, *argv], capture_output=True, text=True,
+                         timeout=120, check=True)
+    return out.stdout, json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_help_lists_every_subcommand_without_importing_one():
+    stdout, loaded = probe('--help')
+    for name, (_, help_text) in SUBCOMMANDS.items():
+        assert name in stdout
+        assert ' '.join(help_text.split()[:3]) in ' '.join(stdout.split())
+    assert loaded['heavy'] == []
+    subcommand_modules = {module for module, _ in SUBCOMMANDS.values()}
+    assert subcommand_modules.isdisjoint(loaded['modules'])
+
+
+@pytest.mark.parametrize('name', ['example', 'bench', 'replay', 'demo'])
+def test_a_light_subcommand_imports_only_its_own_module(name):
+    stdout, loaded = probe(name, '--help')
+    assert f'usage: fabric-guidance {name}' in stdout
+    assert loaded['heavy'] == []
+    others = {module for other, (module, _) in SUBCOMMANDS.items() if other != name}
+    assert SUBCOMMANDS[name][0] in loaded['modules']
+    assert others.isdisjoint(loaded['modules'])
+
+
+def test_every_module_lists_itself_with_the_tables_help():
+    """The table's one line is what the module's own add_parser says (no drift between them)."""
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        sub = argparse.ArgumentParser().add_subparsers()
+        import_module(module).add_parser(sub)
+        listed = {action.dest: action.help for action in sub._choices_actions}
+        assert listed == {name: help_text}
+
+
+def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
+    from fabric_guidance.cli import main
+    with pytest.raises(SystemExit) as exc:
+        main(['no-such-command'])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith('fabric-guidance: error: argument command: invalid choice')
