@@ -15,7 +15,7 @@ from . import subcommand
 from .core import (DIRECTIONS, PAPER_GAIN, PAPER_P_MAX, ChannelMap, GuidanceController, PowerLaw,
                    condition, phrase)
 from .paths import config_path
-from .sim.headless import calibrate, guide, within
+from .sim.worked_example import calibrate, guide, within
 from .sim.wearer import SimulatedWearer
 
 PROG = 'fabric-guidance example'

@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 
 from .arms import analyze_arms, pair_p
-from .report import _image_path, _md_table, analysis_markdown
+from .report import analysis_markdown, image_path, md_table
 from .stats import format_p
 
 LAW_NAMES = {'paper': 'paper: theta_t at start', 'live': 'live theta_t, no shift', 'follow': 'follow_target'}
@@ -73,7 +73,7 @@ def _found_table(moving: pd.DataFrame) -> list[str]:
             row.append(f'{100 * g["found"].mean():.0f} % / {per["find_s"].mean().mean():.2f} s / '
                        f'{per["tracking_error_deg"].mean().mean():.1f} / {per["late_error_deg"].mean().mean():.1f}')
         rows.append(row)
-    return _md_table(['target', 'deg/s'] + [LAW_NAMES[k] for k in LAW_NAMES], rows, 'lr' + 'l' * len(LAW_NAMES))
+    return md_table(['target', 'deg/s'] + [LAW_NAMES[k] for k in LAW_NAMES], rows, 'lr' + 'l' * len(LAW_NAMES))
 
 
 def moving_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
@@ -108,5 +108,5 @@ def moving_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
         doc += [f'### {speed:g} deg/s, {scenario}: {MOVING_MEASURES[measure]}', ''] + analysis_markdown(a, level=3)
         doc += ['']
         if (scenario, speed, measure) in plots:
-            doc += [f'![{scenario} {speed:g} {measure}]({_image_path(plots[(scenario, speed, measure)], out)})', '']
+            doc += [f'![{scenario} {speed:g} {measure}]({image_path(plots[(scenario, speed, measure)], out)})', '']
     return doc

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 
 from .arms import analyze_arms, pair_p, verdict
-from .report import _image_path, _md_table, analysis_markdown
+from .report import analysis_markdown, image_path, md_table
 from .stats import analyze_blocks, format_p
 
 #: Names of the compared arms (the columns of the analyses and the plots' labels).
@@ -108,13 +108,13 @@ def gain_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
                  f'{r.tuning_identified_at_paper:.2f}', f'{r.identified_paper_gain:.2f}',
                  f'{r.identified_own_gain:.2f}',
                  f'{r.identified_oracle_gain:.2f}'] for r in choice.itertuples()]
-        doc += _md_table(['wearer', 'tuned G', 'oracle G', 'tuning: at tuned G', 'tuning: at paper G',
+        doc += md_table(['wearer', 'tuned G', 'oracle G', 'tuning: at tuned G', 'tuning: at paper G',
                           'eval: paper G', 'eval: own G', 'eval: oracle G'], rows, 'lrrrrrrr')
         doc += ['', 'Mean identified targets per trial.', '']
     if parts.get('gain') is not None:
         doc += ['### Paper G vs own G (evaluation trials)', ''] + analysis_markdown(parts['gain'], level=3) + ['']
         if 'gain' in plots:
-            doc += [f'![gain]({_image_path(plots["gain"], out)})', '']
+            doc += [f'![gain]({image_path(plots["gain"], out)})', '']
     if parts.get('gain_oracle') is not None:
         a = parts['gain_oracle']
         pa, ro = GAIN_ARMS['paper'], GAIN_ARMS['oracle']
@@ -127,7 +127,7 @@ def gain_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
         rows = [[c, f'{grid.summary.at[c, "mean"]:.2f}', f'{grid.summary.at[c, "sd"]:.2f}',
                  f'{grid.summary.at[c, "mean_rank"]:.2f}'] for c in grid.conditions]
         doc += ['### Does G matter at all? Every G on the evaluation trials', '']
-        doc += _md_table(['G', 'mean identified', 'SD', 'mean rank'], rows, 'lrrr')
+        doc += md_table(['G', 'mean identified', 'SD', 'mean rank'], rows, 'lrrr')
         doc += ['', f'Friedman across the {grid.k} gains: chi-square = {grid.chi2:.2f}, df = {grid.df}, '
                     f'p = {format_p(grid.p)}, Kendall\'s W = {grid.kendall_w:.3f}.', '']
         tv = parts.get('tuned_vs_oracle')

@@ -29,11 +29,6 @@ def image_path(path, relative_to: Path | None) -> str:
     return path.as_posix()
 
 
-# The old private names, for modules not yet moved to the public ones (experiments/beyond.py).
-_md_table = md_table
-_image_path = image_path
-
-
 def analysis_markdown(a: BlockAnalysis, level: int = 2) -> list[str]:
     """The markdown lines for one analysis (no heading)."""
     h = '#' * (level + 1)

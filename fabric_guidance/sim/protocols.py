@@ -435,11 +435,5 @@ __all__ = ['CONDITION_NAMES', 'Exclusion', 'MEASURES', 'ProtocolResults', 'TRIAL
            'summarize',
            'trials_frame']
 
-# Old private names, imported by experiments/tradeoff.py until the merge of issue 15 (the lead
-# removes them then).
-_targets = target_stream
-_draw_target = draw_target
-
-
 if __name__ == '__main__':
     sys.exit(main())

@@ -8,7 +8,7 @@ import multiprocessing
 from ...core.geometry import DIRECTIONS
 from ...sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial_run
 from ...sim.population import CalibrationOutcome, law_angle_error_deg, law_error_kpa, sample_wearer
-from ...sim.protocols import _targets, accuracy_trial, speed_loop
+from ...sim.protocols import accuracy_trial, speed_loop, target_stream
 from ...sim.scene import AccuracyProtocol, Scene
 
 
@@ -50,7 +50,7 @@ def speed_trial_detail(scene: Scene, wearer, calibration, cond: int, repetition:
     waited when the trial ended unfound (None: it was found)."""
     loop = ClosedLoop(scene, wearer, trial_run(cond, repetition), cond, calibration)
     loop.warm_up()
-    detail = speed_loop(loop, _targets(scene, wearer.index, repetition), scene.protocol)
+    detail = speed_loop(loop, target_stream(scene, wearer.index, repetition), scene.protocol)
     return dict(identified=len(detail['finds']), **detail)
 
 
