@@ -37,6 +37,8 @@ def loopback_dds_env() -> dict[str, str]:
         raise FileNotFoundError(f'{LOOPBACK_DDS_PROFILE} is missing: DDS would not stay on loopback')
     return {'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_DDS_PROFILE),
             'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+
+
 _counter = itertools.count()
 
 

@@ -11,7 +11,7 @@ from study_scenes import short
 
 
 TINY = StudySettings(grid=(0.05, 0.3), tuning_reps=1, evaluation_reps=1, speeds_dps=(20.0,), moving_reps=1,
-                      moving_s=4.0)
+                     moving_s=4.0)
 
 
 def test_the_study_is_deterministic_for_any_number_of_workers():

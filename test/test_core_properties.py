@@ -1,4 +1,5 @@
-"""Property-based tests: the hard cases of the design (shared/design/ARCHITECTURE.md, "three things", item 2) stay stable.
+"""Property-based tests: the hard cases of the design stay stable (shared/design/ARCHITECTURE.md,
+"three things", item 2).
 
 The rule checked for every hard case: the output is finite and bounded (pressures within
 [0, p_max], angles within their ranges), or the package's own clear exception is raised
@@ -530,7 +531,7 @@ def test_degenerate_quaternions(zero, bad, good):
        bad=bad_vectors, bad_t=non_finite, which=st.sampled_from(['gaze', 'target', 'time']),
        started=st.booleans())
 def test_controller_rejects_degenerate_input_and_keeps_state(laws, mode, g0, target, gazes, bad, bad_t,
-                                                            which, started):
+                                                             which, started):
     """Case 8e: GuidanceController.update with a zero-length/NaN/inf gaze or target, or a
     non-finite time, raises ValueError and leaves its pressures unchanged."""
     ctl = GuidanceController(laws, P_MAX, mode=mode, estimator='sign', frame='target')

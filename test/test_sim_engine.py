@@ -125,7 +125,9 @@ def test_reaction_delay_shifts_the_response_by_the_delay():
     base, _ = trace(scene(), 1, seconds=1.0)
     delayed, loop = trace(scene([{'reaction_delay': {'mean_s': 0.25, 'sd_s': 0.0}}]), 1, seconds=1.0)
     n = int(round(0.25 / loop.dt))
-    first_move = lambda tr: int(np.flatnonzero(np.abs(tr[:, 0]) > 1e-9)[0])
+
+    def first_move(tr):
+        return int(np.flatnonzero(np.abs(tr[:, 0]) > 1e-9)[0])
     assert first_move(delayed) - first_move(base) == n
     np.testing.assert_array_equal(delayed[n:, 0:2], base[:-n, 0:2])
 
@@ -245,7 +247,7 @@ def test_algorithm_1_in_the_ideal_simulation_recovers_the_law():
         out = calibrate_wearer(sc, w)
         assert out.ok, out.error
         for true, fit, limit in zip(w.suit_laws, out.calibration.laws, (YAW_LIMIT_DEG, YAW_LIMIT_DEG,
-                                                                          PITCH_LIMIT_DEG, PITCH_LIMIT_DEG)):
+                                                                        PITCH_LIMIT_DEG, PITCH_LIMIT_DEG)):
             if true.c < 37.5 and true.theta(375.0, 375.0) < limit:
                 assert law_error_kpa(true, fit) < 0.01
                 checked += 1

@@ -166,7 +166,8 @@ def markdown(r: dict) -> str:
         ('gaze to register, 1000 Hz: p50 / p99 / max [ms]',
          f"{_fmt(e1000['p50'])} / {_fmt(e1000['p99'])} / {_fmt(e1000['max'])}", 'p99 <= 10',
          ok(le(e1000['p99'], 10.0))),
-        ('  applied / sent', f"{e1000['applied']} / {e1000['sent']} ({_fmt(100 * applied_1000 if applied_1000 is not None else None, 1)} %)",
+        ('  applied / sent', f"{e1000['applied']} / {e1000['sent']} "
+                             f"({_fmt(None if applied_1000 is None else 100 * applied_1000, 1)} %)",
          '>= 99 %', ok(None if applied_1000 is None else applied_1000 >= 0.99)),
     ]
     if fl1000:

@@ -78,7 +78,8 @@ class ChannelMap:
             where = f'{source}: layouts.{name}'
             if not isinstance(directions, Mapping) or set(directions) != set(DIRECTIONS):
                 got = sorted(directions) if isinstance(directions, Mapping) else directions
-                raise ChannelMapError(f'{where} must name exactly the directions {list(DIRECTIONS)}, got {excerpt(got)}')
+                raise ChannelMapError(f'{where} must name exactly the directions {list(DIRECTIONS)}, '
+                                      f'got {excerpt(got)}')
             sel = np.zeros((len(channels), len(DIRECTIONS)))
             for k, direction in enumerate(DIRECTIONS):
                 names = directions[direction]
@@ -89,7 +90,8 @@ class ChannelMap:
                         raise ChannelMapError(f'{where}.{direction}: channel {excerpt(ch)} is not in "channels"')
                     i = channels.index(ch)
                     if sel[i].any():
-                        raise ChannelMapError(f'{where}.{direction}: channel {excerpt(ch)} already drives another direction')
+                        raise ChannelMapError(f'{where}.{direction}: channel {excerpt(ch)} '
+                                              'already drives another direction')
                     sel[i, k] = 1.0
             sel.setflags(write=False)
             selection[str(name)] = sel

@@ -88,7 +88,7 @@ def summary_lines(results, parts: dict) -> list[str]:
 
 
 def report_text(results, parts: dict, plots: dict, out: Path) -> str:
-    sc, st = results.scene, results.settings
+    sc = results.scene
     n_in, n_ex = len(results.included), len(results.exclusions)
     doc = ['# Beyond the paper: a per-wearer gain and moving targets (simulation)', '',
            f'Scene `{sc.name}` (seed {sc.seed}; effects: {", ".join(sc.effect_names) or "none"}); '

@@ -29,7 +29,7 @@ def analyze_moving(results, out: dict) -> None:
                 part['condition'] = part['law'].map(LAW_NAMES)
                 for measure in MOVING_MEASURES:
                     out['moving'][(scenario, float(speed), measure)] = analyze_arms(part, measure, False,
-                                                                                 LAW_NAMES.values())
+                                                                                    LAW_NAMES.values())
 
 
 def moving_plots(parts: dict, out: Path, plots: dict) -> None:

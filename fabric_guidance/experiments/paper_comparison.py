@@ -161,7 +161,7 @@ def speed_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[str, 
         rows.append([claim.text(), claim.where, f'{"yes" if held else "no"} (p {format_p(p_table)})',
                      ' / '.join(f'{"yes" if ok else "no"} ({format_p(p)})' for ok, p in per_seed)])
     lines += md_table(['the paper says', 'where', "the paper's table re-analysed", 'model, per seed (p adj.)'],
-                       rows, 'llll')
+                      rows, 'llll')
     lines += ['', "The paper's own table, analysed per subject as the package does, supports only 1 > 4: the "
               'paper presumably tested all trials; its trial data are not published.', '']
     return lines, score
@@ -184,7 +184,7 @@ def accuracy_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[st
                          _spread([float(r.accuracy[measure].means[name]) for r in seeds]),
                          _spread([float(r.accuracy[measure].medians[name]) for r in seeds])])
     lines += md_table(['measure, condition', 'mean of per-subject means (deg)', 'median of per-subject means (deg)'],
-                       rows, 'lrr')
+                      rows, 'lrr')
     lines += ['']
     rows, score = [], {}
     bound = [all(float(r.accuracy[m].summary.loc[name, key]) < paper.ACCURACY_LIMIT_DEG
@@ -211,8 +211,8 @@ def reading(score: dict[str, list[int]], n_seeds: int) -> list[str]:
     for text, seeds in score.items():
         key = 'in every seed' if len(seeds) == n_seeds else ('in no seed' if not seeds else 'in some seeds')
         groups[key].append(f'{text} ({len(seeds)}/{n_seeds})' if key == 'in some seeds' else text)
-    lines = ['## Reading', '', 'Generated from the tables above: which of the paper\'s statements the model reproduces.',
-             '']
+    lines = ['## Reading', '',
+             "Generated from the tables above: which of the paper's statements the model reproduces.", '']
     for key, texts in groups.items():
         lines.append(f'- **Reproduced {key}**: ' + ('; '.join(texts) if texts else 'none') + '.')
     return lines + ['']

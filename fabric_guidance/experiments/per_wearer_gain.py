@@ -109,7 +109,7 @@ def gain_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
                  f'{r.identified_own_gain:.2f}',
                  f'{r.identified_oracle_gain:.2f}'] for r in choice.itertuples()]
         doc += md_table(['wearer', 'tuned G', 'oracle G', 'tuning: at tuned G', 'tuning: at paper G',
-                          'eval: paper G', 'eval: own G', 'eval: oracle G'], rows, 'lrrrrrrr')
+                         'eval: paper G', 'eval: own G', 'eval: oracle G'], rows, 'lrrrrrrr')
         doc += ['', 'Mean identified targets per trial.', '']
     if parts.get('gain') is not None:
         doc += ['### Paper G vs own G (evaluation trials)', ''] + analysis_markdown(parts['gain'], level=3) + ['']

@@ -404,6 +404,7 @@ def format_p(p: float) -> str:
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]], left: int = 1) -> list[str]:
     """Aligned plain-text columns: the first `left` columns left-aligned, the rest right-aligned."""
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+
     def line(cells):
         return '  '.join(str(c).ljust(w) if i < left else str(c).rjust(w)
                          for i, (c, w) in enumerate(zip(cells, widths))).rstrip()

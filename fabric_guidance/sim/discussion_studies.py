@@ -179,8 +179,8 @@ class StudyResults:
 
 
 def run_studies(scene: Scene, subjects: Iterable[int] | int | None = None,
-               settings: StudySettings = StudySettings(), workers: int = 2,
-               progress: Callable[[int, int, int], None] | None = None) -> StudyResults:
+                settings: StudySettings = StudySettings(), workers: int = 2,
+                progress: Callable[[int, int, int], None] | None = None) -> StudyResults:
     """Both studies on the scene's wearers (all, the first n, or these indices), in parallel
     over wearers. Deterministic: the same for any number of workers."""
     if scene.protocol.kind != 'speed':

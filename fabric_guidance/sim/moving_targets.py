@@ -98,7 +98,7 @@ def moving_trial(scene: Scene, wearer, calibration: Calibration, law: str, speed
     proto = scene.protocol
     motion = draw_motion(scene, wearer.index, key, speed_dps)
     loop = NodeLoop(scene, wearer, key.run, CONDITION, calibration, follow_target=law == 'follow',
-                      live_target=law != 'paper')
+                    live_target=law != 'paper')
     loop.warm_up()
     w = loop.wearer
     t0 = loop.t

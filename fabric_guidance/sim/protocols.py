@@ -356,7 +356,6 @@ def trials_frame(records: Iterable[TrialRecord], condition_names: bool = True):
     return frame
 
 
-
 def summarize(records: Iterable[TrialRecord]) -> dict[int, dict[str, float]]:
     """Per condition: the mean over wearers of each wearer's mean (as the paper's tables), the
     sd across wearers, and the number of wearers and trials."""

@@ -287,7 +287,7 @@ def _parse_population(data, source: str) -> PopulationSpec:
     spread = tuple(_number(spread_data.get(k, 0.0), source, f'population.spread.{k}',
                            {'unit': '(log) -', 'lo': 0.0, 'hi': 3.0}) for k in 'abc')
     arm = _number(data.get('arm_spread', 0.0), source, 'population.arm_spread', {'unit': '(log) -', 'lo': 0.0,
-                                                                                'hi': 3.0})
+                                                                                 'hi': 3.0})
     return PopulationSpec(subjects, laws, spread, arm)
 
 
@@ -309,7 +309,8 @@ def _parse_effects(data, source: str) -> tuple[EffectSpec, ...]:
         elif isinstance(entry, EffectSpec):
             name, params = entry.name, entry.params_dict
         else:
-            _fail(source, where, f'must be an effect name or a single {{name: {{parameters}}}} mapping, got {excerpt(entry)}')
+            _fail(source, where, 'must be an effect name or a single {name: {parameters}} mapping, '
+                                 f'got {excerpt(entry)}')
         if name not in REGISTRY:
             _fail(source, where, f'names unknown effect {excerpt(name)}; valid effects: {", ".join(sorted(REGISTRY))}')
         if name in seen:

@@ -47,8 +47,9 @@ def guide(wearer: SimulatedWearer, controller: GuidanceController, targets: Sequ
           channel_map: ChannelMap | None = None, layout: str = 'suit', rate_hz: float = 50.0,
           acceptance_deg: float = 5.0, dwell_s: float = 0.3, timeout_s: float = 15.0) -> list[TurnResult]:
     """Guide the wearer to each target, given as (horizontal, vertical) degrees from the
-    front. Between targets the suit vents and the wearer faces front again. Channel pressures are formed as the PLC would
-    receive them, and the wearer feels the mean pressure of each direction's channels."""
+    front. Between targets the suit vents and the wearer faces front again. Channel pressures
+    are formed as the PLC would receive them, and the wearer feels the mean pressure of each
+    direction's channels."""
     dt = 1.0 / rate_hz
     results = []
     for h, v in targets:

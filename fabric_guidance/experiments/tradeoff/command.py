@@ -37,9 +37,9 @@ Outputs in DIR: tradeoff.csv (one row per knob value and curve: knob, value, acc
 accuracy_mean/sd/p10/p90, time_metric, time_mean/sd/p10/p90, n (accuracy samples), n_time (time
 samples), note: timeouts, targets found per trial, censored waits, excluded wearers, function
 evaluations per fit), tradeoff.md (the table, a reading of each curve generated from the
-numbers by the rules of read_curve(), the plots), <knob>.png (accuracy against time: mean, +-SD bars, p10-p90 shading, each point labelled with
-its value, the Pareto front drawn). The markdown table is printed; progress goes to stderr,
-one line per knob value.
+numbers by the rules of read_curve(), the plots), <knob>.png (accuracy against time: mean,
++-SD bars, p10-p90 shading, each point labelled with its value, the Pareto front drawn). The
+markdown table is printed; progress goes to stderr, one line per knob value.
 
 Also runs alone: python -m fabric_guidance.experiments.tradeoff --out DIR [--quick]
 """

@@ -258,8 +258,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     if tol:
         x, y, _, _ = stats(tol)
         idx = sorted({0, len(tol) - 1} | {i for i, r in enumerate(tol)
-                                           if math.isclose(float(r.value),
-                                                           REFERENCE['acceptance_tolerance'][0])})
+                                          if math.isclose(float(r.value),
+                                                          REFERENCE['acceptance_tolerance'][0])})
         items = [(x[i], y[i], f'tolerance {tol[i].value:g}'
                   + (' (package)' if i not in (0, len(tol) - 1) else ''),
                   colours['acceptance_tolerance'])

@@ -20,7 +20,6 @@ FLAT_FRACTION = 0.05
 KNEE_FRACTION = 0.10
 
 
-
 def pareto_front(times: Sequence[float], accuracies: Sequence[float]) -> list[int]:
     """Indices of the points no other point dominates (lower is better on both axes: another
     point dominates when it is no slower and no less accurate, and better on one), by time."""
