@@ -37,9 +37,8 @@ from ..core import feedback as law   # law.TARGET, not this module's TARGET (an 
 from ..core.feedback import (FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, SIGN,
                              STALL_TIMEOUT_S)
 from ..core.geometry import DIRECTIONS
+from ..interface import CONTROLLER_INPUT, CONTROLLER_PARAMETERS  # noqa: F401 (re-exported)
 
-CONTROLLER_INPUT = 'controller_input'            # std_msgs/Float64MultiArray, layout above
-CONTROLLER_PARAMETERS = 'controller_parameters'  # std_msgs/String, YAML, latched
 PARAMETERS_SCHEMA = 1
 
 T, ORIGIN, DIRECTION, TARGET = 0, slice(1, 4), slice(4, 7), slice(7, 10)

@@ -17,38 +17,18 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
 from rclpy.signals import SignalHandlerOptions
 
 from ..core.safe_input import InputFileError, excerpt, load_yaml
+from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND, DIAGNOSTICS, EVENT, GAZE,  # noqa: F401
+                         HEAD_POSE, IMMERSIVE_FRAME, LATCHED, MEASURED_PRESSURE, PRESSURE_COMMAND, SENSOR,
+                         SPEECH, TARGET, TARGET_FOUND, qos_profile)
 
-# Topic and service names, relative so that a namespace or a remap moves them together.
-GAZE = 'gaze'                          # geometry_msgs/PoseStamped, x axis along the gaze ray
-HEAD_POSE = 'head_pose'                # geometry_msgs/PoseStamped
-TARGET = 'target'                      # geometry_msgs/PointStamped, active target position
-ACTIVE_TARGET = 'active_target'        # std_msgs/String, name of the active target ('' = none)
-TARGET_FOUND = 'target_found'          # std_msgs/String, name of a target the wearer just found
-PRESSURE_COMMAND = 'pressure_command'  # std_msgs/Float64MultiArray, kPa, channel order
-MEASURED_PRESSURE = 'measured_pressure'  # std_msgs/Float64MultiArray, kPa, channel order
-SPEECH = 'speech'                      # std_msgs/String, condition 4's phrase
-CALIBRATION_STATUS = 'calibration_status'  # std_msgs/String, progress of a running calibration
-DIAGNOSTICS = '/diagnostics'
-
-#: The frame of the immersive space (REP 103 axes, Unity's world origin).
-IMMERSIVE_FRAME = 'immersive'
-
-# Gaze: best effort, newest only (a late gaze sample is worth nothing).
-SENSOR_QOS = qos_profile_sensor_data
-# Commands: reliable, a short queue (ros2_controllers' command topics use reliable depth 10).
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-# State that a late joiner must see (the active target): reliable, transient local.
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Events that must not be lost (target found, speech): reliable, a longer queue.
-EVENT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
+# Topic names, the frame and the QoS kinds: fabric_guidance/interface.py.
+SENSOR_QOS = qos_profile(SENSOR)
+COMMAND_QOS = qos_profile(COMMAND)
+LATCHED_QOS = qos_profile(LATCHED)
+EVENT_QOS = qos_profile(EVENT)
 
 
 def declare(node: Node, name: str, default: Any, description: str, unit: str = '',

@@ -23,10 +23,9 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, declare, publish_diagnostics, run, status
+from fabric_guidance.interface import MAX_WRITTEN
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import MockPlcServer, PlcLayout
-
-MAX_WRITTEN = 'mock_plc/max_written_kpa'
 
 
 class MockPlc(Node):

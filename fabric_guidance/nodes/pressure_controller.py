@@ -51,6 +51,7 @@ from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
                                  guidance_step, safe_command)
+from ..interface import ENABLE, START_CALIBRATION, VENT
 from ..paths import resolve
 from .common import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, GAZE, LATCHED_QOS,
                      PRESSURE_COMMAND, SENSOR_QOS, SPEECH, TARGET, declare, publish_diagnostics, run, status)
@@ -166,9 +167,9 @@ class PressureController(Node):
         self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
         self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
-        self.create_service(Trigger, 'start_calibration', self.on_start_calibration)
-        self.create_service(SetBool, 'enable', self.on_enable)
-        self.create_service(Trigger, 'vent', self.on_vent)
+        self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
+        self.create_service(SetBool, ENABLE, self.on_enable)
+        self.create_service(Trigger, VENT, self.on_vent)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.period_s = 1.0 / rate
         self.create_timer(self.period_s, self.on_timer, clock=steady)
