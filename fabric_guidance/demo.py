@@ -61,7 +61,8 @@ class SessionWatch:
         from geometry_msgs.msg import PointStamped, PoseStamped
         from std_msgs.msg import Float64MultiArray, String
 
-        from .nodes import common
+        from . import interface
+        from .nodes import qos
         self.cmap, self.layout, self.say = channel_map, layout, say
         self.sequence = sequence
         self.lock = threading.Lock()
@@ -74,18 +75,18 @@ class SessionWatch:
         self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
         self.recorder: dict[str, int] | None = None   # bag_recorder's messages per topic, latest
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
-        probe.subscribe(PoseStamped, common.GAZE, common.SENSOR_QOS, self.on_gaze)
-        probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS, self.on_target)
-        probe.subscribe(String, common.ACTIVE_TARGET, common.LATCHED_QOS, self.on_active)
-        probe.subscribe(String, common.TARGET_FOUND, common.EVENT_QOS, self.on_found)
-        probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS, self.on_command)
-        probe.subscribe(Float64MultiArray, common.MEASURED_PRESSURE, common.COMMAND_QOS)
-        probe.subscribe(String, common.SPEECH, common.EVENT_QOS, lambda m: self.speech.append(m.data))
+        probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS, self.on_gaze)
+        probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS, self.on_target)
+        probe.subscribe(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS, self.on_active)
+        probe.subscribe(String, interface.TARGET_FOUND, qos.EVENT_QOS, self.on_found)
+        probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS, self.on_command)
+        probe.subscribe(Float64MultiArray, interface.MEASURED_PRESSURE, qos.COMMAND_QOS)
+        probe.subscribe(String, interface.SPEECH, qos.EVENT_QOS, lambda m: self.speech.append(m.data))
         from diagnostic_msgs.msg import DiagnosticArray
 
         from .nodes.mock_plc import MAX_WRITTEN
-        probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10, self.on_diagnostics)
-        probe.subscribe(Float64MultiArray, MAX_WRITTEN, common.COMMAND_QOS, self.on_max_written)
+        probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10, self.on_diagnostics)
+        probe.subscribe(Float64MultiArray, MAX_WRITTEN, qos.COMMAND_QOS, self.on_max_written)
 
     def t(self) -> float:
         return time.monotonic() - self.start
@@ -312,9 +313,10 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         # every target's time is then guidance time, not process start-up.
         from std_srvs.srv import Trigger
 
-        from .nodes import common
+        from . import interface
+        from .nodes import qos
         wait_until(lambda: all(probe.messages.get(t) for t in (
-            common.PRESSURE_COMMAND, common.GAZE, common.MEASURED_PRESSURE, common.ACTIVE_TARGET)),
+            interface.PRESSURE_COMMAND, interface.GAZE, interface.MEASURED_PRESSURE, interface.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')
         if bag is not None:
             # Discovery is pairwise: the recorder and the controller both being on the graph does

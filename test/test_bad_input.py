@@ -468,7 +468,7 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
     import socket
     from std_msgs.msg import String
     from fabric_guidance.demo import NODES
-    from fabric_guidance.nodes.common import LATCHED_QOS
+    from fabric_guidance.nodes.qos import LATCHED_QOS
     from rosgraph import Graph, Probe, free_port, wait_until
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     overrides = {'mock_plc': dict(port=plc_port), 'plc_output': dict(plc_port=plc_port),
@@ -511,7 +511,7 @@ def _readers():
     from fabric_guidance.core.calibration import Calibration
     from fabric_guidance.core.channels import ChannelMap
     from fabric_guidance.experiments.stats import load_table
-    from fabric_guidance.nodes.common import check_params_files
+    from fabric_guidance.nodes.parameters import check_params_files
     from fabric_guidance.plc.register_map import PlcLayout, RegisterMap
     from fabric_guidance.sim.scene import load_scene
     return {

@@ -21,7 +21,8 @@ from fabric_guidance.core.calibration import (DONE, FAILED, Calibration, Calibra
                                               DirectionCalibration)
 from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance.core.power_law import CalibrationFitError, PowerLaw, fit_power_law
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, ROOT, wait_until
 from test_node_pressure_controller import ALICE, FAST_CAL, answer_as, controller  # noqa: F401 (fixture)
 
@@ -188,7 +189,7 @@ def test_a_failing_procedure_writes_nothing_and_keeps_the_previous_files(tmp_pat
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
 def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controller, tmp_path):
     graph, probe, upstream, _ = controller
-    status = probe.subscribe(String, common.CALIBRATION_STATUS, common.EVENT_QOS)
+    status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
     stop = threading.Event()
     wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
     wearer.start()

@@ -14,7 +14,8 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core import Calibration, ChannelMap
 from fabric_guidance.core.gaze_wire import encode_datagram
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 
@@ -133,7 +134,7 @@ def end_to_end(graph, hololens, watch) -> tuple[float, float]:
 
 def test_target_40_left_reaches_the_plc_and_every_fault_vents(lab_graph):
     graph, hololens, watch, probe = lab_graph
-    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', common.COMMAND_QOS)
+    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', qos.COMMAND_QOS)
     end_to_end(graph, hololens, watch)
     wait_until(lambda: max_written, 5.0, what='the mock PLC reporting its largest writes')
     assert max(max_written[-1].data) <= P_MAX

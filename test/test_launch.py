@@ -34,7 +34,8 @@ from rcl_interfaces.srv import GetParameters  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from fabric_guidance.core import ChannelMap  # noqa: E402
-from fabric_guidance.nodes import common  # noqa: E402
+from fabric_guidance import interface  # noqa: E402
+from fabric_guidance.nodes import qos  # noqa: E402
 from fabric_guidance.plc import MockPlcServer, RegisterMap  # noqa: E402
 from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
                                            wait_until)
@@ -148,7 +149,7 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
     with Probe(domain_id) as probe:
         # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
         written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
-                                  common.COMMAND_QOS)
+                                  qos.COMMAND_QOS)
         wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
         assert max(written[-1].data) <= P_MAX
         assert max(written[-1].data) > 50.0  # guided, not found by luck
@@ -211,7 +212,7 @@ def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_ar
         'target_selector': {'use_sim_time': False},
     }
     with Probe(domain_id) as probe:
-        commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+        commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
         for node, parameters in expected.items():
             names = list(parameters)
             response = probe.call(GetParameters, f'/{node}/get_parameters',
@@ -260,9 +261,9 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \
         stack['drift_amplitude_m']
     with Probe(domain_id) as probe:
-        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', common.SENSOR_QOS)
+        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', qos.SENSOR_QOS)
                  for n in OBJECTS}
-        targets = probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS)
+        targets = probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS)
         wait_until(lambda: len(watch.found()) >= 3, SESSION_DEADLINE_S, what='three objects found')
         assert watch.found() == list(OBJECTS)
         for name in OBJECTS:  # the selector listens on the stack's topics, not its defaults
@@ -280,7 +281,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
                             for m in poses[name]])
             assert np.max(np.linalg.norm(xyz - micro[name], axis=1)) <= drift * 1.0001
         for m in targets:
-            assert m.header.frame_id == common.IMMERSIVE_FRAME
+            assert m.header.frame_id == interface.IMMERSIVE_FRAME
             p = np.array([m.point.x, m.point.y, m.point.z])
             assert min(np.linalg.norm(p - (q * scale + offset)) for q in micro.values()) \
                 <= drift * scale * 1.0001 + 1e-9

@@ -21,7 +21,7 @@ import yaml
 
 from fabric_guidance.core.gaze_wire import encode_datagram
 from fabric_guidance.core.geometry import ray_direction
-from fabric_guidance.nodes.common import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
+from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
 PARAMS = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['gaze_bridge']['ros__parameters']

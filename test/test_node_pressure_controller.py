@@ -16,7 +16,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
 from fabric_guidance.core.geometry import DIRECTIONS
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
 SIM_CAL = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
@@ -39,9 +40,9 @@ class FakeUpstream:
 
     def __init__(self, probe: Probe):
         node = probe.node
-        self.gaze_pub = node.create_publisher(PoseStamped, common.GAZE, common.SENSOR_QOS)
-        self.target_pub = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
-        self.name_pub = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
+        self.gaze_pub = node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        self.target_pub = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
+        self.name_pub = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
         self.yaw = self.pitch = 0.0
         self.target = None
         self.sending = threading.Event()
@@ -58,7 +59,7 @@ class FakeUpstream:
                 self.target_pub.publish(self.target)
             if self.sending.is_set():
                 msg = PoseStamped()
-                msg.header.frame_id = common.IMMERSIVE_FRAME
+                msg.header.frame_id = interface.IMMERSIVE_FRAME
                 msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
                 q = ray_orientation(direction(self.yaw, self.pitch))
                 o = msg.pose.orientation
@@ -69,7 +70,7 @@ class FakeUpstream:
     def activate(self, name, yaw_deg, pitch_deg=0.0, distance=2.0):
         point = EYE + distance * direction(yaw_deg, pitch_deg)
         msg = PointStamped()
-        msg.header.frame_id = common.IMMERSIVE_FRAME
+        msg.header.frame_id = interface.IMMERSIVE_FRAME
         msg.point.x, msg.point.y, msg.point.z = point
         self.target = msg
         self.target_pub.publish(msg)
@@ -90,7 +91,7 @@ def controller(tmp_path, request):
     settings.update(params)
     graph.start('pressure_controller', ('guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
-    commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+    commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
     upstream = FakeUpstream(probe)
     try:
         yield graph, probe, upstream, commands
@@ -101,7 +102,7 @@ def controller(tmp_path, request):
 
 
 def latest(probe):
-    msg = probe.latest(common.PRESSURE_COMMAND)
+    msg = probe.latest(interface.PRESSURE_COMMAND)
     return None if msg is None else dict(zip(CMAP.channels, msg.data))
 
 
@@ -161,7 +162,7 @@ def test_condition_3_drives_the_arm_muscles_of_table_2(controller):
 @pytest.mark.parametrize('controller', [{'condition': 4}], indirect=True)
 def test_condition_4_speaks_once_per_target_and_drives_nothing(controller):
     graph, probe, upstream, commands = controller
-    speech = probe.subscribe(String, common.SPEECH, common.EVENT_QOS)
+    speech = probe.subscribe(String, interface.SPEECH, qos.EVENT_QOS)
     upstream.activate('t1', -36.0, 12.0)
     wait_until(lambda: speech, 10.0, what='the phrase')
     n = len(commands)
@@ -235,7 +236,7 @@ def answer_as(upstream, probe, laws, stop):
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
 def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(controller, tmp_path):
     graph, probe, upstream, _ = controller
-    status = probe.subscribe(String, common.CALIBRATION_STATUS, common.EVENT_QOS)
+    status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
     stop = threading.Event()
     wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
     wearer.start()
@@ -302,7 +303,7 @@ def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
     stall_timeout_s, /diagnostics says why, and the next target guides again."""
     from diagnostic_msgs.msg import DiagnosticArray
     graph, probe, upstream, _ = controller
-    diags = probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10)
+    diags = probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
     f40 = SIM_CAL.laws[0].pressure(40.0)
     upstream.activate('t1', 40.0)
     wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')

@@ -16,7 +16,8 @@ from std_msgs.msg import Float64MultiArray
 import yaml
 
 from deadlines import DeadlineLog
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, PRESSURE_COMMAND
+from fabric_guidance.interface import DIAGNOSTICS, PRESSURE_COMMAND
+from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLayout, PlcLinkError, RegisterMap
 from fabric_guidance.plc.register_map import RegisterMapError
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until

@@ -18,7 +18,8 @@ from std_msgs.msg import String
 
 from fabric_guidance.bag import offline
 from fabric_guidance.core import ChannelMap, ray_orientation
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
 CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
@@ -34,7 +35,7 @@ def direction(yaw_deg):
 
 def gaze_msg(yaw):
     msg = PoseStamped()
-    msg.header.frame_id = common.IMMERSIVE_FRAME
+    msg.header.frame_id = interface.IMMERSIVE_FRAME
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = ray_orientation(direction(yaw))
@@ -58,14 +59,14 @@ def turning_session(tmp_path_factory):
     probe = Probe(graph.domain_id)
     try:
         node = probe.node
-        gaze = node.create_publisher(PoseStamped, common.GAZE, common.SENSOR_QOS)
-        target = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
-        name = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
+        gaze = node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        target = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
+        name = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
         wait_until(lambda: recorder_ready(probe) and node.count_publishers('controller_input'), 15.0,
                    what='controller and recorder')
         yaws = [0.0] * 15 + [-0.5 * k for k in range(40)] + [-20.0] * 40
         point = PointStamped()
-        point.header.frame_id = common.IMMERSIVE_FRAME
+        point.header.frame_id = interface.IMMERSIVE_FRAME
         point.point.x, point.point.y, point.point.z = EYE + 2.0 * direction(40.0)
         for k, yaw in enumerate(yaws):
             if k in (10, 80):

@@ -1,7 +1,7 @@
 """A node's process ends in bounded time once it has vented, whatever its teardown does.
 
 plc_output once stayed up after logging its vent until `ros2 launch` killed it (issue 16);
-nodes/common.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
+nodes/spin.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
 leaves a non-daemon thread behind that never ends, which would hold the interpreter's exit
 forever: the process must still exit 0 after its vent.
 """
@@ -12,13 +12,13 @@ import textwrap
 
 from rosgraph import fresh_domain_id, wait_until
 
-#: Far above the teardown bound (common.TEARDOWN_LIMIT_S) and a loaded machine's start-up.
+#: Far above the teardown bound (nodes/spin.py TEARDOWN_LIMIT_S) and a loaded machine's start-up.
 EXIT_DEADLINE_S = 30.0
 
 NODE = textwrap.dedent('''
     import threading
     from rclpy.node import Node
-    from fabric_guidance.nodes.common import run
+    from fabric_guidance.nodes.spin import run
 
     class Stuck(Node):
         def __init__(self):

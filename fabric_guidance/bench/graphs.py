@@ -148,13 +148,14 @@ class PackageGraph:
     def _publish_target(self) -> None:
         from geometry_msgs.msg import PointStamped
         from std_msgs.msg import String
-        from ..nodes import common
+        from .. import interface
+        from ..nodes import qos
         node = self.probe.node
-        name_pub = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
-        point_pub = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
+        name_pub = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
+        point_pub = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
         name_pub.publish(String(data='bench'))
         msg = PointStamped()
-        msg.header.frame_id = common.IMMERSIVE_FRAME
+        msg.header.frame_id = interface.IMMERSIVE_FRAME
         msg.point.x, msg.point.y, msg.point.z = self.sweep.target
         # Republished as target_selector does: the controller takes a position only after the name.
         node.create_timer(0.1, lambda: point_pub.publish(msg))
@@ -174,7 +175,7 @@ class PackageGraph:
         # state is known from the first one).
         from diagnostic_msgs.msg import DiagnosticArray
         from ..bag.recorder_status import hears, recorded_counts
-        from ..nodes.common import DIAGNOSTICS
+        from ..interface import DIAGNOSTICS
         counts = {}
         self.probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10,
                              lambda msg: counts.update(recorded_counts(msg) or {}))

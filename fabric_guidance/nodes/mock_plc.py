@@ -22,7 +22,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, declare, publish_diagnostics, run, status
+from fabric_guidance.interface import DIAGNOSTICS
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import COMMAND_QOS
+from fabric_guidance.nodes.spin import run
 from fabric_guidance.interface import MAX_WRITTEN
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import MockPlcServer, PlcLayout

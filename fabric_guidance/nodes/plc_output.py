@@ -32,8 +32,11 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core.channels import ChannelMap
-from fabric_guidance.nodes.common import (COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND,
-                                          declare, publish_diagnostics, run, status)
+from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import COMMAND_QOS
+from fabric_guidance.nodes.spin import run
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError
 from fabric_guidance.plc.pymodbus_compat import PYMODBUS_VERSION

@@ -53,8 +53,12 @@ from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, Contro
                                  guidance_step, safe_command)
 from ..interface import ENABLE, START_CALIBRATION, VENT
 from ..paths import resolve
-from .common import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, GAZE, LATCHED_QOS,
-                     PRESSURE_COMMAND, SENSOR_QOS, SPEECH, TARGET, declare, publish_diagnostics, run, status)
+from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, DIAGNOSTICS, GAZE, PRESSURE_COMMAND,
+                         SPEECH, TARGET)
+from .diagnostics import publish_diagnostics, status
+from .parameters import declare
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from .spin import run
 
 
 class PressureController(Node):

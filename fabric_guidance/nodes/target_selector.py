@@ -38,9 +38,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 from fabric_guidance.core.geometry import GeometryError, ray_direction, target_direction
 from fabric_guidance.core.task import AcceptanceTracker
 from fabric_guidance.interface import LIVE_TARGETS, NEXT_TARGET, RESET_SEQUENCE, TARGET_MARKERS
-from fabric_guidance.nodes.common import (ACTIVE_TARGET, DIAGNOSTICS, EVENT_QOS, GAZE, IMMERSIVE_FRAME, LATCHED_QOS,
-                                          SENSOR_QOS, TARGET, TARGET_FOUND, declare, publish_diagnostics, run,
-                                          status)
+from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
+                                       TARGET_FOUND)
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from fabric_guidance.nodes.spin import run
 
 #: The active target's position is republished this often (live targets move) [Hz].
 REPUBLISH_HZ = 10.0

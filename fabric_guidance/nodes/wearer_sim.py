@@ -53,8 +53,10 @@ from ..core.gaze_wire import encode_datagram, ros_to_unity_point, ros_to_unity_q
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve, share_dir
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
-from .common import (ACTIVE_TARGET, COMMAND_QOS, EVENT_QOS, LATCHED_QOS, MEASURED_PRESSURE, SPEECH, TARGET,
-                     declare, run)
+from ..interface import ACTIVE_TARGET, MEASURED_PRESSURE, SPEECH, TARGET
+from .parameters import declare
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
+from .spin import run
 
 #: Measured pressures older than this are not felt any more (the PLC link is gone) [s].
 PRESSURE_TIMEOUT_S = 0.5

@@ -1,5 +1,5 @@
-"""What every node of the package shares: topic names, QoS, parameter descriptors, diagnostics
-and a main loop that runs the node's safe shutdown (vent) on SIGINT and SIGTERM.
+"""A node's main loop: spin until SIGINT or SIGTERM, then run the node's safe shutdown (vent)
+while the ROS context is still up, and bound the teardown after it.
 
 Nodes stay thin: they parse parameters, wire topics and services, and call the core.
 """
@@ -10,55 +10,14 @@ import os
 import signal
 import sys
 import threading
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from ..core.safe_input import InputFileError, excerpt, load_yaml
-from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND, DIAGNOSTICS, EVENT, GAZE,  # noqa: F401
-                         HEAD_POSE, IMMERSIVE_FRAME, LATCHED, MEASURED_PRESSURE, PRESSURE_COMMAND, SENSOR,
-                         SPEECH, TARGET, TARGET_FOUND, qos_profile)
-
-# Topic names, the frame and the QoS kinds: fabric_guidance/interface.py.
-SENSOR_QOS = qos_profile(SENSOR)
-COMMAND_QOS = qos_profile(COMMAND)
-LATCHED_QOS = qos_profile(LATCHED)
-EVENT_QOS = qos_profile(EVENT)
-
-
-def declare(node: Node, name: str, default: Any, description: str, unit: str = '',
-            low: float | int | None = None, high: float | int | None = None, read_only: bool = False) -> Any:
-    """Declare a parameter with a descriptor (description, unit, range) and return its value."""
-    text = f'{description} [{unit}]' if unit else description
-    desc = ParameterDescriptor(description=text, read_only=read_only,
-                               additional_constraints=f'unit: {unit}' if unit else '')
-    if low is not None and high is not None:
-        if isinstance(default, bool):
-            pass
-        elif isinstance(default, int):
-            desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-        elif isinstance(default, float):
-            desc.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
-    return node.declare_parameter(name, default, desc).value
-
-
-def status(node: Node, name: str, level: bytes, message: str, values: dict) -> DiagnosticStatus:
-    """One DiagnosticStatus named '<node>: <name>' with its key/values as strings."""
-    return DiagnosticStatus(level=level, name=f'{node.get_name()}: {name}', message=message,
-                            hardware_id=node.get_fully_qualified_name(),
-                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-
-
-def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStatus]) -> None:
-    msg = DiagnosticArray()
-    msg.header.stamp = node.get_clock().now().to_msg()
-    msg.status = list(statuses)
-    publisher.publish(msg)
+from .parameters import check_params_files
 
 
 #: Once a node has vented, its teardown (destroying the node, the ROS context, the interpreter's
@@ -74,20 +33,6 @@ def _end_process(code: int) -> None:
         sys.stderr.flush()
     finally:
         os._exit(code)
-
-
-def check_params_files(args: Sequence[str]) -> None:
-    """Every `--params-file FILE` of the command line readable, YAML without aliases, and a
-    mapping of node names to mappings; InputFileError naming the file otherwise. rcl parses them
-    in rclpy.init, before any node exists, and reports a failure as a C traceback."""
-    args = list(args)
-    for flag, value in zip(args, args[1:]):
-        if flag != '--params-file':
-            continue
-        data = load_yaml(value, 'parameters file')
-        if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
-            raise InputFileError(f'parameters file {value}: must map node names to '
-                                 f'{{ros__parameters: {{...}}}}, got {excerpt(data)}')
 
 
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
