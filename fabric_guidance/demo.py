@@ -314,7 +314,6 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         from std_srvs.srv import Trigger
 
         from . import interface
-        from .nodes import qos
         wait_until(lambda: all(probe.messages.get(t) for t in (
             interface.PRESSURE_COMMAND, interface.GAZE, interface.MEASURED_PRESSURE, interface.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')

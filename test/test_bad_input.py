@@ -237,8 +237,9 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
     import math
     import numpy as np
     from std_msgs.msg import Float64MultiArray as _unused  # noqa: F401 (the types are rosbags')
-    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup,
-                                                   StepInput, guidance_step, safe_command)
+    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, encode_input,
+                                                   setup_to_dict)
+    from fabric_guidance.core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
     from fabric_guidance.bag.writer import BagWriter, typestore
     from fabric_guidance.core import Calibration, ChannelMap
     store = typestore()
@@ -253,7 +254,7 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
     setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, Calibration.load(SIM_CAL),
                             ChannelMap.load(CONFIG / 'channel_map.yaml'))
     controller = setup.make_controller()
-    params = setup.to_dict()
+    params = setup_to_dict(setup)
     params['from_step'] = 0
     bag = folder / 'session'
     with BagWriter(bag) as w:
@@ -269,7 +270,7 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
                 controller.vent()
             channels, _, _ = guidance_step(setup, controller, inp)
             ns = int(t * 1e9)
-            w.write(inp_t, ns, f64(inp.encode()))
+            w.write(inp_t, ns, f64(encode_input(inp)))
             w.write(cmd, ns + 1000, f64(safe_command(channels, setup.p_max_kpa)))
     return bag
 

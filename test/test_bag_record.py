@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from fabric_guidance.bag import offline
-from fabric_guidance.bag.controller_io import INPUT_SIZE, ControllerSetup
+from fabric_guidance.bag.controller_io import INPUT_SIZE, setup_from_yaml
 from fabric_guidance.bag.topics import TOPICS
 
 #: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
@@ -51,7 +51,7 @@ def test_demo_record_decodes_with_an_independent_reader():
             elif channel.topic == '/controller_input':
                 assert len(decoded.data) == INPUT_SIZE
             elif channel.topic == '/controller_parameters':
-                assert ControllerSetup.from_yaml(decoded.data).condition == 1
+                assert setup_from_yaml(decoded.data).condition == 1
             elif channel.topic == '/gaze':
                 assert decoded.header.frame_id == 'immersive'
             elif channel.topic == '/diagnostics':

@@ -14,7 +14,6 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core import Calibration, ChannelMap
 from fabric_guidance.core.gaze_wire import encode_datagram
-from fabric_guidance import interface
 from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until

@@ -156,9 +156,10 @@ def test_offline_replay_of_a_bag_cut_mid_guidance_compares_from_the_first_vent(t
     whose state is known (a vent), and a step missing in the middle unsyncs it again."""
     from dataclasses import replace
 
-    from fabric_guidance.bag.controller_io import ControllerSetup, guidance_step, safe_command
+    from fabric_guidance.bag.controller_io import setup_from_dict
+    from fabric_guidance.core.control_step import guidance_step, safe_command
     rec = offline.load(turning_session)
-    setup = ControllerSetup.from_dict(rec.setups[0][1])
+    setup = setup_from_dict(rec.setups[0][1])
 
     def naive_diff(i):           # the step rerun from a fresh controller, as a naive replay would
         inp = rec.inputs[i]

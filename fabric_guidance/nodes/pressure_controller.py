@@ -49,12 +49,12 @@ from ..core.channels import ChannelMapError
 from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
-from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
-                                 guidance_step, safe_command)
-from ..interface import ENABLE, START_CALIBRATION, VENT
+from ..bag.controller_io import encode_input, setup_to_dict
+from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
+from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
+                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
+                         VENT)
 from ..paths import resolve
-from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, DIAGNOSTICS, GAZE, PRESSURE_COMMAND,
-                         SPEECH, TARGET)
 from .diagnostics import publish_diagnostics, status
 from .parameters import declare
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
@@ -192,7 +192,7 @@ class PressureController(Node):
 
     def publish_parameters(self, from_step: int) -> None:
         """The controller's parameters (YAML), valid from control step `from_step` on."""
-        d = self.setup.to_dict()
+        d = setup_to_dict(self.setup)
         d['from_step'] = int(from_step)
         self.parameters_pub.publish(String(data=yaml.safe_dump(d, sort_keys=False)))
 
@@ -308,7 +308,7 @@ class PressureController(Node):
         self.last_step_s = self.now_s()
         # The exact inputs of this step, right before its command (offline replay reruns them).
         if self.input_pub.get_subscription_count():   # volatile: unheard, it would be dropped anyway
-            self.input_msg.data = array('d', inp.encode())
+            self.input_msg.data = array('d', encode_input(inp))
             self.input_pub.publish(self.input_msg)
         if self.procedure is not None:
             self.publish(self.calibration_step(t, fresh))

@@ -102,7 +102,7 @@ def parse_phrase(text: str) -> tuple[float, float]:
 
 def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | None = None,
                      follow_target: bool = False) -> GuidanceController:
-    """The controller the node builds (bag.controller_io.ControllerSetup.make_controller) from a
+    """The controller the node builds (core.control_step.ControllerSetup.make_controller) from a
     scene's controller section: same law, estimator and frame; fast scalar power laws."""
     return GuidanceController(
         [FastPowerLaw.of(law) for law in calibration.laws],
