@@ -222,7 +222,7 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
 
 
 def _eye_height() -> float:
-    params = yaml.safe_load(config_path('sim.yaml').read_text())['wearer_sim']['ros__parameters']
+    params = yaml.safe_load(config_path('params/sim.yaml').read_text())['wearer_sim']['ros__parameters']
     return float(params.get('eye_height_m', 1.2))
 
 
@@ -253,13 +253,13 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         say('fabric_guidance demo: condition 4 (speech) needs --scene: the simple wearer does not hear')
         return 2
     layout = cond.layout or 'suit'
-    cmap = ChannelMap.load(config_path('channel_map.yaml'))
-    regmap = RegisterMap.load(config_path('plc_register_map.yaml'), expected_channels=cmap.channels)
+    cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
+    regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'), expected_channels=cmap.channels)
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
         f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}')
-    files = ('guidance.yaml', 'sim.yaml')
+    files = ('params/guidance.yaml', 'params/sim.yaml')
     overrides = {
         'mock_plc': dict(port=plc_port),
         'plc_output': dict(plc_port=plc_port),
@@ -368,7 +368,7 @@ def start_task(probe: Probe, watch: SessionWatch, trigger, attempts: int = 3) ->
 
 def task_sequence() -> list[str]:
     """The target order target_selector will run, from the same parameter file."""
-    params = yaml.safe_load(config_path('guidance.yaml').read_text())['target_selector']['ros__parameters']
+    params = yaml.safe_load(config_path('params/guidance.yaml').read_text())['target_selector']['ros__parameters']
     return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 

@@ -174,7 +174,7 @@ NODE_EXIT_DEADLINE_S = 60.0   # every case starting at once on a loaded 2-core m
 
 def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path):
     from rosgraph import Graph, free_port
-    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
+    channel_map = yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())
     no_suit = {'channels': channel_map['channels'], 'layouts': {'arm': channel_map['layouts']['arm']}}
     files = {
         'no_suit.yaml': yaml.safe_dump(no_suit),
@@ -186,7 +186,7 @@ def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path)
     for name, text in files.items():
         (tmp_path / name).write_text(text, encoding='latin-1' if name == 'binary.yaml' else 'utf-8')
     f = {name: str(tmp_path / name) for name in files}
-    guidance = ('guidance.yaml',)
+    guidance = ('params/guidance.yaml',)
     # (case, node, parameter files, overrides, what the one line must name)
     cases = [
         ('defect 2: channel map without the suit layout', 'pressure_controller', guidance,
@@ -252,7 +252,7 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
         return store.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
 
     setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, Calibration.load(SIM_CAL),
-                            ChannelMap.load(CONFIG / 'channel_map.yaml'))
+                            ChannelMap.load(CONFIG / 'hardware/channel_map.yaml'))
     controller = setup.make_controller()
     params = setup_to_dict(setup)
     params['from_step'] = 0
@@ -476,7 +476,7 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
                  'gaze_bridge': dict(port=gaze_port), 'wearer_sim': dict(bridge_port=gaze_port)}
     with Graph(tmp_path) as graph:
         for node in NODES:
-            graph.start(node, ('guidance.yaml', 'sim.yaml'), **overrides.get(node, {}))
+            graph.start(node, ('params/guidance.yaml', 'params/sim.yaml'), **overrides.get(node, {}))
         with Probe(graph.domain_id) as probe:
             # the graph is up and discovered: the controller's latched parameters reach the probe
             probe.subscribe(String, 'controller_parameters', LATCHED_QOS)
@@ -517,12 +517,12 @@ def _readers():
     from fabric_guidance.sim.scene import load_scene
     return {
         'calibration': (Calibration.load, SIM_CAL),
-        'channel map': (ChannelMap.load, CONFIG / 'channel_map.yaml'),
-        'register map': (RegisterMap.load, CONFIG / 'plc_register_map.yaml'),
+        'channel map': (ChannelMap.load, CONFIG / 'hardware/channel_map.yaml'),
+        'register map': (RegisterMap.load, CONFIG / 'hardware/plc_register_map.yaml'),
         # What plc_output reads (one PLC or several).
-        'plc layout': (PlcLayout.load, CONFIG / 'plc_register_map.yaml'),
+        'plc layout': (PlcLayout.load, CONFIG / 'hardware/plc_register_map.yaml'),
         'scene': (load_scene, CONFIG / 'scenes' / 'paper-accuracy.yaml'),
-        'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'guidance.yaml'),
+        'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'params/guidance.yaml'),
         'analyze table': (load_table, ROOT / 'test' / 'data' / 'table-identified-targets.csv'),
     }
 

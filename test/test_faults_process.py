@@ -23,7 +23,7 @@ from rosgraph import CONFIG, Graph, free_port, wait_until
 from test_graph import F_LEFT_40, GAZE_STALE_VENT_S, SIM_CAL, HoloLensStub, RegisterWatch, encode_datagram
 import socket
 
-FILES = ('guidance.yaml', 'sim.yaml')
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
 #: Far longer than any test here: the PLC side never vents in this module.
 MOCK_WATCHDOG_S = 60.0

@@ -18,8 +18,8 @@ from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
-REGMAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=CMAP.channels)
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
+REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=CMAP.channels)
 SIM_CAL = 'config/calibrations/sim-wearer.yaml'
 F_LEFT_40 = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml').laws[0].pressure(40.0)
 P_MAX = 375.0
@@ -83,7 +83,7 @@ class RegisterWatch:
 def lab_graph(tmp_path):
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(tmp_path / 'logs')
-    files = ('guidance.yaml', 'sim.yaml')
+    files = ('params/guidance.yaml', 'params/sim.yaml')
     graph.start('mock_plc', files, port=plc_port)
     graph.start('plc_output', files, plc_port=plc_port)
     graph.start('gaze_bridge', files, port=gaze_port)

@@ -121,8 +121,8 @@ def test_colcon_build_installed_the_package():
     assert os.path.isfile(os.path.join(SHARE, 'package.xml'))
     assert sorted(os.listdir(os.path.join(SHARE, 'launch'))) == [
         'guidance.launch.py', 'micromanipulation.launch.py', 'sim.launch.py']
-    for name in ('guidance.yaml', 'sim.yaml', 'micromanipulation.yaml', 'channel_map.yaml',
-                 'plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
+    for name in ('params/guidance.yaml', 'params/sim.yaml', 'params/micromanipulation.yaml', 'hardware/channel_map.yaml',
+                 'hardware/plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
         assert os.path.isfile(os.path.join(SHARE, 'config', name)), name
     for exe in EXECUTABLES:
         assert os.access(os.path.join(PREFIX, 'lib', 'fabric_guidance', exe), os.X_OK), exe
@@ -175,8 +175,8 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
 # -------------------------------------------------------------------------- guidance.launch.py
 @pytest.fixture
 def plc():
-    channels = ChannelMap.load(os.path.join(SHARE, 'config', 'channel_map.yaml')).channels
-    regmap = RegisterMap.load(os.path.join(SHARE, 'config', 'plc_register_map.yaml'),
+    channels = ChannelMap.load(os.path.join(SHARE, 'config', 'hardware/channel_map.yaml')).channels
+    regmap = RegisterMap.load(os.path.join(SHARE, 'config', 'hardware/plc_register_map.yaml'),
                               expected_channels=channels)
     with MockPlcServer(regmap, '127.0.0.1', 0) as server:
         yield server
@@ -253,7 +253,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     import yaml
     from geometry_msgs.msg import PointStamped, PoseStamped
     _, watch, domain_id, before = micromanipulation_graph
-    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'micromanipulation.yaml')))
+    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')))
     selector = params['target_selector']['ros__parameters']
     stack = params['micromanipulator_sim']['ros__parameters']
     micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])

@@ -24,7 +24,7 @@ from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
-PARAMS_FILES = ('guidance.yaml', 'sim.yaml')
+PARAMS_FILES = ('params/guidance.yaml', 'params/sim.yaml')
 
 
 def _parameters(node):
@@ -37,7 +37,7 @@ def _parameters(node):
 
 OUTPUT = _parameters('plc_output')
 MOCK = _parameters('mock_plc')
-REGISTER_MAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+REGISTER_MAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGISTER_MAP)
 P_MAX_KPA = min(OUTPUT['p_max_kpa'], REGISTER_MAP.p_max_kpa)
 COMMAND_TIMEOUT_S = OUTPUT['command_timeout_s']
@@ -402,7 +402,7 @@ def test_plc_output_reconnects_to_a_restarted_plc_and_resends_the_command(make_r
 
 
 def test_a_register_map_that_does_not_match_the_channel_map_stops_start_up(tmp_path):
-    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
+    channel_map = yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())
     channel_map['channels'][0], channel_map['channels'][1] = channel_map['channels'][1], channel_map['channels'][0]
     path = tmp_path / 'swapped_channel_map.yaml'
     path.write_text(yaml.safe_dump(channel_map))

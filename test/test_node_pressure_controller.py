@@ -21,7 +21,7 @@ from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
 SIM_CAL = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 EYE = np.array([0.0, 0.0, 1.2])
 GAZE_TIMEOUT_S = 0.3
 #: Stale gaze to vented command: gaze_timeout_s + one control period (30 Hz) + delivery margin.
@@ -89,7 +89,7 @@ def controller(tmp_path, request):
     settings = dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
                     calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S)
     settings.update(params)
-    graph.start('pressure_controller', ('guidance.yaml',), **settings)
+    graph.start('pressure_controller', ('params/guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
     commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
     upstream = FakeUpstream(probe)

@@ -27,7 +27,7 @@ from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSI
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
-PARAMS = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['target_selector']['ros__parameters']
+PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']['ros__parameters']
 NAMES = PARAMS['target_names']
 POSITIONS = {n: tuple(PARAMS['target_positions'][3 * i:3 * i + 3]) for i, n in enumerate(NAMES)}
 DWELL_S = PARAMS['dwell_s']

@@ -20,7 +20,7 @@ from fabric_guidance.plc import MockPlcServer, RegisterMap
 from plc_program import PlcProgram, need_tools
 from rosgraph import CONFIG, wait_until
 
-REGMAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGMAP)
 SEQ, HEARTBEAT = N, N + 1
 UNIT = REGMAP.unit_id

@@ -23,7 +23,7 @@ from fabric_guidance.plc.register_map import RegisterMapError
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 from test_node_plc import MOCK, OUTPUT, PARAMS_FILES
 
-CHANNELS = tuple(yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())['channels'])
+CHANNELS = tuple(yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())['channels'])
 SUIT, ARM = CHANNELS[:12], CHANNELS[12:]
 TOLERANCE_KPA = 0.1
 WATCHDOG_S = MOCK['watchdog_s']
@@ -79,10 +79,10 @@ def test_endpoints_get_the_contract_layout_and_their_place_in_the_command_vector
 
 
 def test_the_single_plc_form_is_one_endpoint_addressed_by_the_node():
-    layout = PlcLayout.load(CONFIG / 'plc_register_map.yaml', expected_channels=CHANNELS)
+    layout = PlcLayout.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=CHANNELS)
     (only,) = layout.endpoints
     assert only.host is None and only.port is None and layout.endpoint('') is only
-    assert only.map == RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+    assert only.map == RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
     assert (only.map.sequence_register, only.map.heartbeat_register) == (18, 19)
 
 
@@ -243,9 +243,9 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
     the contract's layout) answers exception 02 there. /diagnostics names the register and says
     the map or the program is wrong; not one command lands meanwhile."""
     port = free_port()
-    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+    data = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
     data['heartbeat_register'] = 100
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'hardware/plc_register_map.yaml', port)},
               {'plc_port': port})
     try:
         lab.command(command_vector())
@@ -259,7 +259,7 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
                    what='the link status')
         assert lab.state('plc_output: PLC link plc') == 'refused'
         end = time.monotonic() + NEVER_LANDS_S
-        shipped = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+        shipped = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
         while time.monotonic() < end:
             r = lab.registers('', port, shipped)
             assert r is not None and not r.any(), f'a command landed on a refusing PLC: {r}'
@@ -274,9 +274,9 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
 
 def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
     port = free_port()
-    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+    data = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
     data['unit_id'] = 2   # the PLC (the shipped map) answers unit id 1 only
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
+    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'hardware/plc_register_map.yaml', port)},
               {'plc_port': port})
     try:
         lab.command(command_vector())
@@ -288,7 +288,7 @@ def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
         wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S,
                    what='the link status')
         assert lab.state('plc_output: PLC link plc') == 'no answer'
-        r = lab.registers('', port, RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
+        r = lab.registers('', port, RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'))
         assert r is not None and not r.any(), r
     finally:
         lab.close()

@@ -25,7 +25,7 @@ from rosgraph import Graph, free_port, wait_until
 from test_graph import (F_LEFT_40, REGMAP, SIM_CAL, WATCHDOG_VENT_S, HoloLensStub,
                         RegisterWatch)
 
-FILES = ('guidance.yaml', 'sim.yaml')
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
 N = len(REGMAP)
 P_MAX = REGMAP.p_max_counts

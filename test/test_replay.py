@@ -22,7 +22,7 @@ from fabric_guidance import interface
 from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 L1 = CMAP.channels.index('L1')
 EYE = np.array([0.0, 0.0, 1.2])
 CAL = str(CONFIG / 'calibrations' / 'sim-wearer.yaml')
@@ -55,7 +55,7 @@ def turning_session(tmp_path_factory):
     bag = tmp / 'bag'
     graph = Graph(tmp / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=CAL, gain=0.05)
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05)
     probe = Probe(graph.domain_id)
     try:
         node = probe.node
@@ -106,7 +106,7 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
     bag = tmp_path / 'looped'
     graph = Graph(tmp_path / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True)
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True)
     probe = Probe(graph.domain_id)
     try:
         wait_until(lambda: recorder_ready(probe) and probe.node.count_publishers('controller_input'), 15.0,

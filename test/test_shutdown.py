@@ -61,8 +61,8 @@ def test_the_mock_plc_waits_for_its_client_to_vent_and_leave():
     from fabric_guidance.core import ChannelMap
     from fabric_guidance.plc import MockPlcServer, PlcClient, RegisterMap
     from rosgraph import CONFIG
-    channels = ChannelMap.load(CONFIG / 'channel_map.yaml').channels
-    regmap = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=channels)
+    channels = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml').channels
+    regmap = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=channels)
     with MockPlcServer(regmap, watchdog_s=60.0) as server:  # no watchdog vent meanwhile
         client = PlcClient(regmap, '127.0.0.1', server.port)
         assert client.connect()

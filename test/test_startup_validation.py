@@ -12,10 +12,10 @@ import yaml
 
 from rosgraph import CONFIG, Graph, free_port
 
-FILES = ('guidance.yaml', 'sim.yaml')
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 EXIT_DEADLINE_S = 60.0   # every case starting at once on a loaded 2-core machine
 SIM_CAL = yaml.safe_load((CONFIG / 'calibrations' / 'sim-wearer.yaml').read_text())
-REG_MAP = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+REG_MAP = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
 
 
 def _calibration(**changes):

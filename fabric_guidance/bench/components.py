@@ -35,7 +35,7 @@ def controller_step_us(n: int) -> dict:
     around a target 30 deg left and 10 deg up so the error grows and shrinks."""
     cal = Calibration.load(config_path('calibrations/sim-wearer.yaml'))
     setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal,
-                            ChannelMap.load(config_path('channel_map.yaml')))
+                            ChannelMap.load(config_path('hardware/channel_map.yaml')))
     controller = setup.make_controller()
     origin = np.array([0.0, 0.0, 1.2])
     target = origin + 2.0 * np.array([math.cos(math.radians(30)), math.sin(math.radians(30)), 0.35])

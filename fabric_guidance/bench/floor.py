@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     else:
         from ..paths import config_path
         from ..plc import PlcClient, PlcLinkError, RegisterMap
-        client = PlcClient(RegisterMap.load(config_path('plc_register_map.yaml')), '127.0.0.1', args.plc_port,
+        client = PlcClient(RegisterMap.load(config_path('hardware/plc_register_map.yaml')), '127.0.0.1', args.plc_port,
                            timeout_s=0.5)
         client.connect()
 

@@ -19,7 +19,7 @@ from . import floor
 from .latency import Sender, WriteLog, landings, percentiles_ms
 from .sweep import Sweep
 
-FILES = ('guidance.yaml', 'sim.yaml')
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 SIM_CALIBRATION = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 #: Package nodes whose memory is reported.
 NODES = ('gaze_bridge', 'pressure_controller', 'plc_output', 'mock_plc')
@@ -28,7 +28,7 @@ SETTLE_S = 0.25
 
 
 def make_sweep() -> Sweep:
-    return Sweep(Calibration.load(SIM_CALIBRATION), RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
+    return Sweep(Calibration.load(SIM_CALIBRATION), RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'))
 
 
 def rss_mb(pid: int) -> float | None:

@@ -125,11 +125,11 @@ class PressureController(Node):
                                     'the control_rate_hz timer fills in when none came for a period',
                                     read_only=True)
 
-        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
+        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
         self.layout = self.condition.layout or 'suit'
         if self.layout not in self.channel_map.layouts:
             # Checked here: the first guidance step would otherwise fail after start-up.
-            raise ChannelMapError(f'channel map {resolve(channel_map_file, "channel_map.yaml")}: field '
+            raise ChannelMapError(f'channel map {resolve(channel_map_file, "hardware/channel_map.yaml")}: field '
                                   f'"layouts" has no layout "{self.layout}" for condition '
                                   f'{self.condition.number}; it has {list(self.channel_map.layouts)}')
         declare(self, 'channels', list(self.channel_map.channels),

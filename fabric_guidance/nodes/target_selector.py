@@ -56,7 +56,7 @@ FRONT = (1.0, 0.0, 0.0)
 ACTIVE_RGBA = (1.0, 0.0, 0.0, 1.0)
 INACTIVE_RGBA = (1.0, 0.0, 1.0, 1.0)
 
-#: The paper's four targets (config/guidance.yaml), the defaults when no parameter file is given.
+#: The paper's four targets (config/params/guidance.yaml), the defaults when no parameter file is given.
 DEFAULT_NAMES = ['front_left', 'up_right', 'down_left', 'down_right']
 DEFAULT_POSITIONS = [1.5321, 1.2856, 1.2000, 1.5827, -1.1499, 1.6158,
                      1.7033, 0.7943, 0.5160, 1.2660, -1.5088, 0.8527]

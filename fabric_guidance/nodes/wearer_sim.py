@@ -206,7 +206,7 @@ class WearerSim(Node):
                             '(suit: 1, arm: 3)', low=0, high=4)
         if len(laws) != 12:
             raise ValueError(f'parameter laws needs 12 numbers (a, b, c for 4 directions), got {len(laws)}')
-        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
+        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
         self.channel_map.to_directions(np.zeros(len(self.channel_map.channels)), self.layout)  # validates layout
         self.dt = 1.0 / rate
         self.scene_side: SceneSide | None = None

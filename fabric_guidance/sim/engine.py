@@ -63,8 +63,8 @@ def trial_run(condition: int, repetition: int) -> tuple[int, int, int]:
 
 @lru_cache(maxsize=4)
 def package_channel_map(path: str | None = None) -> ChannelMap:
-    """The package's channel map (config/channel_map.yaml), loaded once per process."""
-    return ChannelMap.load(path or config_path('channel_map.yaml'))
+    """The package's channel map (config/hardware/channel_map.yaml), loaded once per process."""
+    return ChannelMap.load(path or config_path('hardware/channel_map.yaml'))
 
 
 class FastPowerLaw(PowerLaw):
