@@ -23,6 +23,8 @@ from fabric_guidance.plc.register_map import RegisterMapError
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 from test_node_plc import MOCK, OUTPUT, PARAMS_FILES
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 CHANNELS = tuple(yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())['channels'])
 SUIT, ARM = CHANNELS[:12], CHANNELS[12:]
 TOLERANCE_KPA = 0.1
@@ -238,17 +240,27 @@ def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
         lab.close()
 
 
+def _misconfigured_lab(tmp_path, **changes):
+    """plc_output with the shipped register map changed by `changes`, one mock PLC serving the
+    shipped map (the contract's layout), a command sent: (lab, the PLC's port)."""
+    port = free_port()
+    shipped = CONFIG / 'hardware/plc_register_map.yaml'
+    data = {**yaml.safe_load(shipped.read_text()), **changes}
+    lab = Lab(tmp_path, data, {'mock_plc': ('', shipped, port)}, {'plc_port': port})
+    try:
+        lab.command(command_vector())
+    except BaseException:
+        lab.close(check=False)
+        raise
+    return lab, port
+
+
 def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
     """plc_output's map (the single-PLC form) puts the heartbeat at 100; the PLC (the shipped map:
     the contract's layout) answers exception 02 there. /diagnostics names the register and says
     the map or the program is wrong; not one command lands meanwhile."""
-    port = free_port()
-    data = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
-    data['heartbeat_register'] = 100
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'hardware/plc_register_map.yaml', port)},
-              {'plc_port': port})
+    lab, port = _misconfigured_lab(tmp_path, heartbeat_register=100)
     try:
-        lab.command(command_vector())
         lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
                        'the refusal on /diagnostics')
         message = lab.status('plc_output: PLC output').message
@@ -273,13 +285,8 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
 
 
 def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
-    port = free_port()
-    data = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
-    data['unit_id'] = 2   # the PLC (the shipped map) answers unit id 1 only
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'hardware/plc_register_map.yaml', port)},
-              {'plc_port': port})
+    lab, port = _misconfigured_lab(tmp_path, unit_id=2)  # the PLC answers unit id 1 only
     try:
-        lab.command(command_vector())
         lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
                        'the silence on /diagnostics')
         message = lab.status('plc_output: PLC output').message
