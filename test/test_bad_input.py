@@ -18,6 +18,8 @@ import yaml
 
 from rosgraph import CONFIG, ROOT
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 SIM_CAL = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 #: Address-space cap of a CLI under test: far above what it needs (~0.6 GB with matplotlib),
 #: far below what an alias bomb expands to.

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import tempfile
 
+import pytest
 import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -14,6 +15,8 @@ from mcap_ros2.decoder import DecoderFactory
 from fabric_guidance.bag import offline
 from fabric_guidance.bag.controller_io import INPUT_SIZE, setup_from_yaml
 from fabric_guidance.bag.topics import TOPICS
+
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 #: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
 EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/pressure_command',

@@ -26,6 +26,8 @@ from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, ROOT, wait_until
 from test_node_pressure_controller import ALICE, FAST_CAL, answer_as, controller  # noqa: F401 (fixture)
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 P_MAX = 375.0
 SIM_CAL = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 

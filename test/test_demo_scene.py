@@ -21,6 +21,8 @@ from fabric_guidance.sim.engine import trial_run
 from fabric_guidance.sim.scene import load_scene
 from rosgraph import CONFIG, ROOT, Graph, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 SCENES = CONFIG / 'scenes'
 P_MAX = 375.0
 WEARER_EFFECTS = ('suit_hysteresis', 'weber_perception', 'reaction_delay', 'body_dynamics', 'gaze_noise',

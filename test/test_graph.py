@@ -18,6 +18,8 @@ from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=CMAP.channels)
 SIM_CAL = 'config/calibrations/sim-wearer.yaml'

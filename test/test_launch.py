@@ -15,6 +15,8 @@ import threading
 
 import pytest
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 launch_pytest = pytest.importorskip(
     'launch_pytest',
     reason='launch_pytest is not installed here: `make test` runs the launch tests in '

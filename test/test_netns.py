@@ -23,6 +23,8 @@ import pytest
 from rosgraph import Graph, free_port
 from test_graph import SIM_CAL, HoloLensStub, RegisterWatch, end_to_end
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 FILES = ('params/guidance.yaml', 'params/sim.yaml')
 CLONE_NEWNET = 0x40000000
 HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')

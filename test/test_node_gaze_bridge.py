@@ -24,6 +24,8 @@ from fabric_guidance.core.geometry import ray_direction
 from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
 MAX_BYTES = PARAMS['max_datagram_bytes']
 STATUS = 'gaze_bridge: gaze stream'

@@ -24,6 +24,8 @@ from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 PARAMS_FILES = ('params/guidance.yaml', 'params/sim.yaml')
 
 

@@ -20,6 +20,8 @@ from fabric_guidance import interface
 from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 SIM_CAL = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
 CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 EYE = np.array([0.0, 0.0, 1.2])

@@ -27,6 +27,8 @@ from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSI
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']['ros__parameters']
 NAMES = PARAMS['target_names']
 POSITIONS = {n: tuple(PARAMS['target_positions'][3 * i:3 * i + 3]) for i, n in enumerate(NAMES)}

@@ -22,6 +22,8 @@ from fabric_guidance import interface
 from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 L1 = CMAP.channels.index('L1')
 EYE = np.array([0.0, 0.0, 1.2])

@@ -10,7 +10,11 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from rosgraph import fresh_domain_id, wait_until
+
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 #: Far above the teardown bound (nodes/spin.py TEARDOWN_LIMIT_S) and a loaded machine's start-up.
 EXIT_DEADLINE_S = 30.0
