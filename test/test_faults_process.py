@@ -61,17 +61,11 @@ class Stub(HoloLensStub):
 
     kind = 'valid'
 
-    def _run(self):
-        while not self._stop:
-            if self.sending.is_set():
-                if self.kind == 'junk':
-                    data = b'{"version":1,"seq":' + str(self.seq).encode() + b',"stamp":NaN}'
-                else:
-                    data = encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
-                                           (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), self.kind == 'valid')
-                self.sock.sendto(data, ('127.0.0.1', self.port))
-                self.seq += 1
-            time.sleep(1 / 60)
+    def datagram(self) -> bytes:
+        if self.kind == 'junk':
+            return b'{"version":1,"seq":' + str(self.seq).encode() + b',"stamp":NaN}'
+        return encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
+                               (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), self.kind == 'valid')
 
 
 class Lab(GuidedLab):

@@ -6,7 +6,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -17,6 +16,7 @@ from fabric_guidance.core.gaze_wire import encode_datagram
 from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
+from senders import PeriodicSender
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
@@ -34,30 +34,27 @@ GAZE_STALE_VENT_S = 0.3 + 1 / 30 + 1 / 50 + 0.6
 WATCHDOG_VENT_S = 0.5 + 1 / 100 + 0.5
 
 
-class HoloLensStub:
+class HoloLensStub(PeriodicSender):
     """Sends gaze datagrams (wire format v1, Unity frame) at 60 Hz: the wearer looks ahead."""
+
+    period_s = 1 / 60
 
     def __init__(self, port):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.port, self.seq = port, 0
-        self.sending = threading.Event()
-        self.sending.set()
-        self._stop = False
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self.start()
 
-    def _run(self):
-        while not self._stop:
-            if self.sending.is_set():
-                data = encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
-                                       (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), True)
-                self.sock.sendto(data, ('127.0.0.1', self.port))
-                self.seq += 1
-            time.sleep(1 / 60)
+    def datagram(self) -> bytes:
+        return encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
+                               (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), True)
+
+    def tick(self):
+        if self.sending.is_set():
+            self.sock.sendto(self.datagram(), ('127.0.0.1', self.port))
+            self.seq += 1
 
     def close(self):
-        self._stop = True
-        self._thread.join(2)
+        super().close()
         self.sock.close()
 
 

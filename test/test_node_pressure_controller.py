@@ -19,6 +19,7 @@ from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance import interface
 from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
+from senders import PeriodicSender
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
@@ -35,7 +36,7 @@ def direction(yaw_deg, pitch_deg=0.0):
     return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
 
 
-class FakeUpstream:
+class FakeUpstream(PeriodicSender):
     """Publishes gaze at 50 Hz (yaw/pitch settable) and the active target, as the bridge and
     the selector do: the target position is republished at 10 Hz, so a controller that learns
     the name after the position still gets a position after the name."""
@@ -47,27 +48,21 @@ class FakeUpstream:
         self.name_pub = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
         self.yaw = self.pitch = 0.0
         self.target = None
-        self.sending = threading.Event()
-        self.sending.set()
-        self._stop = False
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self._ticks = 0
+        self.start()
 
-    def _run(self):
-        n = 0
-        while not self._stop:
-            n += 1
-            if self.target is not None and n % 5 == 0:
-                self.target_pub.publish(self.target)
-            if self.sending.is_set():
-                msg = PoseStamped()
-                msg.header.frame_id = interface.IMMERSIVE_FRAME
-                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
-                q = ray_orientation(direction(self.yaw, self.pitch))
-                o = msg.pose.orientation
-                o.x, o.y, o.z, o.w = q
-                self.gaze_pub.publish(msg)
-            time.sleep(0.02)
+    def tick(self):
+        self._ticks += 1
+        if self.target is not None and self._ticks % 5 == 0:
+            self.target_pub.publish(self.target)
+        if self.sending.is_set():
+            msg = PoseStamped()
+            msg.header.frame_id = interface.IMMERSIVE_FRAME
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
+            q = ray_orientation(direction(self.yaw, self.pitch))
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = q
+            self.gaze_pub.publish(msg)
 
     def activate(self, name, yaw_deg, pitch_deg=0.0, distance=2.0):
         point = EYE + distance * direction(yaw_deg, pitch_deg)
@@ -78,10 +73,6 @@ class FakeUpstream:
         self.target_pub.publish(msg)
         self.name_pub.publish(String(data=name))
         self.target_pub.publish(msg)
-
-    def close(self):
-        self._stop = True
-        self._thread.join(2)
 
 
 @pytest.fixture
