@@ -4,6 +4,7 @@ stale gaze and on request, and Algorithm 1 run live through its service.
 The test plays gaze_bridge and target_selector (publishing gaze, target and active_target)
 and, for calibration, the wearer (answering each command with the angle its own law gives).
 """
+import contextlib
 import math
 import threading
 import time
@@ -226,14 +227,26 @@ def answer_as(upstream, probe, laws, stop):
         time.sleep(0.01)
 
 
+@contextlib.contextmanager
+def wearer_answering(controller, laws=ALICE):
+    """calibration_status subscribed (yielded: the messages so far), and a wearer of `laws`
+    answering the controller's pressures (answer_as) until the block ends."""
+    _, probe, upstream, _ = controller
+    status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
+    stop = threading.Event()
+    wearer = threading.Thread(target=answer_as, args=(upstream, probe, laws, stop), daemon=True)
+    wearer.start()
+    try:
+        yield status
+    finally:
+        stop.set()
+        wearer.join(2)
+
+
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
 def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(controller, tmp_path):
     graph, probe, upstream, _ = controller
-    status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
-    stop = threading.Event()
-    wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
-    wearer.start()
-    try:
+    with wearer_answering(controller) as status:
         # Refused, with the reason, until the controller has a fresh gaze.
         replies = []
         wait_until(lambda: replies.append(probe.call(Trigger, 'start_calibration', Trigger.Request()))
@@ -250,9 +263,6 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
             th = np.linspace(5.0, 40.0, 8)
             assert np.max(np.abs(fitted.pressure(th) - true.pressure(th))) < 5.0   # kPa over the guided range
         before = path.read_bytes()
-    finally:
-        stop.set()
-        wearer.join(2)
     # A wearer who does not move: the fit is refused and alice.yaml stays as it was.
     upstream.yaw = upstream.pitch = 0.0
     n = len(status)
