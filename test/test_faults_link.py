@@ -56,10 +56,7 @@ LOG = DeadlineLog('link')
 record = LOG.record
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, link faults')
+report = LOG.report_at_module_end('worst times, link faults')
 
 
 def command(k):

@@ -96,10 +96,8 @@ VENTS = DeadlineLog('vent')
 record_vent = VENTS.record
 
 
-@pytest.fixture(scope='module', autouse=True)
-def vent_report():
-    yield
-    VENTS.report('worst vent times (registers read back every %.0f ms)' % (POLL_S * 1e3))
+vent_report = VENTS.report_at_module_end(
+    'worst vent times (registers read back every %.0f ms)' % (POLL_S * 1e3))
 
 
 # ---------------------------------------------------------------------- rig

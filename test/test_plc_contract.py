@@ -60,10 +60,7 @@ def server(request, tmp_path):
         s.stop()
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, PLC contract')
+report = LOG.report_at_module_end('worst times, PLC contract')
 
 
 class Raw:

@@ -47,10 +47,7 @@ NEVER_LANDS_S = 1.5
 LOG = DeadlineLog('endpoints')
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, several PLCs')
+report = LOG.report_at_module_end('worst times, several PLCs')
 
 
 def two_endpoints(port_a=1502, port_b=1503, **b_overrides):
