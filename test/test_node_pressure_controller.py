@@ -76,6 +76,15 @@ class FakeUpstream(PeriodicSender):
         self.target_pub.publish(msg)
 
 
+def guide_to_left40(upstream, probe, what='guiding') -> float:
+    """Target t1 40 deg left activated and L1, L2 at f_left(40) (every other channel at 0);
+    returns that pressure [kPa]."""
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what=what)
+    return f40
+
+
 @pytest.fixture
 def controller(tmp_path, request):
     params = getattr(request, 'param', {})
@@ -115,9 +124,7 @@ def test_target_40_left_drives_left_twist_to_the_calibrated_pressure(controller)
 
 def test_error_growing_raises_the_pressure_and_fixed_condition_does_not(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    f40 = guide_to_left40(upstream, probe, 'starting pressure')
     for step in range(40):             # the wearer turns right, away from the target
         upstream.yaw = -0.5 * step
         time.sleep(0.02)
@@ -128,9 +135,7 @@ def assert_turning_away_holds_f40(controller):
     """A target 40 deg left; the wearer turns away from it: L1 stays at f(40) on every command
     (no adjustment acts)."""
     graph, probe, upstream, commands = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    f40 = guide_to_left40(upstream, probe, 'starting pressure')
     n = len(commands)
     for step in range(40):
         upstream.yaw = -0.5 * step
@@ -170,9 +175,7 @@ def test_condition_4_speaks_once_per_target_and_drives_nothing(controller):
 
 def test_stale_gaze_vents_within_the_deadline(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    f40 = guide_to_left40(upstream, probe, 'guiding')
     upstream.sending.clear()
     t0 = time.monotonic()
     wait_until(lambda: channels_equal(probe, {}), VENT_DEADLINE_S, what='every channel at 0 after the gaze stopped')
@@ -183,9 +186,7 @@ def test_stale_gaze_vents_within_the_deadline(controller):
 
 def test_vent_and_enable_services(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    f40 = guide_to_left40(upstream, probe, 'guiding')
     assert probe.call(Trigger, 'vent', Trigger.Request()).success
     wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
     assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
@@ -194,9 +195,7 @@ def test_vent_and_enable_services(controller):
 
 def test_sigterm_vents_before_exit(controller):
     graph, probe, upstream, commands = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    guide_to_left40(upstream, probe, 'guiding')
     import signal
     assert graph.stop('pressure_controller', signal.SIGTERM) == 0
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='the last command sent being all zeros')
@@ -307,9 +306,7 @@ def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
     from diagnostic_msgs.msg import DiagnosticArray
     graph, probe, upstream, _ = controller
     diags = probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    guide_to_left40(upstream, probe, 'guiding')
     t0 = time.monotonic()
     wait_until(lambda: channels_equal(probe, {}), STALL_S + 5.0, what='vented after no progress')
     print(f'no-progress vent after {time.monotonic() - t0:.2f} s (stall_timeout_s {STALL_S} s)')
