@@ -1,6 +1,6 @@
 """`make demo` / `fabric-guidance demo`: the whole simulated graph as separate processes (what
 launch/sim.launch.py starts), a short guided session through the targets of
-config/guidance.yaml, and a report of what happened, read off the graph's own topics and the
+config/params/guidance.yaml, and a report of what happened, read off the graph's own topics and the
 mock PLC's registers.
 
 `fabric-guidance demo --scene FILE` (run_demo(scene=...)) runs a scene of the headless simulator
@@ -57,7 +57,8 @@ class SessionWatch:
         from geometry_msgs.msg import PointStamped, PoseStamped
         from std_msgs.msg import Float64MultiArray, String
 
-        from .nodes import common
+        from . import interface
+        from .nodes import qos
         self.cmap, self.layout, self.say = channel_map, layout, say
         self.sequence = sequence
         self.lock = threading.Lock()
@@ -70,18 +71,18 @@ class SessionWatch:
         self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
         self.recorder: dict[str, int] | None = None   # bag_recorder's messages per topic, latest
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
-        probe.subscribe(PoseStamped, common.GAZE, common.SENSOR_QOS, self.on_gaze)
-        probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS, self.on_target)
-        probe.subscribe(String, common.ACTIVE_TARGET, common.LATCHED_QOS, self.on_active)
-        probe.subscribe(String, common.TARGET_FOUND, common.EVENT_QOS, self.on_found)
-        probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS, self.on_command)
-        probe.subscribe(Float64MultiArray, common.MEASURED_PRESSURE, common.COMMAND_QOS)
-        probe.subscribe(String, common.SPEECH, common.EVENT_QOS, lambda m: self.speech.append(m.data))
+        probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS, self.on_gaze)
+        probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS, self.on_target)
+        probe.subscribe(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS, self.on_active)
+        probe.subscribe(String, interface.TARGET_FOUND, qos.EVENT_QOS, self.on_found)
+        probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS, self.on_command)
+        probe.subscribe(Float64MultiArray, interface.MEASURED_PRESSURE, qos.COMMAND_QOS)
+        probe.subscribe(String, interface.SPEECH, qos.EVENT_QOS, lambda m: self.speech.append(m.data))
         from diagnostic_msgs.msg import DiagnosticArray
 
         from .nodes.mock_plc import MAX_WRITTEN
-        probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10, self.on_diagnostics)
-        probe.subscribe(Float64MultiArray, MAX_WRITTEN, common.COMMAND_QOS, self.on_max_written)
+        probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10, self.on_diagnostics)
+        probe.subscribe(Float64MultiArray, MAX_WRITTEN, qos.COMMAND_QOS, self.on_max_written)
 
     def t(self) -> float:
         return time.monotonic() - self.start
@@ -170,13 +171,13 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         say('fabric_guidance demo: condition 4 (speech) needs --scene: the simple wearer does not hear')
         return 2
     layout = cond.layout or 'suit'
-    cmap = ChannelMap.load(config_path('channel_map.yaml'))
-    regmap = RegisterMap.load(config_path('plc_register_map.yaml'), expected_channels=cmap.channels)
+    cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
+    regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'), expected_channels=cmap.channels)
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
         f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}')
-    files = ('guidance.yaml', 'sim.yaml')
+    files = ('params/guidance.yaml', 'params/sim.yaml')
     overrides = {
         'mock_plc': dict(port=plc_port),
         'plc_output': dict(plc_port=plc_port),
@@ -230,9 +231,9 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         # every target's time is then guidance time, not process start-up.
         from std_srvs.srv import Trigger
 
-        from .nodes import common
+        from . import interface
         wait_until(lambda: all(probe.messages.get(t) for t in (
-            common.PRESSURE_COMMAND, common.GAZE, common.MEASURED_PRESSURE, common.ACTIVE_TARGET)),
+            interface.PRESSURE_COMMAND, interface.GAZE, interface.MEASURED_PRESSURE, interface.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')
         if bag is not None:
             # Discovery is pairwise: the recorder and the controller both being on the graph does
@@ -285,7 +286,7 @@ def start_task(probe: Probe, watch: SessionWatch, trigger, attempts: int = 3) ->
 
 def task_sequence() -> list[str]:
     """The target order target_selector will run, from the same parameter file."""
-    params = yaml.safe_load(config_path('guidance.yaml').read_text())['target_selector']['ros__parameters']
+    params = yaml.safe_load(config_path('params/guidance.yaml').read_text())['target_selector']['ros__parameters']
     return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 

@@ -54,7 +54,7 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
     say(f'   calibration file: {path}')
     say()
     cond = condition(1)
-    cmap = ChannelMap.load(config_path('channel_map.yaml'))
+    cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     controller = GuidanceController(cal.laws, p_max=cal.p_max, gain=PAPER_GAIN, mode=cond.mode)
     say(f'2. Guided session, condition {cond.number} ({cond.name}), G = {PAPER_GAIN}, 50 Hz, '
         'found within 5 deg for 0.3 s')

@@ -20,7 +20,7 @@ def share_dir() -> Path:
 
 
 def config_path(name: str) -> Path:
-    """A file under config/ (e.g. 'channel_map.yaml')."""
+    """A file under config/ (e.g. 'hardware/channel_map.yaml')."""
     return share_dir() / 'config' / name
 
 

@@ -86,7 +86,7 @@ class Graph:
         """Words put before a node's command (e.g. `ip netns exec NAME`); none here."""
         return []
 
-    def start(self, node: str, params_files=('guidance.yaml',), as_name: str | None = None,
+    def start(self, node: str, params_files=('params/guidance.yaml',), as_name: str | None = None,
               **overrides) -> subprocess.Popen:
         """Start fabric_guidance.nodes.<node> with the package's parameter files (in order) and
         `-p name:=value` overrides. ``as_name``: the key of the process and its log (default: the

@@ -4,7 +4,7 @@
         calibration_file:=/data/calibrations/alice.yaml condition:=1 \
         bind_address:=192.168.1.10 allowed_senders:="['192.168.1.20']"
 
-Parameters come from config/guidance.yaml (or params_file:=...), then extra_params_file:=...
+Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
 if given (its values win); an argument given here overrides both, an argument left empty keeps
 the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
 last: a node-scoped value loaded later always wins in rcl, whatever else the launch sets.
@@ -71,7 +71,7 @@ def generate_launch_description():
     share = get_package_share_directory('fabric_guidance')
     return LaunchDescription([
         DeclareLaunchArgument('params_file',
-                              default_value=os.path.join(share, 'config', 'guidance.yaml'),
+                              default_value=os.path.join(share, 'config', 'params', 'guidance.yaml'),
                               description='parameter file of the four nodes'),
         DeclareLaunchArgument('extra_params_file', default_value='',
                               description='a second parameter file, loaded after params_file '

@@ -11,8 +11,8 @@ stack, whose poses (PoseStamped, microscope frame, m) are mapped x1000 into the 
     # all simulated: micromanipulator_sim, mock_plc and wearer_sim with the sim wearer's calibration
     ros2 launch fabric_guidance micromanipulation.launch.py micromanipulator_sim:=true wearer_sim:=true
 
-guidance.launch.py loads config/guidance.yaml (or base_params_file:=...) and then
-config/micromanipulation.yaml (or micromanipulation_params_file:=...) for every node, the second
+guidance.launch.py loads config/params/guidance.yaml (or base_params_file:=...) and then
+config/params/micromanipulation.yaml (or micromanipulation_params_file:=...) for every node, the second
 winning (no merged copy is written). The other arguments of guidance.launch.py (plc_host,
 calibration_file, condition, ...) pass through. With wearer_sim:=true the lab graph starts once
 the mock PLC listens, and the mock PLC outlives plc_output's vent on shutdown.
@@ -53,7 +53,7 @@ def _graph(context, *args, **kwargs):
         IncludeLaunchDescription(PythonLaunchDescriptionSource(os.path.join(share, 'launch', 'guidance.launch.py')),
                                  launch_arguments=arguments.items()),
     ])
-    sim_params = os.path.join(share, 'config', 'sim.yaml')
+    sim_params = os.path.join(share, 'config', 'params', 'sim.yaml')
     stack = Node(package='fabric_guidance', executable='micromanipulator_sim',
                  name='micromanipulator_sim', output='screen', parameters=[extra_file],
                  condition=IfCondition(LaunchConfiguration('micromanipulator_sim')),
@@ -78,10 +78,10 @@ def generate_launch_description():
     share = get_package_share_directory('fabric_guidance')
     config = os.path.join(share, 'config')
     return LaunchDescription([
-        DeclareLaunchArgument('base_params_file', default_value=os.path.join(config, 'guidance.yaml'),
+        DeclareLaunchArgument('base_params_file', default_value=os.path.join(config, 'params', 'guidance.yaml'),
                               description='parameters of the lab graph'),
         DeclareLaunchArgument('micromanipulation_params_file',
-                              default_value=os.path.join(config, 'micromanipulation.yaml'),
+                              default_value=os.path.join(config, 'params', 'micromanipulation.yaml'),
                               description='live targets, scale, offset and sequence (loaded '
                                           'after base_params_file: its values win)'),
         *[DeclareLaunchArgument(f'{name}_topic', default_value=f'live_targets/{name}',

@@ -1,5 +1,5 @@
 """The simulated graph: the lab graph (guidance.launch.py) against a mock PLC and a simulated
-wearer, with the simulated wearer's calibration and config/sim.yaml over config/guidance.yaml
+wearer, with the simulated wearer's calibration and config/params/sim.yaml over config/params/guidance.yaml
 for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
@@ -24,7 +24,7 @@ from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 
 def _graph(context, *args, **kwargs):
     share = get_package_share_directory('fabric_guidance')
-    sim_params = os.path.join(share, 'config', 'sim.yaml')
+    sim_params = os.path.join(share, 'config', 'params', 'sim.yaml')
     plc_port = LaunchConfiguration('plc_port').perform(context)
     gaze_port = LaunchConfiguration('gaze_port').perform(context)
     lab = IncludeLaunchDescription(

@@ -2,6 +2,8 @@
 end (the worst of each kind), so that `pytest -s` shows the closing-note table's figures."""
 from __future__ import annotations
 
+import pytest
+
 
 class DeadlineLog:
     def __init__(self, label: str):
@@ -22,3 +24,12 @@ class DeadlineLog:
         for kind, times in self.times.items():
             worst, deadline = max(times)
             print(f'  {kind:<60} worst {worst:.3f} s of {len(times)}, deadline {deadline:.3f} s')
+
+    def report_at_module_end(self, title: str):
+        """A module-scoped autouse fixture that prints the worst times when the module ends:
+        `report = LOG.report_at_module_end('worst times, ...')` at module level."""
+        @pytest.fixture(scope='module', autouse=True, name=f'deadline_report_{id(self)}')
+        def report():
+            yield
+            self.report(title)
+        return report

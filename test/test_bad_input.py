@@ -18,6 +18,8 @@ import yaml
 
 from rosgraph import CONFIG, ROOT
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 SIM_CAL = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 #: Address-space cap of a CLI under test: far above what it needs (~0.6 GB with matplotlib),
 #: far below what an alias bomb expands to.
@@ -174,7 +176,7 @@ NODE_EXIT_DEADLINE_S = 60.0   # every case starting at once on a loaded 2-core m
 
 def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path):
     from rosgraph import Graph, free_port
-    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
+    channel_map = yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())
     no_suit = {'channels': channel_map['channels'], 'layouts': {'arm': channel_map['layouts']['arm']}}
     files = {
         'no_suit.yaml': yaml.safe_dump(no_suit),
@@ -186,7 +188,7 @@ def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path)
     for name, text in files.items():
         (tmp_path / name).write_text(text, encoding='latin-1' if name == 'binary.yaml' else 'utf-8')
     f = {name: str(tmp_path / name) for name in files}
-    guidance = ('guidance.yaml',)
+    guidance = ('params/guidance.yaml',)
     # (case, node, parameter files, overrides, what the one line must name)
     cases = [
         ('defect 2: channel map without the suit layout', 'pressure_controller', guidance,
@@ -237,8 +239,9 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
     import math
     import numpy as np
     from std_msgs.msg import Float64MultiArray as _unused  # noqa: F401 (the types are rosbags')
-    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup,
-                                                   StepInput, guidance_step, safe_command)
+    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, encode_input,
+                                                   setup_to_dict)
+    from fabric_guidance.core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
     from fabric_guidance.bag.writer import BagWriter, typestore
     from fabric_guidance.core import Calibration, ChannelMap
     store = typestore()
@@ -251,9 +254,9 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
         return store.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
 
     setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, Calibration.load(SIM_CAL),
-                            ChannelMap.load(CONFIG / 'channel_map.yaml'))
+                            ChannelMap.load(CONFIG / 'hardware/channel_map.yaml'))
     controller = setup.make_controller()
-    params = setup.to_dict()
+    params = setup_to_dict(setup)
     params['from_step'] = 0
     bag = folder / 'session'
     with BagWriter(bag) as w:
@@ -269,7 +272,7 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
                 controller.vent()
             channels, _, _ = guidance_step(setup, controller, inp)
             ns = int(t * 1e9)
-            w.write(inp_t, ns, f64(inp.encode()))
+            w.write(inp_t, ns, f64(encode_input(inp)))
             w.write(cmd, ns + 1000, f64(safe_command(channels, setup.p_max_kpa)))
     return bag
 
@@ -468,14 +471,14 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
     import socket
     from std_msgs.msg import String
     from fabric_guidance.demo import NODES
-    from fabric_guidance.nodes.common import LATCHED_QOS
+    from fabric_guidance.nodes.qos import LATCHED_QOS
     from rosgraph import Graph, Probe, free_port, wait_until
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     overrides = {'mock_plc': dict(port=plc_port), 'plc_output': dict(plc_port=plc_port),
                  'gaze_bridge': dict(port=gaze_port), 'wearer_sim': dict(bridge_port=gaze_port)}
     with Graph(tmp_path) as graph:
         for node in NODES:
-            graph.start(node, ('guidance.yaml', 'sim.yaml'), **overrides.get(node, {}))
+            graph.start(node, ('params/guidance.yaml', 'params/sim.yaml'), **overrides.get(node, {}))
         with Probe(graph.domain_id) as probe:
             # the graph is up and discovered: the controller's latched parameters reach the probe
             probe.subscribe(String, 'controller_parameters', LATCHED_QOS)
@@ -511,17 +514,17 @@ def _readers():
     from fabric_guidance.core.calibration import Calibration
     from fabric_guidance.core.channels import ChannelMap
     from fabric_guidance.experiments.stats import load_table
-    from fabric_guidance.nodes.common import check_params_files
+    from fabric_guidance.nodes.parameters import check_params_files
     from fabric_guidance.plc.register_map import PlcLayout, RegisterMap
     from fabric_guidance.sim.scene import load_scene
     return {
         'calibration': (Calibration.load, SIM_CAL),
-        'channel map': (ChannelMap.load, CONFIG / 'channel_map.yaml'),
-        'register map': (RegisterMap.load, CONFIG / 'plc_register_map.yaml'),
+        'channel map': (ChannelMap.load, CONFIG / 'hardware/channel_map.yaml'),
+        'register map': (RegisterMap.load, CONFIG / 'hardware/plc_register_map.yaml'),
         # What plc_output reads (one PLC or several).
-        'plc layout': (PlcLayout.load, CONFIG / 'plc_register_map.yaml'),
+        'plc layout': (PlcLayout.load, CONFIG / 'hardware/plc_register_map.yaml'),
         'scene': (load_scene, CONFIG / 'scenes' / 'paper-accuracy.yaml'),
-        'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'guidance.yaml'),
+        'parameters file': (lambda p: check_params_files(['--params-file', str(p)]), CONFIG / 'params/guidance.yaml'),
         'analyze table': (load_table, ROOT / 'test' / 'data' / 'table-identified-targets.csv'),
     }
 

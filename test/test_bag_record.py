@@ -7,13 +7,16 @@ import subprocess
 import sys
 import tempfile
 
+import pytest
 import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from fabric_guidance.bag import offline
-from fabric_guidance.bag.controller_io import INPUT_SIZE, ControllerSetup
+from fabric_guidance.bag.controller_io import INPUT_SIZE, setup_from_yaml
 from fabric_guidance.bag.topics import TOPICS
+
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 #: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
 EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/pressure_command',
@@ -51,7 +54,7 @@ def test_demo_record_decodes_with_an_independent_reader():
             elif channel.topic == '/controller_input':
                 assert len(decoded.data) == INPUT_SIZE
             elif channel.topic == '/controller_parameters':
-                assert ControllerSetup.from_yaml(decoded.data).condition == 1
+                assert setup_from_yaml(decoded.data).condition == 1
             elif channel.topic == '/gaze':
                 assert decoded.header.frame_id == 'immersive'
             elif channel.topic == '/diagnostics':

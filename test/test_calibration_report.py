@@ -8,11 +8,9 @@ as a process, reusing the fixture and the simulated wearer of test_node_pressure
 import math
 import subprocess
 import sys
-import threading
 
 import numpy as np
 import pytest
-from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from fabric_guidance.calibration_report import (direction_fits, draw_fit_figure, format_fit_report, main,
@@ -21,9 +19,10 @@ from fabric_guidance.core.calibration import (DONE, FAILED, Calibration, Calibra
                                               DirectionCalibration)
 from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance.core.power_law import CalibrationFitError, PowerLaw, fit_power_law
-from fabric_guidance.nodes import common
 from rosgraph import CONFIG, ROOT, wait_until
-from test_node_pressure_controller import ALICE, FAST_CAL, answer_as, controller  # noqa: F401 (fixture)
+from test_node_pressure_controller import FAST_CAL, controller, wearer_answering  # noqa: F401 (fixture)
+
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 P_MAX = 375.0
 SIM_CAL = CONFIG / 'calibrations' / 'sim-wearer.yaml'
@@ -188,18 +187,11 @@ def test_a_failing_procedure_writes_nothing_and_keeps_the_previous_files(tmp_pat
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
 def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controller, tmp_path):
     graph, probe, upstream, _ = controller
-    status = probe.subscribe(String, common.CALIBRATION_STATUS, common.EVENT_QOS)
-    stop = threading.Event()
-    wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
-    wearer.start()
     folder = tmp_path / 'calibrations'
-    try:
+    with wearer_answering(controller) as status:
         wait_until(lambda: probe.call(Trigger, 'start_calibration', Trigger.Request()).success, 15.0,
                    what='start_calibration accepted')
         wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
-    finally:
-        stop.set()
-        wearer.join(2)
     done = status[-1].data
     assert done.startswith('done'), [m.data for m in status]
     cal = Calibration.load(folder / 'alice.yaml')

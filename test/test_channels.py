@@ -1,4 +1,4 @@
-"""The channel maps of config/channel_map.yaml: suit (Fig. 4) and arm (Table II)."""
+"""The channel maps of config/hardware/channel_map.yaml: suit (Fig. 4) and arm (Table II)."""
 import numpy as np
 import pytest
 
@@ -11,7 +11,7 @@ ARM = ['arm_i', 'arm_ii', 'arm_iii', 'arm_iv', 'arm_v', 'arm_vi']
 
 @pytest.fixture(scope='module')
 def cmap():
-    return ChannelMap.load(config_path('channel_map.yaml'))
+    return ChannelMap.load(config_path('hardware/channel_map.yaml'))
 
 
 def test_channel_order_is_the_configured_one(cmap):

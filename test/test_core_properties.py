@@ -34,7 +34,7 @@ from fabric_guidance.core.power_law import (
 )
 
 P_MAX = PAPER_P_MAX
-CHANNEL_MAP = Path(__file__).resolve().parents[1] / 'config' / 'channel_map.yaml'
+CHANNEL_MAP = Path(__file__).resolve().parents[1] / 'config' / 'hardware/channel_map.yaml'
 
 _SLOW_OK = [HealthCheck.too_slow, HealthCheck.filter_too_much]
 FAST = settings(max_examples=100, deadline=None, suppress_health_check=_SLOW_OK)

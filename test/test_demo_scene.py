@@ -21,6 +21,8 @@ from fabric_guidance.sim.engine import trial_run
 from fabric_guidance.sim.scene import load_scene
 from rosgraph import CONFIG, ROOT, Graph, wait_until
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 SCENES = CONFIG / 'scenes'
 P_MAX = 375.0
 WEARER_EFFECTS = ('suit_hysteresis', 'weber_perception', 'reaction_delay', 'body_dynamics', 'gaze_noise',
@@ -137,9 +139,9 @@ def test_wearer_sim_alone_sends_the_scenes_gaze_noise(tmp_path):
     noisy, clean = GazeCatcher(), GazeCatcher()
     graphs = [Graph(tmp_path / 'noisy'), Graph(tmp_path / 'clean')]
     try:
-        graphs[0].start('wearer_sim', ('guidance.yaml', 'sim.yaml'), bridge_port=noisy.port,
+        graphs[0].start('wearer_sim', ('params/guidance.yaml', 'params/sim.yaml'), bridge_port=noisy.port,
                         scene_file=str(SCENES / 'paper-speed.yaml'), wearer_index=0)
-        graphs[1].start('wearer_sim', ('guidance.yaml', 'sim.yaml'), bridge_port=clean.port,
+        graphs[1].start('wearer_sim', ('params/guidance.yaml', 'params/sim.yaml'), bridge_port=clean.port,
                         scene_file=str(SCENES / 'ideal.yaml'), wearer_index=0)
 
         def enough():

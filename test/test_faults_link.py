@@ -24,6 +24,8 @@ from fabric_guidance.plc.modbus import MockPlcServer
 from rosgraph import free_port, wait_until
 from test_node_plc import MOCK, N, OUTPUT, REGISTER_MAP   # the parameters as the graph gets them
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 TOLERANCE_KPA = 0.1
 MODBUS_TIMEOUT_S = OUTPUT['modbus_timeout_s']
 WATCHDOG_S = MOCK['watchdog_s']
@@ -54,10 +56,7 @@ LOG = DeadlineLog('link')
 record = LOG.record
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, link faults')
+report = LOG.report_at_module_end('worst times, link faults')
 
 
 def command(k):

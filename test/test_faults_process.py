@@ -20,11 +20,12 @@ import pytest
 from deadlines import DeadlineLog
 from fabric_guidance.plc.records import load_records
 from rosgraph import CONFIG, Graph, free_port, wait_until
-from test_graph import F_LEFT_40, GAZE_STALE_VENT_S, SIM_CAL, HoloLensStub, RegisterWatch, encode_datagram
+from guided_lab import GUIDED, GuidedLab, guided_overrides, guided_until_closed
+from test_graph import F_LEFT_40, GAZE_STALE_VENT_S, HoloLensStub, encode_datagram
 import socket
 
-FILES = ('guidance.yaml', 'sim.yaml')
-GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 #: Far longer than any test here: the PLC side never vents in this module.
 MOCK_WATCHDOG_S = 60.0
 COMMAND_TIMEOUT_S = 0.5     # plc_output, guidance.yaml
@@ -60,41 +61,20 @@ class Stub(HoloLensStub):
 
     kind = 'valid'
 
-    def _run(self):
-        while not self._stop:
-            if self.sending.is_set():
-                if self.kind == 'junk':
-                    data = b'{"version":1,"seq":' + str(self.seq).encode() + b',"stamp":NaN}'
-                else:
-                    data = encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
-                                           (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), self.kind == 'valid')
-                self.sock.sendto(data, ('127.0.0.1', self.port))
-                self.seq += 1
-            time.sleep(1 / 60)
+    def datagram(self) -> bytes:
+        if self.kind == 'junk':
+            return b'{"version":1,"seq":' + str(self.seq).encode() + b',"stamp":NaN}'
+        return encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
+                               (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), self.kind == 'valid')
 
 
-class Lab:
+class Lab(GuidedLab):
     def __init__(self, log_dir):
         self.plc_port, self.gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
         self.graph = Graph(log_dir)
-        self.overrides = {
-            'mock_plc': dict(port=self.plc_port, watchdog_s=MOCK_WATCHDOG_S),
-            'plc_output': dict(plc_port=self.plc_port),
-            'gaze_bridge': dict(port=self.gaze_port),
-            'target_selector': dict(target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
-                                    auto_advance=False),
-            # stall_timeout_s 0: the stub's gaze never moves, and the no-progress vent (tested in
-            # test_node_pressure_controller) would end the guidance these faults interrupt.
-            'pressure_controller': dict(calibration_file=str(SIM_CAL), calibration_dir=str(log_dir / 'cal'),
-                                        stall_timeout_s=0.0),
-        }
-        for node in self.overrides:
-            self.start(node)
-        self.hololens = Stub(self.gaze_port)
-        self.watch = RegisterWatch(self.plc_port)
-
-    def start(self, node):
-        return self.graph.start(node, FILES, **self.overrides[node])
+        self.overrides = {'mock_plc': dict(port=self.plc_port, watchdog_s=MOCK_WATCHDOG_S),
+                          **guided_overrides(log_dir, self.plc_port, self.gaze_port)}
+        self.start_all(Stub)
 
     def guided(self, deadline_s=RESTART_DEADLINE_S, what='guidance at the registers'):
         self.hololens.kind = 'valid'
@@ -126,13 +106,9 @@ class Lab:
 
 @pytest.fixture(scope='module')
 def lab(tmp_path_factory):
-    lab = Lab(tmp_path_factory.mktemp('process_faults'))
-    try:
-        lab.guided(what='the graph up')
+    with guided_until_closed(Lab(tmp_path_factory.mktemp('process_faults')), LOG,
+                             'worst times, process faults') as lab:
         yield lab
-    finally:
-        lab.close()
-        LOG.report('worst times, process faults')
 
 
 @pytest.mark.parametrize('kind', ['invalid', 'junk'])

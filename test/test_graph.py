@@ -6,7 +6,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -14,12 +13,15 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core import Calibration, ChannelMap
 from fabric_guidance.core.gaze_wire import encode_datagram
-from fabric_guidance.nodes import common
+from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
+from senders import PeriodicSender
 
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
-REGMAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=CMAP.channels)
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
+REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=CMAP.channels)
 SIM_CAL = 'config/calibrations/sim-wearer.yaml'
 F_LEFT_40 = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml').laws[0].pressure(40.0)
 P_MAX = 375.0
@@ -32,30 +34,27 @@ GAZE_STALE_VENT_S = 0.3 + 1 / 30 + 1 / 50 + 0.6
 WATCHDOG_VENT_S = 0.5 + 1 / 100 + 0.5
 
 
-class HoloLensStub:
+class HoloLensStub(PeriodicSender):
     """Sends gaze datagrams (wire format v1, Unity frame) at 60 Hz: the wearer looks ahead."""
+
+    period_s = 1 / 60
 
     def __init__(self, port):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.port, self.seq = port, 0
-        self.sending = threading.Event()
-        self.sending.set()
-        self._stop = False
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self.start()
 
-    def _run(self):
-        while not self._stop:
-            if self.sending.is_set():
-                data = encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
-                                       (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), True)
-                self.sock.sendto(data, ('127.0.0.1', self.port))
-                self.seq += 1
-            time.sleep(1 / 60)
+    def datagram(self) -> bytes:
+        return encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
+                               (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), True)
+
+    def tick(self):
+        if self.sending.is_set():
+            self.sock.sendto(self.datagram(), ('127.0.0.1', self.port))
+            self.seq += 1
 
     def close(self):
-        self._stop = True
-        self._thread.join(2)
+        super().close()
         self.sock.close()
 
 
@@ -83,7 +82,7 @@ class RegisterWatch:
 def lab_graph(tmp_path):
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(tmp_path / 'logs')
-    files = ('guidance.yaml', 'sim.yaml')
+    files = ('params/guidance.yaml', 'params/sim.yaml')
     graph.start('mock_plc', files, port=plc_port)
     graph.start('plc_output', files, plc_port=plc_port)
     graph.start('gaze_bridge', files, port=gaze_port)
@@ -133,7 +132,7 @@ def end_to_end(graph, hololens, watch) -> tuple[float, float]:
 
 def test_target_40_left_reaches_the_plc_and_every_fault_vents(lab_graph):
     graph, hololens, watch, probe = lab_graph
-    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', common.COMMAND_QOS)
+    max_written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', qos.COMMAND_QOS)
     end_to_end(graph, hololens, watch)
     wait_until(lambda: max_written, 5.0, what='the mock PLC reporting its largest writes')
     assert max(max_written[-1].data) <= P_MAX

@@ -248,21 +248,22 @@ def test_rmse_threshold():
 
 
 def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_law():
-    from fabric_guidance.bag.controller_io import ControllerSetup
+    from fabric_guidance.bag.controller_io import setup_from_dict, setup_from_yaml, setup_to_dict, setup_to_yaml
     from fabric_guidance.core import ChannelMap
+    from fabric_guidance.core.control_step import ControllerSetup
     from fabric_guidance.paths import config_path
-    cmap = ChannelMap.load(config_path('channel_map.yaml'))
+    cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     cal = Calibration.from_laws('w', [LAW] * 4)
     new = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal, cmap)
-    d = new.to_dict()
+    d = setup_to_dict(new)
     law = (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s'])
     assert law == ('rest', 'filtered', 10.0)
-    assert ControllerSetup.from_yaml(new.to_yaml()).to_dict() == d
+    assert setup_to_dict(setup_from_yaml(setup_to_yaml(new))) == d
     # A bag of the law before issue 11: no such keys -> per-target frame, sign test, no stall.
     for key in ('guidance_frame', 'rate_estimator', 'rate_filter_tau_s', 'rate_threshold_dps',
                 'stall_timeout_s'):
         del d[key]
-    old = ControllerSetup.from_dict(d)
+    old = setup_from_dict(d)
     law = (old.guidance_frame, old.rate_estimator, old.stall_timeout_s)
     assert law == ('target', 'sign', None)
     ctl = old.make_controller()

@@ -15,6 +15,8 @@ import threading
 
 import pytest
 
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
 launch_pytest = pytest.importorskip(
     'launch_pytest',
     reason='launch_pytest is not installed here: `make test` runs the launch tests in '
@@ -34,7 +36,8 @@ from rcl_interfaces.srv import GetParameters  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from fabric_guidance.core import ChannelMap  # noqa: E402
-from fabric_guidance.nodes import common  # noqa: E402
+from fabric_guidance import interface  # noqa: E402
+from fabric_guidance.nodes import qos  # noqa: E402
 from fabric_guidance.plc import MockPlcServer, RegisterMap  # noqa: E402
 from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
                                            wait_until)
@@ -120,8 +123,8 @@ def test_colcon_build_installed_the_package():
     assert os.path.isfile(os.path.join(SHARE, 'package.xml'))
     assert sorted(os.listdir(os.path.join(SHARE, 'launch'))) == [
         'guidance.launch.py', 'micromanipulation.launch.py', 'sim.launch.py']
-    for name in ('guidance.yaml', 'sim.yaml', 'micromanipulation.yaml', 'channel_map.yaml',
-                 'plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
+    for name in ('params/guidance.yaml', 'params/sim.yaml', 'params/micromanipulation.yaml', 'hardware/channel_map.yaml',
+                 'hardware/plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
         assert os.path.isfile(os.path.join(SHARE, 'config', name)), name
     for exe in EXECUTABLES:
         assert os.access(os.path.join(PREFIX, 'lib', 'fabric_guidance', exe), os.X_OK), exe
@@ -148,7 +151,7 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
     with Probe(domain_id) as probe:
         # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
         written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
-                                  common.COMMAND_QOS)
+                                  qos.COMMAND_QOS)
         wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
         assert max(written[-1].data) <= P_MAX
         assert max(written[-1].data) > 50.0  # guided, not found by luck
@@ -174,8 +177,8 @@ def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
 # -------------------------------------------------------------------------- guidance.launch.py
 @pytest.fixture
 def plc():
-    channels = ChannelMap.load(os.path.join(SHARE, 'config', 'channel_map.yaml')).channels
-    regmap = RegisterMap.load(os.path.join(SHARE, 'config', 'plc_register_map.yaml'),
+    channels = ChannelMap.load(os.path.join(SHARE, 'config', 'hardware/channel_map.yaml')).channels
+    regmap = RegisterMap.load(os.path.join(SHARE, 'config', 'hardware/plc_register_map.yaml'),
                               expected_channels=channels)
     with MockPlcServer(regmap, '127.0.0.1', 0) as server:
         yield server
@@ -211,7 +214,7 @@ def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_ar
         'target_selector': {'use_sim_time': False},
     }
     with Probe(domain_id) as probe:
-        commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+        commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
         for node, parameters in expected.items():
             names = list(parameters)
             response = probe.call(GetParameters, f'/{node}/get_parameters',
@@ -252,7 +255,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     import yaml
     from geometry_msgs.msg import PointStamped, PoseStamped
     _, watch, domain_id, before = micromanipulation_graph
-    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'micromanipulation.yaml')))
+    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')))
     selector = params['target_selector']['ros__parameters']
     stack = params['micromanipulator_sim']['ros__parameters']
     micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])
@@ -260,9 +263,9 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \
         stack['drift_amplitude_m']
     with Probe(domain_id) as probe:
-        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', common.SENSOR_QOS)
+        poses = {n: probe.subscribe(PoseStamped, f'/stack/{n}/pose', qos.SENSOR_QOS)
                  for n in OBJECTS}
-        targets = probe.subscribe(PointStamped, common.TARGET, common.LATCHED_QOS)
+        targets = probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS)
         wait_until(lambda: len(watch.found()) >= 3, SESSION_DEADLINE_S, what='three objects found')
         assert watch.found() == list(OBJECTS)
         for name in OBJECTS:  # the selector listens on the stack's topics, not its defaults
@@ -280,7 +283,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
                             for m in poses[name]])
             assert np.max(np.linalg.norm(xyz - micro[name], axis=1)) <= drift * 1.0001
         for m in targets:
-            assert m.header.frame_id == common.IMMERSIVE_FRAME
+            assert m.header.frame_id == interface.IMMERSIVE_FRAME
             p = np.array([m.point.x, m.point.y, m.point.z])
             assert min(np.linalg.norm(p - (q * scale + offset)) for q in micro.values()) \
                 <= drift * scale * 1.0001 + 1e-9

@@ -1,4 +1,4 @@
-"""The paper's micromanipulation demonstration: its configuration (config/micromanipulation.yaml).
+"""The paper's micromanipulation demonstration: its configuration (config/params/micromanipulation.yaml).
 
 The demonstration itself runs under the real launch system in test_launch.py
 (launch/micromanipulation.launch.py with the simulated stack, PLC and wearer: the objects found in
@@ -13,7 +13,7 @@ import yaml
 from rosgraph import CONFIG
 
 ORDER = ['holding_pipette', 'microbead', 'injection_pipette']
-PARAMS = yaml.safe_load((CONFIG / 'micromanipulation.yaml').read_text())
+PARAMS = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
 SELECTOR = PARAMS['target_selector']['ros__parameters']
 STACK = PARAMS['micromanipulator_sim']['ros__parameters']
 SCALE, OFFSET = SELECTOR['live_scale'], np.array(SELECTOR['live_offset'])

@@ -1,6 +1,6 @@
 """Issue 11: the micromanipulation sequence headless, straight from object to object.
 
-The three objects of config/micromanipulation.yaml (micromanipulator_sim's default positions,
+The three objects of config/params/micromanipulation.yaml (micromanipulator_sim's default positions,
 mapped by live_scale and live_offset) are presented one after another with no return to the
 front, to simulated wearers calibrated by Algorithm 1, with every effect of the paper-speed
 scene (gaze noise, loss, latency, reaction, hysteresis). Every seed tried finds all three.
@@ -24,7 +24,7 @@ TIMEOUT_S = 15.0
 
 
 def objects() -> list[tuple[float, float]]:
-    params = yaml.safe_load(config_path('micromanipulation.yaml').read_text())
+    params = yaml.safe_load(config_path('params/micromanipulation.yaml').read_text())
     sel = params['target_selector']['ros__parameters']
     stack = params['micromanipulator_sim']['ros__parameters']
     pos = np.reshape(stack['object_positions'], (-1, 3))
@@ -37,7 +37,7 @@ def objects() -> list[tuple[float, float]]:
 
 
 def test_the_config_runs_straight_from_object_to_object():
-    params = yaml.safe_load(config_path('micromanipulation.yaml').read_text())
+    params = yaml.safe_load(config_path('params/micromanipulation.yaml').read_text())
     assert params['target_selector']['ros__parameters'].get('return_to_front', False) is False
 
 

@@ -23,7 +23,9 @@ import pytest
 from rosgraph import Graph, free_port
 from test_graph import SIM_CAL, HoloLensStub, RegisterWatch, end_to_end
 
-FILES = ('guidance.yaml', 'sim.yaml')
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 CLONE_NEWNET = 0x40000000
 HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')
 HOST_B = ('plc_output', 'mock_plc')

@@ -21,10 +21,12 @@ import yaml
 
 from fabric_guidance.core.gaze_wire import encode_datagram
 from fabric_guidance.core.geometry import ray_direction
-from fabric_guidance.nodes.common import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
+from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
-PARAMS = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
 MAX_BYTES = PARAMS['max_datagram_bytes']
 STATUS = 'gaze_bridge: gaze stream'
 #: Shorter than the configured period so that the counters come back sooner.

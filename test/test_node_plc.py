@@ -19,11 +19,14 @@ from std_msgs.msg import Float64MultiArray
 import yaml
 
 from deadlines import DeadlineLog
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
-PARAMS_FILES = ('guidance.yaml', 'sim.yaml')
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+PARAMS_FILES = ('params/guidance.yaml', 'params/sim.yaml')
 
 
 def _parameters(node):
@@ -36,7 +39,7 @@ def _parameters(node):
 
 OUTPUT = _parameters('plc_output')
 MOCK = _parameters('mock_plc')
-REGISTER_MAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+REGISTER_MAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGISTER_MAP)
 P_MAX_KPA = min(OUTPUT['p_max_kpa'], REGISTER_MAP.p_max_kpa)
 COMMAND_TIMEOUT_S = OUTPUT['command_timeout_s']
@@ -93,10 +96,8 @@ VENTS = DeadlineLog('vent')
 record_vent = VENTS.record
 
 
-@pytest.fixture(scope='module', autouse=True)
-def vent_report():
-    yield
-    VENTS.report('worst vent times (registers read back every %.0f ms)' % (POLL_S * 1e3))
+vent_report = VENTS.report_at_module_end(
+    'worst vent times (registers read back every %.0f ms)' % (POLL_S * 1e3))
 
 
 # ---------------------------------------------------------------------- rig
@@ -401,7 +402,7 @@ def test_plc_output_reconnects_to_a_restarted_plc_and_resends_the_command(make_r
 
 
 def test_a_register_map_that_does_not_match_the_channel_map_stops_start_up(tmp_path):
-    channel_map = yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())
+    channel_map = yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())
     channel_map['channels'][0], channel_map['channels'][1] = channel_map['channels'][1], channel_map['channels'][0]
     path = tmp_path / 'swapped_channel_map.yaml'
     path.write_text(yaml.safe_dump(channel_map))

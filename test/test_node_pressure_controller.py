@@ -4,6 +4,7 @@ stale gaze and on request, and Algorithm 1 run live through its service.
 The test plays gaze_bridge and target_selector (publishing gaze, target and active_target)
 and, for calibration, the wearer (answering each command with the angle its own law gives).
 """
+import contextlib
 import math
 import threading
 import time
@@ -16,11 +17,15 @@ from std_srvs.srv import SetBool, Trigger
 
 from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
 from fabric_guidance.core.geometry import DIRECTIONS
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
+from senders import PeriodicSender
+
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 SIM_CAL = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml')
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 EYE = np.array([0.0, 0.0, 1.2])
 GAZE_TIMEOUT_S = 0.3
 #: Stale gaze to vented command: gaze_timeout_s + one control period (30 Hz) + delivery margin.
@@ -32,53 +37,52 @@ def direction(yaw_deg, pitch_deg=0.0):
     return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
 
 
-class FakeUpstream:
+class FakeUpstream(PeriodicSender):
     """Publishes gaze at 50 Hz (yaw/pitch settable) and the active target, as the bridge and
     the selector do: the target position is republished at 10 Hz, so a controller that learns
     the name after the position still gets a position after the name."""
 
     def __init__(self, probe: Probe):
         node = probe.node
-        self.gaze_pub = node.create_publisher(PoseStamped, common.GAZE, common.SENSOR_QOS)
-        self.target_pub = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
-        self.name_pub = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
+        self.gaze_pub = node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        self.target_pub = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
+        self.name_pub = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
         self.yaw = self.pitch = 0.0
         self.target = None
-        self.sending = threading.Event()
-        self.sending.set()
-        self._stop = False
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        self._ticks = 0
+        self.start()
 
-    def _run(self):
-        n = 0
-        while not self._stop:
-            n += 1
-            if self.target is not None and n % 5 == 0:
-                self.target_pub.publish(self.target)
-            if self.sending.is_set():
-                msg = PoseStamped()
-                msg.header.frame_id = common.IMMERSIVE_FRAME
-                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
-                q = ray_orientation(direction(self.yaw, self.pitch))
-                o = msg.pose.orientation
-                o.x, o.y, o.z, o.w = q
-                self.gaze_pub.publish(msg)
-            time.sleep(0.02)
+    def tick(self):
+        self._ticks += 1
+        if self.target is not None and self._ticks % 5 == 0:
+            self.target_pub.publish(self.target)
+        if self.sending.is_set():
+            msg = PoseStamped()
+            msg.header.frame_id = interface.IMMERSIVE_FRAME
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
+            q = ray_orientation(direction(self.yaw, self.pitch))
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = q
+            self.gaze_pub.publish(msg)
 
     def activate(self, name, yaw_deg, pitch_deg=0.0, distance=2.0):
         point = EYE + distance * direction(yaw_deg, pitch_deg)
         msg = PointStamped()
-        msg.header.frame_id = common.IMMERSIVE_FRAME
+        msg.header.frame_id = interface.IMMERSIVE_FRAME
         msg.point.x, msg.point.y, msg.point.z = point
         self.target = msg
         self.target_pub.publish(msg)
         self.name_pub.publish(String(data=name))
         self.target_pub.publish(msg)
 
-    def close(self):
-        self._stop = True
-        self._thread.join(2)
+
+def guide_to_left40(upstream, probe, what='guiding') -> float:
+    """Target t1 40 deg left activated and L1, L2 at f_left(40) (every other channel at 0);
+    returns that pressure [kPa]."""
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what=what)
+    return f40
 
 
 @pytest.fixture
@@ -88,9 +92,9 @@ def controller(tmp_path, request):
     settings = dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
                     calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S)
     settings.update(params)
-    graph.start('pressure_controller', ('guidance.yaml',), **settings)
+    graph.start('pressure_controller', ('params/guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
-    commands = probe.subscribe(Float64MultiArray, common.PRESSURE_COMMAND, common.COMMAND_QOS)
+    commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
     upstream = FakeUpstream(probe)
     try:
         yield graph, probe, upstream, commands
@@ -101,7 +105,7 @@ def controller(tmp_path, request):
 
 
 def latest(probe):
-    msg = probe.latest(common.PRESSURE_COMMAND)
+    msg = probe.latest(interface.PRESSURE_COMMAND)
     return None if msg is None else dict(zip(CMAP.channels, msg.data))
 
 
@@ -120,9 +124,7 @@ def test_target_40_left_drives_left_twist_to_the_calibrated_pressure(controller)
 
 def test_error_growing_raises_the_pressure_and_fixed_condition_does_not(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    f40 = guide_to_left40(upstream, probe, 'starting pressure')
     for step in range(40):             # the wearer turns right, away from the target
         upstream.yaw = -0.5 * step
         time.sleep(0.02)
@@ -133,9 +135,7 @@ def assert_turning_away_holds_f40(controller):
     """A target 40 deg left; the wearer turns away from it: L1 stays at f(40) on every command
     (no adjustment acts)."""
     graph, probe, upstream, commands = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='starting pressure')
+    f40 = guide_to_left40(upstream, probe, 'starting pressure')
     n = len(commands)
     for step in range(40):
         upstream.yaw = -0.5 * step
@@ -161,7 +161,7 @@ def test_condition_3_drives_the_arm_muscles_of_table_2(controller):
 @pytest.mark.parametrize('controller', [{'condition': 4}], indirect=True)
 def test_condition_4_speaks_once_per_target_and_drives_nothing(controller):
     graph, probe, upstream, commands = controller
-    speech = probe.subscribe(String, common.SPEECH, common.EVENT_QOS)
+    speech = probe.subscribe(String, interface.SPEECH, qos.EVENT_QOS)
     upstream.activate('t1', -36.0, 12.0)
     wait_until(lambda: speech, 10.0, what='the phrase')
     n = len(commands)
@@ -175,9 +175,7 @@ def test_condition_4_speaks_once_per_target_and_drives_nothing(controller):
 
 def test_stale_gaze_vents_within_the_deadline(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    f40 = guide_to_left40(upstream, probe, 'guiding')
     upstream.sending.clear()
     t0 = time.monotonic()
     wait_until(lambda: channels_equal(probe, {}), VENT_DEADLINE_S, what='every channel at 0 after the gaze stopped')
@@ -188,9 +186,7 @@ def test_stale_gaze_vents_within_the_deadline(controller):
 
 def test_vent_and_enable_services(controller):
     graph, probe, upstream, _ = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    f40 = guide_to_left40(upstream, probe, 'guiding')
     assert probe.call(Trigger, 'vent', Trigger.Request()).success
     wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
     assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
@@ -199,9 +195,7 @@ def test_vent_and_enable_services(controller):
 
 def test_sigterm_vents_before_exit(controller):
     graph, probe, upstream, commands = controller
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    guide_to_left40(upstream, probe, 'guiding')
     import signal
     assert graph.stop('pressure_controller', signal.SIGTERM) == 0
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='the last command sent being all zeros')
@@ -232,14 +226,26 @@ def answer_as(upstream, probe, laws, stop):
         time.sleep(0.01)
 
 
+@contextlib.contextmanager
+def wearer_answering(controller, laws=ALICE):
+    """calibration_status subscribed (yielded: the messages so far), and a wearer of `laws`
+    answering the controller's pressures (answer_as) until the block ends."""
+    _, probe, upstream, _ = controller
+    status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
+    stop = threading.Event()
+    wearer = threading.Thread(target=answer_as, args=(upstream, probe, laws, stop), daemon=True)
+    wearer.start()
+    try:
+        yield status
+    finally:
+        stop.set()
+        wearer.join(2)
+
+
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
 def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(controller, tmp_path):
     graph, probe, upstream, _ = controller
-    status = probe.subscribe(String, common.CALIBRATION_STATUS, common.EVENT_QOS)
-    stop = threading.Event()
-    wearer = threading.Thread(target=answer_as, args=(upstream, probe, ALICE, stop), daemon=True)
-    wearer.start()
-    try:
+    with wearer_answering(controller) as status:
         # Refused, with the reason, until the controller has a fresh gaze.
         replies = []
         wait_until(lambda: replies.append(probe.call(Trigger, 'start_calibration', Trigger.Request()))
@@ -256,9 +262,6 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
             th = np.linspace(5.0, 40.0, 8)
             assert np.max(np.abs(fitted.pressure(th) - true.pressure(th))) < 5.0   # kPa over the guided range
         before = path.read_bytes()
-    finally:
-        stop.set()
-        wearer.join(2)
     # A wearer who does not move: the fit is refused and alice.yaml stays as it was.
     upstream.yaw = upstream.pitch = 0.0
     n = len(status)
@@ -302,10 +305,8 @@ def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
     stall_timeout_s, /diagnostics says why, and the next target guides again."""
     from diagnostic_msgs.msg import DiagnosticArray
     graph, probe, upstream, _ = controller
-    diags = probe.subscribe(DiagnosticArray, common.DIAGNOSTICS, 10)
-    f40 = SIM_CAL.laws[0].pressure(40.0)
-    upstream.activate('t1', 40.0)
-    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding')
+    diags = probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+    guide_to_left40(upstream, probe, 'guiding')
     t0 = time.monotonic()
     wait_until(lambda: channels_equal(probe, {}), STALL_S + 5.0, what='vented after no progress')
     print(f'no-progress vent after {time.monotonic() - t0:.2f} s (stall_timeout_s {STALL_S} s)')

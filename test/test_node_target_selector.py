@@ -22,11 +22,14 @@ from visualization_msgs.msg import Marker, MarkerArray
 import yaml
 
 from fabric_guidance.core.geometry import ray_orientation, target_direction
-from fabric_guidance.nodes.common import (ACTIVE_TARGET, DIAGNOSTICS, EVENT_QOS, GAZE, IMMERSIVE_FRAME, LATCHED_QOS,
-                                          SENSOR_QOS, TARGET, TARGET_FOUND)
+from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
+                                       TARGET_FOUND)
+from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
-PARAMS = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['target_selector']['ros__parameters']
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']['ros__parameters']
 NAMES = PARAMS['target_names']
 POSITIONS = {n: tuple(PARAMS['target_positions'][3 * i:3 * i + 3]) for i, n in enumerate(NAMES)}
 DWELL_S = PARAMS['dwell_s']

@@ -1,5 +1,7 @@
 """The package as ROS 2 and colcon see it, and the core's independence from ROS."""
 import ast
+import fnmatch
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -48,9 +50,14 @@ def test_ament_layout():
     cfg = (ROOT / 'setup.cfg').read_text()
     assert 'script_dir=$base/lib/fabric_guidance' in cfg and 'install_scripts=$base/lib/fabric_guidance' in cfg
     setup = (ROOT / 'setup.py').read_text()
-    for needle in ("'share/ament_index/resource_index/packages'", "glob('launch/*.launch.py')",
-                   "glob('config/*.yaml')"):
+    for needle in ("'share/ament_index/resource_index/packages'", "glob('launch/*.launch.py')"):
         assert needle in setup
+    # Every file under config/ is installed (ROS parameter files, hardware description, ...).
+    patterns = re.findall(r"glob\('(config/[^']+)'\)", setup)
+    files = [p.relative_to(ROOT).as_posix() for p in (ROOT / 'config').rglob('*') if p.is_file()]
+    missed = [f for f in files if not any(fnmatch.fnmatch(f, pat) and
+                                          f.count('/') == pat.count('/') for pat in patterns)]
+    assert files and not missed, f'setup.py data_files install none of {missed}'
 
 
 def test_example_prints_the_worked_example(tmp_path):

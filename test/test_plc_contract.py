@@ -20,7 +20,7 @@ from fabric_guidance.plc import MockPlcServer, RegisterMap
 from plc_program import PlcProgram, need_tools
 from rosgraph import CONFIG, wait_until
 
-REGMAP = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGMAP)
 SEQ, HEARTBEAT = N, N + 1
 UNIT = REGMAP.unit_id
@@ -60,10 +60,7 @@ def server(request, tmp_path):
         s.stop()
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, PLC contract')
+report = LOG.report_at_module_end('worst times, PLC contract')
 
 
 class Raw:

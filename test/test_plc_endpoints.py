@@ -16,13 +16,16 @@ from std_msgs.msg import Float64MultiArray
 import yaml
 
 from deadlines import DeadlineLog
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, PRESSURE_COMMAND
+from fabric_guidance.interface import DIAGNOSTICS, PRESSURE_COMMAND
+from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLayout, PlcLinkError, RegisterMap
 from fabric_guidance.plc.register_map import RegisterMapError
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 from test_node_plc import MOCK, OUTPUT, PARAMS_FILES
 
-CHANNELS = tuple(yaml.safe_load((CONFIG / 'channel_map.yaml').read_text())['channels'])
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+CHANNELS = tuple(yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())['channels'])
 SUIT, ARM = CHANNELS[:12], CHANNELS[12:]
 TOLERANCE_KPA = 0.1
 WATCHDOG_S = MOCK['watchdog_s']
@@ -44,10 +47,7 @@ NEVER_LANDS_S = 1.5
 LOG = DeadlineLog('endpoints')
 
 
-@pytest.fixture(scope='module', autouse=True)
-def report():
-    yield
-    LOG.report('worst times, several PLCs')
+report = LOG.report_at_module_end('worst times, several PLCs')
 
 
 def two_endpoints(port_a=1502, port_b=1503, **b_overrides):
@@ -78,10 +78,10 @@ def test_endpoints_get_the_contract_layout_and_their_place_in_the_command_vector
 
 
 def test_the_single_plc_form_is_one_endpoint_addressed_by_the_node():
-    layout = PlcLayout.load(CONFIG / 'plc_register_map.yaml', expected_channels=CHANNELS)
+    layout = PlcLayout.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=CHANNELS)
     (only,) = layout.endpoints
     assert only.host is None and only.port is None and layout.endpoint('') is only
-    assert only.map == RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+    assert only.map == RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
     assert (only.map.sequence_register, only.map.heartbeat_register) == (18, 19)
 
 
@@ -237,17 +237,27 @@ def test_plc_output_drives_two_plcs_and_vents_both_when_one_goes(tmp_path):
         lab.close()
 
 
+def _misconfigured_lab(tmp_path, **changes):
+    """plc_output with the shipped register map changed by `changes`, one mock PLC serving the
+    shipped map (the contract's layout), a command sent: (lab, the PLC's port)."""
+    port = free_port()
+    shipped = CONFIG / 'hardware/plc_register_map.yaml'
+    data = {**yaml.safe_load(shipped.read_text()), **changes}
+    lab = Lab(tmp_path, data, {'mock_plc': ('', shipped, port)}, {'plc_port': port})
+    try:
+        lab.command(command_vector())
+    except BaseException:
+        lab.close(check=False)
+        raise
+    return lab, port
+
+
 def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
     """plc_output's map (the single-PLC form) puts the heartbeat at 100; the PLC (the shipped map:
     the contract's layout) answers exception 02 there. /diagnostics names the register and says
     the map or the program is wrong; not one command lands meanwhile."""
-    port = free_port()
-    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
-    data['heartbeat_register'] = 100
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
-              {'plc_port': port})
+    lab, port = _misconfigured_lab(tmp_path, heartbeat_register=100)
     try:
-        lab.command(command_vector())
         lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
                        'the refusal on /diagnostics')
         message = lab.status('plc_output: PLC output').message
@@ -258,7 +268,7 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
                    what='the link status')
         assert lab.state('plc_output: PLC link plc') == 'refused'
         end = time.monotonic() + NEVER_LANDS_S
-        shipped = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+        shipped = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
         while time.monotonic() < end:
             r = lab.registers('', port, shipped)
             assert r is not None and not r.any(), f'a command landed on a refusing PLC: {r}'
@@ -272,13 +282,8 @@ def test_a_refusing_plc_is_not_down_and_no_command_lands(tmp_path):
 
 
 def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
-    port = free_port()
-    data = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
-    data['unit_id'] = 2   # the PLC (the shipped map) answers unit id 1 only
-    lab = Lab(tmp_path, data, {'mock_plc': ('', CONFIG / 'plc_register_map.yaml', port)},
-              {'plc_port': port})
+    lab, port = _misconfigured_lab(tmp_path, unit_id=2)  # the PLC answers unit id 1 only
     try:
-        lab.command(command_vector())
         lab.wait_level('plc_output: PLC output', DiagnosticStatus.ERROR, STARTUP_DEADLINE_S,
                        'the silence on /diagnostics')
         message = lab.status('plc_output: PLC output').message
@@ -287,7 +292,7 @@ def test_a_wrong_unit_id_says_check_the_unit_id(tmp_path):
         wait_until(lambda: lab.status('plc_output: PLC link plc'), DIAGNOSTICS_DEADLINE_S,
                    what='the link status')
         assert lab.state('plc_output: PLC link plc') == 'no answer'
-        r = lab.registers('', port, RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
+        r = lab.registers('', port, RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'))
         assert r is not None and not r.any(), r
     finally:
         lab.close()

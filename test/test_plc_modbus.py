@@ -55,7 +55,7 @@ class Controller:
 
 @pytest.fixture(scope='module')
 def reg_map():
-    return RegisterMap.load(config_path('plc_register_map.yaml'))
+    return RegisterMap.load(config_path('hardware/plc_register_map.yaml'))
 
 
 @pytest.fixture

@@ -22,11 +22,10 @@ from fabric_guidance.plc.records import load_records, violations
 from faultproxy import FaultProxy, is_modbus_write_multiple
 from plc_program import PlcProgram, need_tools, wait_listening
 from rosgraph import Graph, free_port, wait_until
-from test_graph import (F_LEFT_40, REGMAP, SIM_CAL, WATCHDOG_VENT_S, HoloLensStub,
-                        RegisterWatch)
+from guided_lab import GUIDED, GuidedLab, guided_overrides, guided_until_closed
+from test_graph import F_LEFT_40, REGMAP, WATCHDOG_VENT_S
 
-FILES = ('guidance.yaml', 'sim.yaml')
-GUIDED = {'L1': F_LEFT_40, 'L2': F_LEFT_40}
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
 N = len(REGMAP)
 P_MAX = REGMAP.p_max_counts
 #: The program's watchdog and scan, as mock_plc's defaults (watchdog_s 0.5, 100 Hz).
@@ -46,7 +45,7 @@ HOLD_S = 3.0
 LOG = DeadlineLog('PLC program')
 
 
-class ProgramLab:
+class ProgramLab(GuidedLab):
     def __init__(self, log_dir):
         self.graph = Graph(log_dir)
         self.plc_port, self.gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
@@ -60,23 +59,8 @@ class ProgramLab:
         self.graph.records_files.append(self.program.state_path)
         self.injected_over_limit: list[list[int]] = []
         self.proxy = FaultProxy('127.0.0.1', self.plc_port)
-        self.overrides = {
-            'plc_output': dict(plc_port=self.proxy.port),
-            'gaze_bridge': dict(port=self.gaze_port),
-            'target_selector': dict(target_names=['left40'],
-                                    target_positions=[1.5321, 1.2856, 1.2], auto_advance=False),
-            # stall_timeout_s 0: the stub's gaze never moves, and the no-progress vent would end
-            # the guidance these faults interrupt.
-            'pressure_controller': dict(calibration_file=str(SIM_CAL),
-                                        calibration_dir=str(log_dir / 'cal'), stall_timeout_s=0.0),
-        }
-        for node in self.overrides:
-            self.start(node)
-        self.hololens = HoloLensStub(self.gaze_port)
-        self.watch = RegisterWatch(self.plc_port)
-
-    def start(self, node):
-        return self.graph.start(node, FILES, **self.overrides[node])
+        self.overrides = guided_overrides(log_dir, self.proxy.port, self.gaze_port)
+        self.start_all()
 
     def state(self) -> dict:
         return self.program.state()
@@ -120,13 +104,9 @@ class ProgramLab:
 @pytest.fixture(scope='module')
 def lab(tmp_path_factory):
     need_tools('make', 'g++')
-    lab = ProgramLab(tmp_path_factory.mktemp('plc_program_graph'))
-    try:
-        lab.guided(what='the graph up')
+    with guided_until_closed(ProgramLab(tmp_path_factory.mktemp('plc_program_graph')), LOG,
+                             'worst times, graph against the PLC program') as lab:
         yield lab
-    finally:
-        lab.close()
-        LOG.report('worst times, graph against the PLC program')
 
 
 def raw_request(port: int, pdu: bytes) -> bytes:

@@ -30,13 +30,13 @@ def reg_map():
 
 def test_shipped_map_matches_channel_map_order():
     # Read the channel map's order straight from its file: this test is about the PLC layer only.
-    channels = tuple(yaml.safe_load(config_path('channel_map.yaml').read_text())['channels'])
-    m = RegisterMap.load(config_path('plc_register_map.yaml'), expected_channels=channels)
+    channels = tuple(yaml.safe_load(config_path('hardware/channel_map.yaml').read_text())['channels'])
+    m = RegisterMap.load(config_path('hardware/plc_register_map.yaml'), expected_channels=channels)
     assert m.names == tuple(CHANNELS) == channels
     assert m.p_max_kpa == 375.0 and m.p_max_counts == 3750
     assert m.command_block() == (0, len(CHANNELS))
     assert not set(m.command_registers) & {m.heartbeat_register}
-    assert m.source.endswith('plc_register_map.yaml')
+    assert m.source.endswith('hardware/plc_register_map.yaml')
 
 
 def _mutate(path, value):
@@ -205,7 +205,7 @@ def test_sequence_register_is_optional_and_must_follow_the_command_block():
     assert RegisterMap.from_dict(valid_dict()).sequenced_block() is None
     m = RegisterMap.from_dict(dict(valid_dict(), sequence_register=18))
     assert m.sequenced_block() == (0, 19) and m.is_mapped_holding(18) and not m.is_mapped_holding(19)
-    shipped = RegisterMap.load(config_path('plc_register_map.yaml'))
+    shipped = RegisterMap.load(config_path('hardware/plc_register_map.yaml'))
     assert shipped.sequence_register == 18 and shipped.sequenced_block() == (0, 19)
     for value, reason in [(19, 'right after'), (5, 'right after'), ('18', 'integer'), (70000, '0..65535')]:
         with pytest.raises(RegisterMapError) as err:

@@ -18,10 +18,13 @@ from std_msgs.msg import String
 
 from fabric_guidance.bag import offline
 from fabric_guidance.core import ChannelMap, ray_orientation
-from fabric_guidance.nodes import common
+from fabric_guidance import interface
+from fabric_guidance.nodes import qos
 from rosgraph import CONFIG, Graph, Probe, wait_until
 
-CMAP = ChannelMap.load(CONFIG / 'channel_map.yaml')
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+CMAP = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml')
 L1 = CMAP.channels.index('L1')
 EYE = np.array([0.0, 0.0, 1.2])
 CAL = str(CONFIG / 'calibrations' / 'sim-wearer.yaml')
@@ -34,7 +37,7 @@ def direction(yaw_deg):
 
 def gaze_msg(yaw):
     msg = PoseStamped()
-    msg.header.frame_id = common.IMMERSIVE_FRAME
+    msg.header.frame_id = interface.IMMERSIVE_FRAME
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = ray_orientation(direction(yaw))
@@ -54,18 +57,18 @@ def turning_session(tmp_path_factory):
     bag = tmp / 'bag'
     graph = Graph(tmp / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=CAL, gain=0.05)
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05)
     probe = Probe(graph.domain_id)
     try:
         node = probe.node
-        gaze = node.create_publisher(PoseStamped, common.GAZE, common.SENSOR_QOS)
-        target = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
-        name = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
+        gaze = node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        target = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
+        name = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
         wait_until(lambda: recorder_ready(probe) and node.count_publishers('controller_input'), 15.0,
                    what='controller and recorder')
         yaws = [0.0] * 15 + [-0.5 * k for k in range(40)] + [-20.0] * 40
         point = PointStamped()
-        point.header.frame_id = common.IMMERSIVE_FRAME
+        point.header.frame_id = interface.IMMERSIVE_FRAME
         point.point.x, point.point.y, point.point.z = EYE + 2.0 * direction(40.0)
         for k, yaw in enumerate(yaws):
             if k in (10, 80):
@@ -105,7 +108,7 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
     bag = tmp_path / 'looped'
     graph = Graph(tmp_path / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True)
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True)
     probe = Probe(graph.domain_id)
     try:
         wait_until(lambda: recorder_ready(probe) and probe.node.count_publishers('controller_input'), 15.0,
@@ -155,9 +158,10 @@ def test_offline_replay_of_a_bag_cut_mid_guidance_compares_from_the_first_vent(t
     whose state is known (a vent), and a step missing in the middle unsyncs it again."""
     from dataclasses import replace
 
-    from fabric_guidance.bag.controller_io import ControllerSetup, guidance_step, safe_command
+    from fabric_guidance.bag.controller_io import setup_from_dict
+    from fabric_guidance.core.control_step import guidance_step, safe_command
     rec = offline.load(turning_session)
-    setup = ControllerSetup.from_dict(rec.setups[0][1])
+    setup = setup_from_dict(rec.setups[0][1])
 
     def naive_diff(i):           # the step rerun from a fresh controller, as a naive replay would
         inp = rec.inputs[i]

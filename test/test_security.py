@@ -27,7 +27,7 @@ def test_the_bridge_listens_on_loopback_for_loopback_senders_by_default():
     source = Path(gaze_bridge.__file__)
     assert _declared_default(source, 'bind_address') == '127.0.0.1'
     assert _declared_default(source, 'allowed_senders') == ['127.0.0.1']
-    params = yaml.safe_load((CONFIG / 'guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
+    params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
     assert ipaddress.ip_address(params['bind_address']).is_loopback
     assert all(ipaddress.ip_address(a).is_loopback for a in params['allowed_senders'])
 
@@ -35,7 +35,7 @@ def test_the_bridge_listens_on_loopback_for_loopback_senders_by_default():
 def test_the_package_writes_only_mapped_registers():
     """The register map names every holding register the client may write; the mock PLC
     records anything else, and every test graph fails on such a record (process_graph)."""
-    m = RegisterMap.load(CONFIG / 'plc_register_map.yaml')
+    m = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
     writable = set(m.command_registers) | {m.heartbeat_register, m.sequence_register}
     assert all(m.is_mapped_holding(a) for a in writable)
     assert not any(m.is_mapped_holding(a) for a in set(range(65536)) - writable)
@@ -50,5 +50,5 @@ def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     assert "SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile)" in launch
     assert "'fastdds_loopback.xml'" in launch and "else 'LOCALHOST'" in launch
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
-    sim = yaml.safe_load((CONFIG / 'sim.yaml').read_text())
+    sim = yaml.safe_load((CONFIG / 'params/sim.yaml').read_text())
     assert ipaddress.ip_address(sim['mock_plc']['ros__parameters']['host']).is_loopback

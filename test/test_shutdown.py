@@ -1,7 +1,7 @@
 """A node's process ends in bounded time once it has vented, whatever its teardown does.
 
 plc_output once stayed up after logging its vent until `ros2 launch` killed it (issue 16);
-nodes/common.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
+nodes/spin.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
 leaves a non-daemon thread behind that never ends, which would hold the interpreter's exit
 forever: the process must still exit 0 after its vent.
 """
@@ -10,15 +10,19 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from rosgraph import fresh_domain_id, wait_until
 
-#: Far above the teardown bound (common.TEARDOWN_LIMIT_S) and a loaded machine's start-up.
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+#: Far above the teardown bound (nodes/spin.py TEARDOWN_LIMIT_S) and a loaded machine's start-up.
 EXIT_DEADLINE_S = 30.0
 
 NODE = textwrap.dedent('''
     import threading
     from rclpy.node import Node
-    from fabric_guidance.nodes.common import run
+    from fabric_guidance.nodes.spin import run
 
     class Stuck(Node):
         def __init__(self):
@@ -61,8 +65,8 @@ def test_the_mock_plc_waits_for_its_client_to_vent_and_leave():
     from fabric_guidance.core import ChannelMap
     from fabric_guidance.plc import MockPlcServer, PlcClient, RegisterMap
     from rosgraph import CONFIG
-    channels = ChannelMap.load(CONFIG / 'channel_map.yaml').channels
-    regmap = RegisterMap.load(CONFIG / 'plc_register_map.yaml', expected_channels=channels)
+    channels = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml').channels
+    regmap = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml', expected_channels=channels)
     with MockPlcServer(regmap, watchdog_s=60.0) as server:  # no watchdog vent meanwhile
         client = PlcClient(regmap, '127.0.0.1', server.port)
         assert client.connect()

@@ -90,7 +90,7 @@ def test_suit_hysteresis_holds_within_the_band_and_follows_beyond():
 
 def test_pressure_effects_per_direction_equal_the_mean_of_18_simulated_channels():
     """The engine simulates channel effects once per direction; per channel gives the same."""
-    cmap = ChannelMap.load(config_path('channel_map.yaml'))
+    cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     rng = np.random.default_rng(3)
     for layout in ('suit', 'arm'):
         lag, hyst = started('regulator_lag', tau_s=0.15), started('suit_hysteresis', band_kpa=20.0)

@@ -8,14 +8,17 @@ bridge's own bad parameters (address, sender, port in use) are in test_node_gaze
 the register map's and the calibration file's every field in test_plc_register_map.py and
 test_calibration.py: here they go through the nodes.
 """
+import pytest
 import yaml
 
 from rosgraph import CONFIG, Graph, free_port
 
-FILES = ('guidance.yaml', 'sim.yaml')
+pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 EXIT_DEADLINE_S = 60.0   # every case starting at once on a loaded 2-core machine
 SIM_CAL = yaml.safe_load((CONFIG / 'calibrations' / 'sim-wearer.yaml').read_text())
-REG_MAP = yaml.safe_load((CONFIG / 'plc_register_map.yaml').read_text())
+REG_MAP = yaml.safe_load((CONFIG / 'hardware/plc_register_map.yaml').read_text())
 
 
 def _calibration(**changes):

@@ -3,7 +3,7 @@
 Every control step the node published its exact inputs (controller_input, layout in
 controller_io.py) right before its command, and its parameters, calibration and channel map at
 start-up and after a live calibration (controller_parameters). The replay feeds those inputs, in
-step order, to the same code the node runs (controller_io.guidance_step on a GuidanceController
+step order, to the same code the node runs (core/control_step.py guidance_step on a GuidanceController
 built by ControllerSetup.make_controller) and compares each step's command with the
 pressure_command the node published for it, channel by channel.
 
@@ -23,8 +23,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput, guidance_step,
-                            safe_command)
+from ..core.control_step import StepInput, guidance_step, safe_command
+from .controller_io import CONTROLLER_INPUT, CONTROLLER_PARAMETERS, decode_input, setup_from_dict, with_overrides
 from ..core.safe_input import excerpt, parse_yaml
 from .reader import raw_messages
 from .topics import bag_topic
@@ -115,7 +115,7 @@ def load(path, namespace: str = '/') -> Recording:
             if values is None:
                 values = np.asarray(store.deserialize_cdr(data, msgtype).data, dtype=float)
             if kind == 'in':
-                step = StepInput.decode(values)
+                step = decode_input(values)
         except Exception:  # a damaged message (the CDR decoder raises many kinds): counted, skipped
             undecodable[topic] += 1
             continue
@@ -176,13 +176,13 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
     """Rerun every recorded control step; compare with the recorded commands."""
     t0 = time.perf_counter()
     try:
-        first = ControllerSetup.from_dict(rec.setups[0][1])
+        first = setup_from_dict(rec.setups[0][1])
     except (KeyError, TypeError, AttributeError) as exc:  # ValueErrors name their field already
         raise ValueError(f'{CONTROLLER_PARAMETERS}: unusable parameters ({type(exc).__name__}: '
                          f'{excerpt(str(exc))})') from None
     result = ReplayResult(first.channel_map.channels, max_diff=np.zeros(len(first.channel_map.channels)),
                           read_s=rec.read_s, problems=list(rec.problems))
-    setups = [(s, ControllerSetup.from_dict(d).with_overrides(overrides or {})) for s, d in rec.setups]
+    setups = [(s, with_overrides(setup_from_dict(d), overrides or {})) for s, d in rec.setups]
     k = -1
     setup = controller = None
     previous_step = None

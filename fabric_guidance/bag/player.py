@@ -9,16 +9,12 @@ from __future__ import annotations
 import time
 from typing import Callable, Sequence
 
+from ..interface import CLOCK_KIND, DEFAULT, qos_profile
 from .reader import raw_messages
 from .topics import CLOCK, REPLAYED_INPUTS, TOPICS
 
 #: /clock is published at least this often between messages [s].
 CLOCK_PERIOD_S = 0.01
-
-
-def _rclpy_qos(kind: str):
-    from ..nodes.common import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
-    return {'sensor': SENSOR_QOS, 'command': COMMAND_QOS, 'latched': LATCHED_QOS, 'event': EVENT_QOS}.get(kind, 10)
 
 
 def _short(topic: str) -> str:
@@ -30,7 +26,6 @@ def play(path, topics: Sequence[str] = REPLAYED_INPUTS, rate: float = 1.0, loop:
     """Republish `topics` of the bag with /clock. loops > 0 ends after that many passes; with
     loop and loops == 0 it runs until interrupted. Returns the number of messages published."""
     import rclpy
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
     import importlib
 
@@ -49,9 +44,9 @@ def play(path, topics: Sequence[str] = REPLAYED_INPUTS, rate: float = 1.0, loop:
             if topic not in pubs:
                 package, _, name = msgtype.split('/')
                 cls = getattr(importlib.import_module(f'{package}.msg'), name)
-                kind = TOPICS.get(_short(topic), (None, 'default'))[1]
-                pubs[topic] = node.create_publisher(cls, topic, _rclpy_qos(kind))
-        clock_pub = node.create_publisher(Clock, CLOCK, QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+                kind = TOPICS.get(_short(topic), (None, DEFAULT))[1]
+                pubs[topic] = node.create_publisher(cls, topic, qos_profile(kind))
+        clock_pub = node.create_publisher(Clock, CLOCK, qos_profile(CLOCK_KIND))
         deadline = time.monotonic() + wait_s
         # Every publisher matched, /clock included: a node that hears the clock late would miss
         # the start of the bag (and, with a short bag, a whole loop).

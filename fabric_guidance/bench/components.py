@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..bag.controller_io import ControllerSetup, StepInput, guidance_step, safe_command
+from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
 from ..core import Calibration, ChannelMap, fit_power_law
 from ..core.gaze_wire import encode_datagram, parse_datagram
 from ..core.geometry import ray_orientation
@@ -30,12 +30,12 @@ def time_calls(call: Callable[[int], object], n: int, warmup: int) -> np.ndarray
 
 
 def controller_step_us(n: int) -> dict:
-    """One Eq. 5 step as pressure_controller runs it (controller_io.guidance_step: all four
+    """One Eq. 5 step as pressure_controller runs it (core/control_step.py guidance_step: all four
     directions, onto the channel map, then the P_MAX clip), condition 1, gaze wandering
     around a target 30 deg left and 10 deg up so the error grows and shrinks."""
     cal = Calibration.load(config_path('calibrations/sim-wearer.yaml'))
     setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal,
-                            ChannelMap.load(config_path('channel_map.yaml')))
+                            ChannelMap.load(config_path('hardware/channel_map.yaml')))
     controller = setup.make_controller()
     origin = np.array([0.0, 0.0, 1.2])
     target = origin + 2.0 * np.array([math.cos(math.radians(30)), math.sin(math.radians(30)), 0.35])

@@ -8,7 +8,7 @@
 
 Each hop is what the package's path cannot avoid: a UDP receive, a DDS publish and subscribe
 per node hop, one Modbus write, in Python on rclpy, spun as the package's nodes spin
-(nodes/common.run: the SingleThreadedExecutor, spin_once with a 50 ms timeout).
+(nodes/spin.run: the SingleThreadedExecutor, spin_once with a 50 ms timeout).
 
     python -m fabric_guidance.bench.floor udp --port P | relay | modbus --plc-port P
 """
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     from rclpy.signals import SignalHandlerOptions
     from geometry_msgs.msg import PoseStamped
     from std_msgs.msg import Float64MultiArray
-    from ..nodes.common import COMMAND_QOS, SENSOR_QOS
+    from ..nodes.qos import COMMAND_QOS, SENSOR_QOS
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     else:
         from ..paths import config_path
         from ..plc import PlcClient, PlcLinkError, RegisterMap
-        client = PlcClient(RegisterMap.load(config_path('plc_register_map.yaml')), '127.0.0.1', args.plc_port,
+        client = PlcClient(RegisterMap.load(config_path('hardware/plc_register_map.yaml')), '127.0.0.1', args.plc_port,
                            timeout_s=0.5)
         client.connect()
 

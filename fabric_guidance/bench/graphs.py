@@ -19,7 +19,7 @@ from . import floor
 from .latency import Sender, WriteLog, landings, percentiles_ms
 from .sweep import Sweep
 
-FILES = ('guidance.yaml', 'sim.yaml')
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
 SIM_CALIBRATION = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 #: Package nodes whose memory is reported.
 NODES = ('gaze_bridge', 'pressure_controller', 'plc_output', 'mock_plc')
@@ -28,7 +28,7 @@ SETTLE_S = 0.25
 
 
 def make_sweep() -> Sweep:
-    return Sweep(Calibration.load(SIM_CALIBRATION), RegisterMap.load(CONFIG / 'plc_register_map.yaml'))
+    return Sweep(Calibration.load(SIM_CALIBRATION), RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'))
 
 
 def rss_mb(pid: int) -> float | None:
@@ -148,13 +148,14 @@ class PackageGraph:
     def _publish_target(self) -> None:
         from geometry_msgs.msg import PointStamped
         from std_msgs.msg import String
-        from ..nodes import common
+        from .. import interface
+        from ..nodes import qos
         node = self.probe.node
-        name_pub = node.create_publisher(String, common.ACTIVE_TARGET, common.LATCHED_QOS)
-        point_pub = node.create_publisher(PointStamped, common.TARGET, common.LATCHED_QOS)
+        name_pub = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
+        point_pub = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
         name_pub.publish(String(data='bench'))
         msg = PointStamped()
-        msg.header.frame_id = common.IMMERSIVE_FRAME
+        msg.header.frame_id = interface.IMMERSIVE_FRAME
         msg.point.x, msg.point.y, msg.point.z = self.sweep.target
         # Republished as target_selector does: the controller takes a position only after the name.
         node.create_timer(0.1, lambda: point_pub.publish(msg))
@@ -174,7 +175,7 @@ class PackageGraph:
         # state is known from the first one).
         from diagnostic_msgs.msg import DiagnosticArray
         from ..bag.recorder_status import hears, recorded_counts
-        from ..nodes.common import DIAGNOSTICS
+        from ..interface import DIAGNOSTICS
         counts = {}
         self.probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10,
                              lambda msg: counts.update(recorded_counts(msg) or {}))

@@ -1,6 +1,6 @@
 """Direction pressures onto named PLC channels, in one fixed, configured order.
 
-A channel map (config/channel_map.yaml) lists every channel in the order the command vector
+A channel map (config/hardware/channel_map.yaml) lists every channel in the order the command vector
 uses (the ros2_controllers convention: a Float64MultiArray in a configured joint order) and,
 per layout, which channels each of the four directions drives:
 

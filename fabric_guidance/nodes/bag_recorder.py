@@ -29,7 +29,11 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from ..bag.recorder_status import STATUS_SUFFIX, count_key
 from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
 from ..bag.writer import BagWriter
-from .common import COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, declare, publish_diagnostics, run, status
+from ..interface import DIAGNOSTICS
+from .diagnostics import publish_diagnostics, status
+from .parameters import declare
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from .spin import run
 
 #: A recorder must not lose what it could have buffered: the publishers' reliability and
 #: durability, but a deep history, so a stall of this process (writing, load) costs no message

@@ -32,8 +32,11 @@ from rclpy.node import Node
 
 from fabric_guidance.core.gaze_wire import REASONS, SeqStatus, SequenceTracker, WireFormatError, parse_datagram
 from fabric_guidance.core.geometry import GeometryError, ray_orientation
-from fabric_guidance.nodes.common import (DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME, SENSOR_QOS, declare,
-                                          publish_diagnostics, run, status)
+from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import SENSOR_QOS
+from fabric_guidance.nodes.spin import run
 
 #: Receive buffer asked for (the kernel caps it at net.core.rmem_max): ~10 s of samples at 90 Hz
 #: would fit in far less, but a burst must not be lost while the thread is descheduled.

@@ -27,7 +27,9 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from .common import SENSOR_QOS, declare, run
+from .parameters import declare
+from .qos import SENSOR_QOS
+from .spin import run
 
 #: The paper's demonstration objects, in the order the wearer is guided to them.
 DEFAULT_NAMES = ['holding_pipette', 'microbead', 'injection_pipette']

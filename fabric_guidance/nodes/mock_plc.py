@@ -22,11 +22,14 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from fabric_guidance.nodes.common import COMMAND_QOS, DIAGNOSTICS, declare, publish_diagnostics, run, status
+from fabric_guidance.interface import DIAGNOSTICS
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import COMMAND_QOS
+from fabric_guidance.nodes.spin import run
+from fabric_guidance.interface import MAX_WRITTEN
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import MockPlcServer, PlcLayout
-
-MAX_WRITTEN = 'mock_plc/max_written_kpa'
 
 
 class MockPlc(Node):
@@ -37,7 +40,7 @@ class MockPlc(Node):
         port = declare(self, 'port', 1502, 'TCP port to listen on (0: any free port)', '', 0, 65535,
                        read_only=True)
         register_map_file = declare(self, 'register_map_file', '',
-                                    "register map (YAML); '' = the package's config/plc_register_map.yaml",
+                                    "register map (YAML); '' = the package's config/hardware/plc_register_map.yaml",
                                     read_only=True)
         endpoint = declare(self, 'endpoint', '',
                            "which PLC of a register map with endpoints to play; '' = the only one",
@@ -63,7 +66,7 @@ class MockPlc(Node):
                                  "append every holding-register write with its CLOCK_MONOTONIC time [ns] to this "
                                  "file (benchmarks); '' = off", read_only=True)
 
-        layout = PlcLayout.load(resolve(register_map_file, 'plc_register_map.yaml'))
+        layout = PlcLayout.load(resolve(register_map_file, 'hardware/plc_register_map.yaml'))
         self.register_map = layout.endpoint(endpoint).map
         self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
                                     update_hz=update_hz, records_path=records_file or None,

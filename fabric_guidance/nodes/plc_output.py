@@ -32,8 +32,11 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core.channels import ChannelMap
-from fabric_guidance.nodes.common import (COMMAND_QOS, DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND,
-                                          declare, publish_diagnostics, run, status)
+from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import COMMAND_QOS
+from fabric_guidance.nodes.spin import run
 from fabric_guidance.paths import resolve
 from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError
 from fabric_guidance.plc.pymodbus_compat import PYMODBUS_VERSION
@@ -76,10 +79,10 @@ class PlcOutput(Node):
                                 'its own',
                                 '', 1, 65535, read_only=True)
         register_map_file = declare(self, 'register_map_file', '',
-                                    "register map (YAML); '' = the package's config/plc_register_map.yaml",
+                                    "register map (YAML); '' = the package's config/hardware/plc_register_map.yaml",
                                     read_only=True)
         channel_map_file = declare(self, 'channel_map_file', '',
-                                   "channel map (YAML); '' = the package's config/channel_map.yaml", read_only=True)
+                                   "channel map (YAML); '' = the package's config/hardware/channel_map.yaml", read_only=True)
         p_max_param = declare(self, 'p_max_kpa', 375.0,
                               'commands are clamped to this (and to the register map p_max_kpa) before writing',
                               'kPa', 0.0, 1000.0, read_only=True)
@@ -103,9 +106,9 @@ class PlcOutput(Node):
             raise ValueError(f'parameter "reconnect_min_s" ({self.reconnect_min_s} s) must not exceed '
                              f'"reconnect_max_s" ({self.reconnect_max_s} s)')
 
-        channel_path = resolve(channel_map_file, 'channel_map.yaml')
+        channel_path = resolve(channel_map_file, 'hardware/channel_map.yaml')
         channel_map = ChannelMap.load(channel_path)
-        self.layout = PlcLayout.load(resolve(register_map_file, 'plc_register_map.yaml'),
+        self.layout = PlcLayout.load(resolve(register_map_file, 'hardware/plc_register_map.yaml'),
                                      expected_channels=channel_map.channels)
         # The channel order, read-only like ros2_controllers' `joints`: it comes from the channel map.
         channels = declare(self, 'channels', list(channel_map.channels),

@@ -49,11 +49,16 @@ from ..core.channels import ChannelMapError
 from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
-from ..bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, ControllerSetup, StepInput,
-                                 guidance_step, safe_command)
+from ..bag.controller_io import encode_input, setup_to_dict
+from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
+from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
+                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
+                         VENT)
 from ..paths import resolve
-from .common import (ACTIVE_TARGET, CALIBRATION_STATUS, COMMAND_QOS, DIAGNOSTICS, EVENT_QOS, GAZE, LATCHED_QOS,
-                     PRESSURE_COMMAND, SENSOR_QOS, SPEECH, TARGET, declare, publish_diagnostics, run, status)
+from .diagnostics import publish_diagnostics, status
+from .parameters import declare
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from .spin import run
 
 
 class PressureController(Node):
@@ -120,11 +125,11 @@ class PressureController(Node):
                                     'the control_rate_hz timer fills in when none came for a period',
                                     read_only=True)
 
-        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
+        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
         self.layout = self.condition.layout or 'suit'
         if self.layout not in self.channel_map.layouts:
             # Checked here: the first guidance step would otherwise fail after start-up.
-            raise ChannelMapError(f'channel map {resolve(channel_map_file, "channel_map.yaml")}: field '
+            raise ChannelMapError(f'channel map {resolve(channel_map_file, "hardware/channel_map.yaml")}: field '
                                   f'"layouts" has no layout "{self.layout}" for condition '
                                   f'{self.condition.number}; it has {list(self.channel_map.layouts)}')
         declare(self, 'channels', list(self.channel_map.channels),
@@ -166,9 +171,9 @@ class PressureController(Node):
         self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
         self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
-        self.create_service(Trigger, 'start_calibration', self.on_start_calibration)
-        self.create_service(SetBool, 'enable', self.on_enable)
-        self.create_service(Trigger, 'vent', self.on_vent)
+        self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
+        self.create_service(SetBool, ENABLE, self.on_enable)
+        self.create_service(Trigger, VENT, self.on_vent)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.period_s = 1.0 / rate
         self.create_timer(self.period_s, self.on_timer, clock=steady)
@@ -187,7 +192,7 @@ class PressureController(Node):
 
     def publish_parameters(self, from_step: int) -> None:
         """The controller's parameters (YAML), valid from control step `from_step` on."""
-        d = self.setup.to_dict()
+        d = setup_to_dict(self.setup)
         d['from_step'] = int(from_step)
         self.parameters_pub.publish(String(data=yaml.safe_dump(d, sort_keys=False)))
 
@@ -303,7 +308,7 @@ class PressureController(Node):
         self.last_step_s = self.now_s()
         # The exact inputs of this step, right before its command (offline replay reruns them).
         if self.input_pub.get_subscription_count():   # volatile: unheard, it would be dropped anyway
-            self.input_msg.data = array('d', inp.encode())
+            self.input_msg.data = array('d', encode_input(inp))
             self.input_pub.publish(self.input_msg)
         if self.procedure is not None:
             self.publish(self.calibration_step(t, fresh))

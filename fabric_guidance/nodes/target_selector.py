@@ -37,12 +37,14 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from fabric_guidance.core.geometry import GeometryError, ray_direction, target_direction
 from fabric_guidance.core.task import AcceptanceTracker
-from fabric_guidance.nodes.common import (ACTIVE_TARGET, DIAGNOSTICS, EVENT_QOS, GAZE, IMMERSIVE_FRAME, LATCHED_QOS,
-                                          SENSOR_QOS, TARGET, TARGET_FOUND, declare, publish_diagnostics, run,
-                                          status)
+from fabric_guidance.interface import LIVE_TARGETS, NEXT_TARGET, RESET_SEQUENCE, TARGET_MARKERS
+from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
+                                       TARGET_FOUND)
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from fabric_guidance.nodes.spin import run
 
-TARGET_MARKERS = 'target_markers'
-LIVE_TARGETS = 'live_targets'
 #: The active target's position is republished this often (live targets move) [Hz].
 REPUBLISH_HZ = 10.0
 #: Diagnostics every this many republish ticks (1 s).
@@ -54,7 +56,7 @@ FRONT = (1.0, 0.0, 0.0)
 ACTIVE_RGBA = (1.0, 0.0, 0.0, 1.0)
 INACTIVE_RGBA = (1.0, 0.0, 1.0, 1.0)
 
-#: The paper's four targets (config/guidance.yaml), the defaults when no parameter file is given.
+#: The paper's four targets (config/params/guidance.yaml), the defaults when no parameter file is given.
 DEFAULT_NAMES = ['front_left', 'up_right', 'down_left', 'down_right']
 DEFAULT_POSITIONS = [1.5321, 1.2856, 1.2000, 1.5827, -1.1499, 1.6158,
                      1.7033, 0.7943, 0.5160, 1.2660, -1.5088, 0.8527]
@@ -154,8 +156,8 @@ class TargetSelector(Node):
         for name in sorted(self.live_names):
             self.create_subscription(PoseStamped, f'{LIVE_TARGETS}/{name}',
                                      lambda msg, name=name: self.on_live_target(name, msg), SENSOR_QOS)
-        self.create_service(Trigger, 'next_target', self.on_next_target)
-        self.create_service(Trigger, 'reset_sequence', self.on_reset_sequence)
+        self.create_service(Trigger, NEXT_TARGET, self.on_next_target)
+        self.create_service(Trigger, RESET_SEQUENCE, self.on_reset_sequence)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
         self.create_timer(1.0 / REPUBLISH_HZ, self.on_tick)

@@ -36,8 +36,10 @@ from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
-from .common import (ACTIVE_TARGET, COMMAND_QOS, EVENT_QOS, LATCHED_QOS, MEASURED_PRESSURE, SPEECH, TARGET,
-                     declare, run)
+from ..interface import ACTIVE_TARGET, MEASURED_PRESSURE, SPEECH, TARGET
+from .parameters import declare
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
+from .spin import run
 
 #: Measured pressures older than this are not felt any more (the PLC link is gone) [s].
 PRESSURE_TIMEOUT_S = 0.5
@@ -72,7 +74,7 @@ class WearerSim(Node):
                             '(suit: 1, arm: 3)', low=0, high=4)
         if len(laws) != 12:
             raise ValueError(f'parameter laws needs 12 numbers (a, b, c for 4 directions), got {len(laws)}')
-        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'channel_map.yaml'))
+        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
         self.channel_map.to_directions(np.zeros(len(self.channel_map.channels)), self.layout)  # validates layout
         self.dt = 1.0 / rate
         self.scene_side: SceneSide | None = None

@@ -1,6 +1,6 @@
 """Which PLC register carries which channel, and how kPa become 16-bit register counts.
 
-The register map (config/plc_register_map.yaml) is the single place that says where each
+The register map (config/hardware/plc_register_map.yaml) is the single place that says where each
 channel's pressure command goes (a holding register), where its measured pressure comes from
 (an input register), where the heartbeat goes, and how pressures are scaled. It is validated
 when loaded, so a bad file fails at start-up with the file, the field and the reason, not

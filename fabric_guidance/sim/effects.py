@@ -178,7 +178,7 @@ class RegulatorLag(Effect):
     """First-order lag from the commanded pressure to the regulator's output pressure.
 
     tau_s (s, default 0.15): time constant. Where from: the package's mock PLC regulator
-    (config/sim.yaml regulator_tau_s = 0.15), itself an order of magnitude for electro-pneumatic
+    (config/params/sim.yaml regulator_tau_s = 0.15), itself an order of magnitude for electro-pneumatic
     proportional regulators (datasheets of the CRCB/ITV class give step responses of about
     0.1-0.2 s without load); the suit's muscle volume would slow it further. Not measured on
     the paper's suit: an assumption of the right order.

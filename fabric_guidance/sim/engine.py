@@ -62,8 +62,8 @@ def trial_run(condition: int, repetition: int) -> tuple[int, int, int]:
 
 @lru_cache(maxsize=4)
 def package_channel_map(path: str | None = None) -> ChannelMap:
-    """The package's channel map (config/channel_map.yaml), loaded once per process."""
-    return ChannelMap.load(path or config_path('channel_map.yaml'))
+    """The package's channel map (config/hardware/channel_map.yaml), loaded once per process."""
+    return ChannelMap.load(path or config_path('hardware/channel_map.yaml'))
 
 
 class FastPowerLaw(PowerLaw):
@@ -84,7 +84,7 @@ class FastPowerLaw(PowerLaw):
 
 def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | None = None,
                      follow_target: bool = False) -> GuidanceController:
-    """The controller the node builds (bag.controller_io.ControllerSetup.make_controller) from a
+    """The controller the node builds (core.control_step.ControllerSetup.make_controller) from a
     scene's controller section: same law, estimator and frame; fast scalar power laws."""
     return GuidanceController(
         [FastPowerLaw.of(law) for law in calibration.laws],

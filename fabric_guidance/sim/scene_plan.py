@@ -89,7 +89,7 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
 
 
 def _eye_height() -> float:
-    params = yaml.safe_load(config_path('sim.yaml').read_text())['wearer_sim']['ros__parameters']
+    params = yaml.safe_load(config_path('params/sim.yaml').read_text())['wearer_sim']['ros__parameters']
     return float(params.get('eye_height_m', 1.2))
 
 

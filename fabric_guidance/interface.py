@@ -1,0 +1,210 @@
+"""The package's ROS interface in one place: every topic and service name, its type, its QoS
+kind, who publishes and who listens, and the immersive frame. The nodes, the bag code and the
+topic tables of docs/interfaces.md all take them from here
+(`python -m fabric_guidance.interface --markdown` prints the tables).
+
+No rclpy at import: the bag code and the docs use this module without ROS; qos_profile()
+builds the rclpy profile of a kind when a node asks for it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import sys
+
+# Topic and service names, relative so that a namespace or a remap moves them together.
+GAZE = 'gaze'
+HEAD_POSE = 'head_pose'
+TARGET = 'target'
+ACTIVE_TARGET = 'active_target'
+TARGET_FOUND = 'target_found'
+TARGET_MARKERS = 'target_markers'
+LIVE_TARGETS = 'live_targets'
+PRESSURE_COMMAND = 'pressure_command'
+MEASURED_PRESSURE = 'measured_pressure'
+SPEECH = 'speech'
+CALIBRATION_STATUS = 'calibration_status'
+DIAGNOSTICS = '/diagnostics'
+CONTROLLER_INPUT = 'controller_input'
+CONTROLLER_PARAMETERS = 'controller_parameters'
+CLOCK = '/clock'
+MAX_WRITTEN = 'mock_plc/max_written_kpa'
+
+START_CALIBRATION = 'start_calibration'
+ENABLE = 'enable'
+VENT = 'vent'
+NEXT_TARGET = 'next_target'
+RESET_SEQUENCE = 'reset_sequence'
+
+#: The frame of the immersive space (REP 103 axes, Unity's world origin).
+IMMERSIVE_FRAME = 'immersive'
+
+# QoS kinds. sensor: a late gaze sample is worth nothing (best effort, newest only). command:
+# reliable, a short queue (ros2_controllers' command topics use reliable depth 10). latched:
+# state a late joiner must see (reliable, transient local, 1). event: must not be lost
+# (reliable, a longer queue). default: rclpy's depth 10 reliable volatile (/diagnostics).
+# clock: /clock of a replay (best effort, the newest only).
+SENSOR, COMMAND, LATCHED, EVENT, DEFAULT, CLOCK_KIND = (
+    'sensor', 'command', 'latched', 'event', 'default', 'clock')
+
+#: kind -> (reliable, transient local, depth); sensor is rclpy's qos_profile_sensor_data.
+QOS_KINDS: dict[str, tuple[bool, bool, int]] = {
+    SENSOR: (False, False, 5),
+    COMMAND: (True, False, 10),
+    LATCHED: (True, True, 1),
+    EVENT: (True, False, 50),
+    DEFAULT: (True, False, 10),
+    CLOCK_KIND: (False, False, 1),
+}
+
+_QOS_TEXT = {
+    SENSOR: 'sensor data (best effort, keep last 5)',
+    COMMAND: 'reliable, depth 10',
+    LATCHED: 'reliable, transient local, depth 1',
+    EVENT: 'reliable, depth 50',
+    DEFAULT: 'reliable, depth 10',
+    CLOCK_KIND: 'best effort, depth 1',
+}
+
+
+def qos_profile(kind: str):
+    """The rclpy QoSProfile of a QoS kind (KeyError naming the kinds for an unknown one)."""
+    if kind not in QOS_KINDS:
+        raise KeyError(f'unknown QoS kind {kind!r}; kinds: {sorted(QOS_KINDS)}')
+    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                           qos_profile_sensor_data)
+    if kind == SENSOR:
+        return qos_profile_sensor_data
+    reliable, latched, depth = QOS_KINDS[kind]
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
+@dataclass(frozen=True)
+class Topic:
+    name: str
+    type: str            # ROS type, package/msg/Name
+    qos: str             # QoS kind
+    publishers: str
+    subscribers: str
+    what: str
+    recorded: bool = True  # bag_recorder records it (bag/topics.py TOPICS)
+    type_note: str = ''    # shown after the type in the docs, e.g. the payload's format
+    qos_note: str = ''     # shown after the QoS in the docs
+
+
+@dataclass(frozen=True)
+class Service:
+    name: str
+    type: str            # ROS type, package/srv/Name
+    node: str
+    what: str
+
+
+TOPICS: tuple[Topic, ...] = (
+    Topic(GAZE, 'geometry_msgs/msg/PoseStamped', SENSOR, 'gaze_bridge',
+          'target_selector, pressure_controller',
+          'position: gaze origin [m]; orientation: x axis along the gaze ray, no roll; '
+          'stamp: receive time'),
+    Topic(HEAD_POSE, 'geometry_msgs/msg/PoseStamped', SENSOR, 'gaze_bridge', '',
+          'HoloLens head pose [m]; published only while something subscribes'),
+    Topic(TARGET, 'geometry_msgs/msg/PointStamped', LATCHED, 'target_selector',
+          'pressure_controller, wearer_sim (with a scene)',
+          'active target position [m]; republished at 10 Hz'),
+    Topic(ACTIVE_TARGET, 'std_msgs/msg/String', LATCHED, 'target_selector',
+          'pressure_controller, wearer_sim', "name of the active target, `''` for none"),
+    Topic(TARGET_FOUND, 'std_msgs/msg/String', EVENT, 'target_selector', '',
+          'a target the wearer just found'),
+    Topic(TARGET_MARKERS, 'visualization_msgs/msg/MarkerArray', LATCHED, 'target_selector',
+          'RViz', 'targets as 0.1 m spheres (active red, others magenta)', recorded=False),
+    Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
+          'micromanipulator stack, or micromanipulator_sim', 'target_selector',
+          'live targets in the microscope frame [m], scaled by `live_scale` and shifted by '
+          '`live_offset`', recorded=False, qos_note='matches reliable publishers too'),
+    Topic(PRESSURE_COMMAND, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
+          'plc_output', 'kPa per channel, in the order of the `channels` parameter: F1-F4, '
+          'B1-B4, L1-L2, R1-R2, arm_i-arm_vi'),
+    Topic(MEASURED_PRESSURE, 'std_msgs/msg/Float64MultiArray', COMMAND, 'plc_output',
+          'wearer_sim', "regulators' measured kPa, same order"),
+    Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
+          'wearer_sim (with a scene, condition 4)', "condition 4's phrase, once per target"),
+    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', '',
+          '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
+          '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
+          '`done: <file>; fit report <txt>, <png>` or '
+          '`failed: <reason>; the previous calibration is kept`'),
+    Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
+          'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
+          'bag_recorder', '',
+          'bridge counts by drop reason and loss rate; task state; controller state and vent '
+          'reason; PLC link state and round-trip time; mock PLC violations; messages recorded '
+          'per topic'),
+    Topic(CONTROLLER_INPUT, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
+          'bag_recorder', 'every control step: the exact inputs it used (layout in '
+          '[recording_and_replay.md](recording_and_replay.md)); published only while '
+          'something subscribes'),
+    Topic(CONTROLLER_PARAMETERS, 'std_msgs/msg/String', LATCHED, 'pressure_controller',
+          'bag_recorder', 'parameters, calibration and channel map, for offline replay',
+          type_note='(YAML)'),
+    Topic(CLOCK, 'rosgraph_msgs/msg/Clock', CLOCK_KIND, '`fabric-guidance replay`',
+          'nodes with `use_sim_time`', "the bag's time", recorded=False),
+    Topic(MAX_WRITTEN, 'std_msgs/msg/Float64MultiArray', COMMAND, 'mock_plc', 'tests',
+          'largest value ever written per channel [kPa]', recorded=False),
+)
+
+SERVICES: tuple[Service, ...] = (
+    Service(START_CALIBRATION, 'std_srvs/srv/Trigger', 'pressure_controller',
+            'run Algorithm 1 live with the wearer (refused without a fresh gaze); writes '
+            '`<calibration_dir>/<wearer>.yaml` only if every direction fits; progress on '
+            '`calibration_status`; a stale gaze aborts it vented'),
+    Service(ENABLE, 'std_srvs/srv/SetBool', 'pressure_controller',
+            'guide (true) or vent and hold (false)'),
+    Service(VENT, 'std_srvs/srv/Trigger', 'pressure_controller',
+            'vent at once and stop guiding until `enable`'),
+    Service(NEXT_TARGET, 'std_srvs/srv/Trigger', 'target_selector',
+            'activate the next target of the sequence'),
+    Service(RESET_SEQUENCE, 'std_srvs/srv/Trigger', 'target_selector', 'back to the first target'),
+)
+
+
+def topic(name: str) -> Topic:
+    """The Topic of a name (KeyError naming the known ones)."""
+    for t in TOPICS:
+        if t.name == name:
+            return t
+    raise KeyError(f'unknown topic {name!r}; topics: {[t.name for t in TOPICS]}')
+
+
+def _short_type(ros_type: str) -> str:
+    package, _, name = ros_type.split('/')
+    return f'{package}/{name}'
+
+
+def markdown() -> str:
+    """The topic and service tables of docs/interfaces.md."""
+    lines = ['| topic | type | QoS | publisher | subscribers | what |',
+             '| --- | --- | --- | --- | --- | --- |']
+    for t in TOPICS:
+        ros_type = ' '.join(filter(None, (_short_type(t.type), t.type_note)))
+        qos = '; '.join(filter(None, (_QOS_TEXT[t.qos], t.qos_note)))
+        lines.append(f'| `{t.name}` | {ros_type} | {qos} | {t.publishers} | {t.subscribers} '
+                     f'| {t.what} |')
+    lines += ['', '| service | type | node | what |', '| --- | --- | --- | --- |']
+    for s in SERVICES:
+        lines.append(f'| `{s.name}` | {_short_type(s.type)} | {s.node} | {s.what} |')
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv != ['--markdown']:
+        print('usage: python -m fabric_guidance.interface --markdown', file=sys.stderr)
+        return 2
+    sys.stdout.write(markdown())
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""A node's main loop: spin until SIGINT or SIGTERM, then run the node's safe shutdown (vent)
+while the ROS context is still up, and bound the teardown after it.
+
+Nodes stay thin: they parse parameters, wire topics and services, and call the core.
+"""
+from __future__ import annotations
+
+import gc
+import os
+import signal
+import sys
+import threading
+from typing import Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from .parameters import check_params_files
+
+
+#: Once a node has vented, its teardown (destroying the node, the ROS context, the interpreter's
+#: exit) gets this long before the process ends itself [s]; `ros2 launch` escalates after 5 s.
+TEARDOWN_LIMIT_S = 2.0
+
+
+def _end_process(code: int) -> None:
+    """Ends the process now: the vent is done, whatever holds the teardown is not worth waiting
+    for (a non-daemon thread, a DDS entity's destruction)."""
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        os._exit(code)
+
+
+def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
+    ROS context is still up so that it can still publish or write, and exit 0.
+
+    rclpy's own signal handlers would shut the context down first; ours only set a flag that
+    the spin loop checks every 50 ms. Raising from the handler instead would interrupt whatever
+    runs at that instant (a callback, rclpy's C++ take path, a Modbus request) half-way.
+    """
+    try:
+        check_params_files(sys.argv if args is None else args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # a bad command line or parameters file: no context, no node yet
+        print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
+        return 1
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        # Everything built so far (modules, the node) lives as long as the process: keep it out
+        # of the collector's full passes, which would otherwise walk it all (milliseconds, in the
+        # middle of a control step) every so many allocations.
+        gc.collect()
+        gc.freeze()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+    except ExternalShutdownException:
+        pass
+    except Exception as exc:  # a start-up error (bad parameter or file) ends with its message
+        if node is None:
+            print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
+            code = 1
+        else:
+            raise
+    finally:
+        # Ignore further signals while venting: a second Ctrl-C must not skip it.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if node is not None:
+            safe_shutdown = getattr(node, 'safe_shutdown', None)
+            if safe_shutdown is not None:
+                safe_shutdown()
+        # From here on nothing is left to do that matters to the suit: bound the rest.
+        failing = sys.exc_info()[0] is not None  # an error on its way out: exit 1, not 0
+        limit = threading.Timer(TEARDOWN_LIMIT_S, _end_process, args=(1 if failing else code,))
+        limit.daemon = True
+        limit.start()
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
