@@ -185,7 +185,7 @@ def test_a_failing_procedure_writes_nothing_and_keeps_the_previous_files(tmp_pat
 
 
 @pytest.mark.parametrize('controller', [FAST_CAL], indirect=True)
-def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controller, tmp_path):
+def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controller, tmp_path):  # noqa: F811 (fixture)
     graph, probe, upstream, _ = controller
     folder = tmp_path / 'calibrations'
     with wearer_answering(controller) as status:

@@ -179,7 +179,8 @@ def test_an_outage_shows_at_error_vents_and_heals_with_the_latest_command(link, 
     getattr(proxy, fault)()
     seconds = rig.time_to_vent(t0, OUTAGE_VENT_DEADLINE_S, f'{fault}: the PLC watchdog venting during the outage')
     record('outage vented by the PLC watchdog', seconds, OUTAGE_VENT_DEADLINE_S)
-    _wait_status(link, n, DiagnosticStatus.ERROR, OUTAGE_ERROR_DEADLINE_S, f'plc_output ERROR on /diagnostics ({fault})')
+    _wait_status(link, n, DiagnosticStatus.ERROR, OUTAGE_ERROR_DEADLINE_S,
+                 f'plc_output ERROR on /diagnostics ({fault})')
     record('outage -> ERROR on /diagnostics', time.monotonic() - t0, OUTAGE_ERROR_DEADLINE_S)
     error = next(s for s in link.status_since(n) if s.level == DiagnosticStatus.ERROR)
     assert 'PLC link down' in error.message, error
@@ -277,8 +278,10 @@ def test_a_slow_link_below_the_timeout_keeps_commands_flowing(link):
         rig.command(command(71))
         rig.wait_registers(command(71), COMMAND_DEADLINE_S + 4 * delay_s, 'the command through the slow link')
         n = len(rig.diagnostics)
-        wait_until(lambda: [s for s in link.status_since(n)
-                            if float(dict((kv.key, kv.value) for kv in s.values)['last round trip ms']) >= 2e3 * delay_s],
+
+        def round_trip_ms(status):
+            return float(dict((kv.key, kv.value) for kv in status.values)['last round trip ms'])
+        wait_until(lambda: [s for s in link.status_since(n) if round_trip_ms(s) >= 2e3 * delay_s],
                    DIAGNOSTICS_PERIOD_S + 2.0, what=f'a round trip of at least {2e3 * delay_s:.0f} ms on /diagnostics')
     finally:
         proxy.heal()

@@ -123,8 +123,8 @@ def test_colcon_build_installed_the_package():
     assert os.path.isfile(os.path.join(SHARE, 'package.xml'))
     assert sorted(os.listdir(os.path.join(SHARE, 'launch'))) == [
         'guidance.launch.py', 'micromanipulation.launch.py', 'sim.launch.py']
-    for name in ('params/guidance.yaml', 'params/sim.yaml', 'params/micromanipulation.yaml', 'hardware/channel_map.yaml',
-                 'hardware/plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
+    for name in ('params/guidance.yaml', 'params/sim.yaml', 'params/micromanipulation.yaml',
+                 'hardware/channel_map.yaml', 'hardware/plc_register_map.yaml', 'calibrations/sim-wearer.yaml'):
         assert os.path.isfile(os.path.join(SHARE, 'config', name)), name
     for exe in EXECUTABLES:
         assert os.access(os.path.join(PREFIX, 'lib', 'fabric_guidance', exe), os.X_OK), exe

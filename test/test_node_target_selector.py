@@ -221,6 +221,7 @@ def test_a_gaze_that_dwells_on_the_target_finds_it_and_the_next_becomes_active(f
     assert [m.data for m in fresh.found[n_found:]] == [first]
     fresh.wait_active(second, POSITIONS[second])
     # A consumer that sees the new name gets the new position after it (never the old one).
+
     def targets_after_the_name():
         with fresh._events_lock:
             events = fresh.events[n_events:]

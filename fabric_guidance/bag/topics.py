@@ -9,7 +9,8 @@ from __future__ import annotations
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from .. import interface
-from ..interface import ACTIVE_TARGET, CLOCK, COMMAND, DEFAULT, EVENT, GAZE, HEAD_POSE, LATCHED, QOS_KINDS, SENSOR, TARGET
+from ..interface import (ACTIVE_TARGET, CLOCK, COMMAND, DEFAULT, EVENT, GAZE, HEAD_POSE, LATCHED, QOS_KINDS, SENSOR,
+                         TARGET)
 
 __all__ = ['BAG_QOS', 'CLOCK', 'COMMAND', 'DEFAULT', 'EVENT', 'LATCHED', 'REPLAYED_INPUTS', 'SENSOR', 'TOPICS',
            'bag_topic']

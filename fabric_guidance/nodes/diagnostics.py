@@ -19,4 +19,3 @@ def publish_diagnostics(node: Node, publisher, statuses: Sequence[DiagnosticStat
     msg.header.stamp = node.get_clock().now().to_msg()
     msg.status = list(statuses)
     publisher.publish(msg)
-

@@ -38,4 +38,3 @@ def check_params_files(args: Sequence[str]) -> None:
         if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
             raise InputFileError(f'parameters file {value}: must map node names to '
                                  f'{{ros__parameters: {{...}}}}, got {excerpt(data)}')
-

@@ -82,7 +82,8 @@ class PlcOutput(Node):
                                     "register map (YAML); '' = the package's config/hardware/plc_register_map.yaml",
                                     read_only=True)
         channel_map_file = declare(self, 'channel_map_file', '',
-                                   "channel map (YAML); '' = the package's config/hardware/channel_map.yaml", read_only=True)
+                                   "channel map (YAML); '' = the package's config/hardware/channel_map.yaml",
+                                   read_only=True)
         p_max_param = declare(self, 'p_max_kpa', 375.0,
                               'commands are clamped to this (and to the register map p_max_kpa) before writing',
                               'kPa', 0.0, 1000.0, read_only=True)
@@ -168,7 +169,7 @@ class PlcOutput(Node):
             return
         if np.any(p > self.p_max_kpa):
             self.get_logger().warning(f'pressure_command above p_max ({p.max():g} kPa): clamped to '
-                                   f'{self.p_max_kpa:g} kPa', throttle_duration_sec=LOG_THROTTLE_S)
+                                      f'{self.p_max_kpa:g} kPa', throttle_duration_sec=LOG_THROTTLE_S)
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
         self._command_s = time.monotonic()

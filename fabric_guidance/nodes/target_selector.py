@@ -10,8 +10,8 @@ by the `active_target` parameter (any known name, '' for none), the services nex
 reset_sequence (std_srvs/Trigger) and, with auto_advance, when the wearer finds it: the gaze
 stays within acceptance_deg of the target for dwell_s (core.task.AcceptanceTracker). After the
 last target of the sequence no target is active (''). With autostart false no target is active
-at start-up; with return_to_front the next target waits until the gaze is back at the front. The parameter always shows the active
-target.
+at start-up; with return_to_front the next target waits until the gaze is back at the front.
+The parameter always shows the active target.
 
 Published: target (geometry_msgs/PointStamped, latched; on every activation target, then
 active_target, then target again, so that whoever sees the new name gets a position after
@@ -359,7 +359,6 @@ class TargetSelector(Node):
         position = f'{self.cursor + 1} of {len(self.sequence)}' if 0 <= self.cursor < len(self.sequence) else '-'
         values = {'active_target': self.active, 'sequence_position': position, **self.counts}
         publish_diagnostics(self, self.diag_pub, [status(self, 'task', level, message, values)])
-
 
     def safe_shutdown(self) -> None:
         """On SIGINT/SIGTERM: announce no target, so that the controller stops guiding and vents

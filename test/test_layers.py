@@ -1,0 +1,125 @@
+"""The package's layers import one way only, and no two of its modules import each other.
+
+From the bottom up (docs/architecture.md):
+
+    0  paths, interface, subcommand       where files are; topic names, types, QoS; the CLI pattern
+    1  core                               the paper's algorithms, no ROS
+    2  plc, calibration_report            the PLC link; a calibration's report (core data only)
+    3  sim, bag                           the simulator; bags (neither imports the other)
+    4  experiments                        the paper's experiments and studies on sim
+    5  nodes                              the ROS nodes: thin wiring over the layers below
+    6  process_graph, launch_support      starting the nodes as processes, launch files' helpers
+    7  bench, demo, replay                what a person runs: measurements, the demo, replay
+    8  cli, demo_command, example_command the entry point and its argument wiring (cli imports
+                                          a subcommand's module by name, when it is chosen)
+
+A module may import its own package and any lower layer; packages of the same layer do not
+import each other. Every import counts, also those inside functions: a lazy import that runs
+upward is still a layer running both ways.
+"""
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1] / 'fabric_guidance'
+LAYERS = {
+    'paths': 0, 'interface': 0, 'subcommand': 0,
+    'core': 1,
+    'plc': 2, 'calibration_report': 2,
+    'sim': 3, 'bag': 3,
+    'experiments': 4,
+    'nodes': 5,
+    'process_graph': 6, 'launch_support': 6,
+    'bench': 7, 'demo': 7, 'replay': 7,
+    'cli': 8, 'demo_command': 8, 'example_command': 8,
+}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE_DIR.parent).with_suffix('').parts
+    return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
+
+
+def _imports(path: Path, text: str | None = None):
+    """(line, absolute module name) of every import of the package in the file."""
+    module = _module_name(path)
+    package = module if path.name == '__init__.py' else module.rpartition('.')[0]
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text, str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith('fabric_guidance'):
+                    yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split('.')
+                base = base[:len(base) - node.level + 1]
+                target = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ''
+            if not target.startswith('fabric_guidance'):
+                continue
+            if node.module is None or (node.level and not node.module):
+                # `from . import x`: x is a module of that package
+                for alias in node.names:
+                    yield node.lineno, f'{target}.{alias.name}'
+            else:
+                yield node.lineno, target
+
+
+def _top(module: str) -> str:
+    parts = module.split('.')
+    return parts[1] if len(parts) > 1 else ''
+
+
+SOURCES = sorted(PACKAGE_DIR.rglob('*.py'))
+
+
+def test_every_module_has_a_layer():
+    missing = sorted({_top(_module_name(p)) for p in SOURCES} - set(LAYERS) - {''})
+    assert not missing, f'modules without a layer (add them to LAYERS and docs/architecture.md): {missing}'
+
+
+def test_layers_import_one_way():
+    wrong = []
+    for path in SOURCES:
+        me = _top(_module_name(path))
+        if not me:
+            continue
+        for line, target in _imports(path):
+            other = _top(target)
+            if not other or other == me:
+                continue
+            if LAYERS[other] > LAYERS[me] or (LAYERS[other] == LAYERS[me]):
+                wrong.append(f'{path.relative_to(PACKAGE_DIR.parent)}:{line} ({me}, layer {LAYERS[me]}) '
+                             f'imports {target} ({other}, layer {LAYERS[other]})')
+    assert not wrong, 'imports against the layers:\n' + '\n'.join(wrong)
+
+
+def test_no_two_modules_import_each_other():
+    graph = {}
+    for path in SOURCES:
+        graph.setdefault(_module_name(path), set()).update(t for _, t in _imports(path))
+    known = set(graph)
+
+    def resolve(name):
+        # `from .x import y` names the module x (or the package): keep what exists.
+        while name and name not in known:
+            name = name.rpartition('.')[0]
+        return name
+
+    edges = {m: {resolve(t) for t in ts} - {m, ''} for m, ts in graph.items()}
+    # A package's __init__ re-exporting its modules is not a cycle of the layers.
+    cycles = sorted({tuple(sorted((a, b))) for a, ts in edges.items() for b in ts
+                     if a in edges.get(b, ()) and not (a.startswith(b + '.') or b.startswith(a + '.'))})
+    assert not cycles, 'modules importing each other: ' + ', '.join(f'{a} <-> {b}' for a, b in cycles)
+
+
+@pytest.mark.parametrize('text, expected', [
+    ('from ..core.power_law import PowerLaw', 'fabric_guidance.core.power_law'),
+    ('from . import modbus', 'fabric_guidance.sim.modbus'),
+    ('import fabric_guidance.nodes.common', 'fabric_guidance.nodes.common'),
+])
+def test_the_import_reader_resolves_relative_imports(text, expected):
+    """The guard itself: an import in sim/ resolves to the module it names."""
+    assert [t for _, t in _imports(PACKAGE_DIR / 'sim' / 'probe.py', text)] == [expected]
