@@ -24,7 +24,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.interface import DIAGNOSTICS
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
-from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.nodes.spin import run
 from fabric_guidance.interface import MAX_WRITTEN
@@ -39,9 +39,8 @@ class MockPlc(Node):
         host = declare(self, 'host', '127.0.0.1', 'address to listen on (Modbus TCP)', read_only=True)
         port = declare(self, 'port', 1502, 'TCP port to listen on (0: any free port)', '', 0, 65535,
                        read_only=True)
-        register_map_file = declare(self, 'register_map_file', '',
-                                    "register map (YAML); '' = the package's config/hardware/plc_register_map.yaml",
-                                    read_only=True)
+        register_map_file = declare_config_file(self, 'register_map_file', 'hardware/plc_register_map.yaml',
+                                                'register map')
         endpoint = declare(self, 'endpoint', '',
                            "which PLC of a register map with endpoints to play; '' = the only one",
                            read_only=True)

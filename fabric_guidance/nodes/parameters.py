@@ -26,6 +26,13 @@ def declare(node: Node, name: str, default: Any, description: str, unit: str = '
     return node.declare_parameter(name, default, desc).value
 
 
+def declare_config_file(node: Node, name: str, config_name: str, what: str,
+                        read_only: bool = True) -> str:
+    """A file parameter whose '' means the package's config/<config_name> (paths.resolve)."""
+    return declare(node, name, '', f"{what} (YAML); '' = the package's config/{config_name}",
+                   read_only=read_only)
+
+
 def check_params_files(args: Sequence[str]) -> None:
     """Every `--params-file FILE` of the command line readable, YAML without aliases, and a
     mapping of node names to mappings; InputFileError naming the file otherwise. rcl parses them

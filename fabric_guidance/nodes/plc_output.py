@@ -34,7 +34,7 @@ from std_msgs.msg import Float64MultiArray
 from fabric_guidance.core.channels import ChannelMap
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
-from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.nodes.spin import run
 from fabric_guidance.paths import resolve
@@ -78,12 +78,9 @@ class PlcOutput(Node):
                                 "the PLC's Modbus TCP port; a register map with endpoints names "
                                 'its own',
                                 '', 1, 65535, read_only=True)
-        register_map_file = declare(self, 'register_map_file', '',
-                                    "register map (YAML); '' = the package's config/hardware/plc_register_map.yaml",
-                                    read_only=True)
-        channel_map_file = declare(self, 'channel_map_file', '',
-                                   "channel map (YAML); '' = the package's config/hardware/channel_map.yaml",
-                                   read_only=True)
+        register_map_file = declare_config_file(self, 'register_map_file', 'hardware/plc_register_map.yaml',
+                                                'register map')
+        channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map')
         p_max_param = declare(self, 'p_max_kpa', 375.0,
                               'commands are clamped to this (and to the register map p_max_kpa) before writing',
                               'kPa', 0.0, 1000.0, read_only=True)

@@ -56,7 +56,7 @@ from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CO
                          VENT)
 from ..paths import resolve
 from .diagnostics import publish_diagnostics, status
-from .parameters import declare
+from .parameters import declare, declare_config_file
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
@@ -115,7 +115,8 @@ class PressureController(Node):
                     'deg', low=0.0, high=180.0),
             declare(self, 'calibration_max_rmse_kpa', 37.5,
                     'refuse a direction whose fit RMSE is larger', 'kPa', low=0.0, high=1000.0))
-        channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
+        channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map',
+                                               read_only=False)
         self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
         self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
                                        'calibration file when it has one (beyond the paper)')

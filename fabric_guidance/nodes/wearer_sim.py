@@ -37,7 +37,7 @@ from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
 from ..interface import ACTIVE_TARGET, MEASURED_PRESSURE, SPEECH, TARGET
-from .parameters import declare
+from .parameters import declare, declare_config_file
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
 from .spin import run
 
@@ -64,7 +64,8 @@ class WearerSim(Node):
                                   low=0.0, high=3.0)
         self.return_to_front = declare(self, 'return_to_front', True,
                                        'turn back to the front while no target is active (the speed protocol)')
-        channel_map_file = declare(self, 'channel_map_file', '', "channel map (YAML); '' = the package's")
+        channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map',
+                                               read_only=False)
         scene_file = declare(self, 'scene_file', '', "scene (YAML path, or a name of config/scenes/): the wearer "
                              "and the wearer-side effects of the scene; '' = the simple deterministic wearer")
         wearer_index = declare(self, 'wearer_index', 0, "with scene_file: which wearer of the scene's population",
