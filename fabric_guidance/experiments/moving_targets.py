@@ -79,26 +79,25 @@ def _found_table(moving: pd.DataFrame) -> list[str]:
 def moving_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
     """The report's section 2 (markdown lines)."""
     sc, st = results.scene, results.settings
-    doc = []
-    doc += ['## 2. Moving targets', '',
-            f'A target starts as a speed-protocol target (within +-{sc.protocol.horizontal_deg:g} deg horizontally, '
-            f'+-{sc.protocol.vertical_deg:g} deg vertically) and moves at {", ".join(f"{s:g}" for s in st.speeds_dps)} '
-            'deg/s (in the horizontal and vertical angles) in a random direction, reflected at the edges of that '
-            f'range; {st.moving_reps} trials per speed, {st.moving_s:g} s each, guidance throughout (condition 1, the '
-            f'scene\'s G = {sc.controller.gain:g}). The same targets and effect streams for the three laws:', '',
-            f'- **{LAW_NAMES["paper"]}**: Eq. 5 as the paper built it for static targets: theta_t is taken once, '
-            'when guidance begins.',
-            f'- **{LAW_NAMES["live"]}**: Eq. 5 fed the moving target every control step, without the shift: what '
-            'the pressure_controller node does with `follow_moving_target` false.',
-            f'- **{LAW_NAMES["follow"]}**: the same with `follow_target`: a change of theta_t shifts the pressure by '
-            'f(new) - f(old).', '',
-            'Time to find: until the tracked gaze has first stayed within '
-            f'{sc.protocol.acceptance_deg:g} deg of the moving target for {sc.protocol.dwell_s:g} s (censored at '
-            f'{st.moving_s:g} s when never). Tracking error: angle between the true gaze and the target, mean over the '
-            'trial. *seen*: the target is visible, the eyes catch it once it is in the central field (as in the speed '
-            'protocol); *unseen*: no visual capture, the suit alone guides (as in the accuracy protocol).', '',
-            'Per cell: found within the trial / mean time to find / mean tracking error (deg) / mean error over '
-            'the second half (deg), means over wearers.', '']
+    doc = ['## 2. Moving targets', '',
+           f'A target starts as a speed-protocol target (within +-{sc.protocol.horizontal_deg:g} deg horizontally, '
+           f'+-{sc.protocol.vertical_deg:g} deg vertically) and moves at {", ".join(f"{s:g}" for s in st.speeds_dps)} '
+           'deg/s (in the horizontal and vertical angles) in a random direction, reflected at the edges of that '
+           f'range; {st.moving_reps} trials per speed, {st.moving_s:g} s each, guidance throughout (condition 1, the '
+           f'scene\'s G = {sc.controller.gain:g}). The same targets and effect streams for the three laws:', '',
+           f'- **{LAW_NAMES["paper"]}**: Eq. 5 as the paper built it for static targets: theta_t is taken once, '
+           'when guidance begins.',
+           f'- **{LAW_NAMES["live"]}**: Eq. 5 fed the moving target every control step, without the shift: what '
+           'the pressure_controller node does with `follow_moving_target` false.',
+           f'- **{LAW_NAMES["follow"]}**: the same with `follow_target`: a change of theta_t shifts the pressure by '
+           'f(new) - f(old).', '',
+           'Time to find: until the tracked gaze has first stayed within '
+           f'{sc.protocol.acceptance_deg:g} deg of the moving target for {sc.protocol.dwell_s:g} s (censored at '
+           f'{st.moving_s:g} s when never). Tracking error: angle between the true gaze and the target, mean over the '
+           'trial. *seen*: the target is visible, the eyes catch it once it is in the central field (as in the speed '
+           'protocol); *unseen*: no visual capture, the suit alone guides (as in the accuracy protocol).', '',
+           'Per cell: found within the trial / mean time to find / mean tracking error (deg) / mean error over '
+           'the second half (deg), means over wearers.', '']
     moving = parts.get('moving_trials')
     if moving is not None and not moving.empty:
         doc += _found_table(moving) + ['']

@@ -92,16 +92,15 @@ def gain_summary(results, parts: dict, lines: list[str]) -> None:
 def gain_report(results, parts: dict, plots: dict, out: Path) -> list[str]:
     """The report's section 1 (markdown lines)."""
     sc, st = results.scene, results.settings
-    doc = []
-    doc += ['## 1. Per-wearer adjustment gain', '',
-            f'Condition 1 (suit, adjusted), speed protocol ({sc.protocol.trial_s:g} s trials). For each wearer every '
-            f'G of the grid {", ".join(f"{g:g}" for g in st.grid)} ran on {st.tuning_reps} TUNING trials (targets '
-            'and effect streams of their own); the wearer\'s G is the one with the most identified targets '
-            '(ties: shorter time to find, then nearest the paper\'s G). It is stored in the calibration '
-            '(`Calibration.with_gain`) and used as the pressure_controller node does with `use_wearer_gain`. '
-            f'The {st.evaluation_reps} EVALUATION trials per G are the paper-speed protocol\'s own condition-1 '
-            'trials (disjoint seeds from the tuning). The oracle G is the best on the evaluation trials themselves: '
-            'an optimistic bound, not a usable method.', '']
+    doc = ['## 1. Per-wearer adjustment gain', '',
+           f'Condition 1 (suit, adjusted), speed protocol ({sc.protocol.trial_s:g} s trials). For each wearer every '
+           f'G of the grid {", ".join(f"{g:g}" for g in st.grid)} ran on {st.tuning_reps} TUNING trials (targets '
+           'and effect streams of their own); the wearer\'s G is the one with the most identified targets '
+           '(ties: shorter time to find, then nearest the paper\'s G). It is stored in the calibration '
+           '(`Calibration.with_gain`) and used as the pressure_controller node does with `use_wearer_gain`. '
+           f'The {st.evaluation_reps} EVALUATION trials per G are the paper-speed protocol\'s own condition-1 '
+           'trials (disjoint seeds from the tuning). The oracle G is the best on the evaluation trials themselves: '
+           'an optimistic bound, not a usable method.', '']
     choice = parts.get('gain_choice')
     if choice is not None and not choice.empty:
         rows = [[r.wearer, f'{r.tuned_gain:g}', f'{r.oracle_gain:g}', f'{r.tuning_identified_at_tuned:.2f}',
