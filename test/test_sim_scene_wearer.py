@@ -60,3 +60,17 @@ def test_the_wearer_sees_a_visible_target_in_the_central_field_as_in_the_engine(
     assert not side.senses.seen
     side.step((0.0, 0.0, 0.0, 0.0), True, None)            # no target position yet
     assert not side.senses.seen
+
+
+def test_in_condition_4_the_cue_effects_are_unused_in_the_report_and_on_the_side():
+    """The haptic cue effects (stage 'cue') do nothing when speech guides: the side and the demo's
+    report must say so, from one rule."""
+    from fabric_guidance.core import condition
+    from fabric_guidance.sim.scene_plan import effects_where
+    scene = load_scene_file('paper-fitted-speed')
+    cue = ['cue_misreading', 'surface_resistance', 'relative_perception']
+    applied = SceneSide(scene, 0, 4, DT).applied_effects()
+    assert not set(cue) & set(applied) and 'speech_latency' in applied
+    where = effects_where(scene, condition(4), 0.15)
+    assert set(cue) <= set(where['unused in condition 4'])
+    assert set(cue) <= set(effects_where(scene, condition(1), 0.15)['wearer_sim'])

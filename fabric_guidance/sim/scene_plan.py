@@ -17,7 +17,8 @@ from ..paths import config_path
 
 from .population import calibrate_wearer, sample_wearer
 from .protocols import draw_target, target_stream
-from .scene_wearer import HEADLESS_ONLY, REALISED_ELSEWHERE, load_scene_file
+from .effects import effect_class
+from .scene_wearer import UNUSED, effect_place, load_scene_file
 from .wearer import gaze_from_angles
 
 #: With a scene: targets drawn from its protocol ranges, this many, this far from the eye [m].
@@ -93,10 +94,6 @@ def _eye_height() -> float:
     return float(params.get('eye_height_m', 1.2))
 
 
-#: Where the demo report lists the effects the graph does not realise.
-HEADLESS_ONLY_LABEL = 'headless only (not realised in the graph)'
-
-
 def effects_where(scene, cond, regulator_tau_s: float) -> dict[str, list[str]]:
     """Where in the graph each of the scene's effects is realised under condition `cond`:
     {place: effect names}, the places mock_plc, wearer_sim, unused in the condition, or
@@ -104,18 +101,11 @@ def effects_where(scene, cond, regulator_tau_s: float) -> dict[str, list[str]]:
     tau = regulator_tau_s
     where: dict[str, list[str]] = {}
     for name in scene.effect_names:
-        e = scene.effect(name).build()
         if name == 'regulator_lag':
             where.setdefault('mock_plc', []).append(f'regulator_lag (regulator_tau_s {tau:g} s)')
-        elif name in REALISED_ELSEWHERE:
-            where.setdefault(REALISED_ELSEWHERE[name], []).append(name)
-        elif name in HEADLESS_ONLY:
-            where.setdefault(HEADLESS_ONLY_LABEL, []).append(name)
-        elif ((e.stage in ('pressure', 'percept') and not cond.haptic)
-              or (e.stage == 'speech' and not cond.speech)):
-            where.setdefault(f'unused in condition {cond.number}', []).append(name)
-        else:
-            where.setdefault('wearer_sim', []).append(name)
+            continue
+        place = effect_place(name, effect_class(name).stage, cond)
+        where.setdefault(f'unused in condition {cond.number}' if place == UNUSED else place, []).append(name)
     if 'mock_plc' not in where:
         none = f'no regulator_lag listed, regulator_tau_s {tau:g} s (no lag)'
         where = {'mock_plc': [none], **where}

@@ -37,6 +37,26 @@ REALISED_ELSEWHERE = {'regulator_lag': 'mock_plc (regulator_tau_s)'}
 #: Effects the graph does not realise at all: the simulated wearer has no HoloLens display to
 #: search (the headless engine's visual search and key confirmation).
 HEADLESS_ONLY = frozenset({'hololens_view'})
+#: Where the demo report lists the effects the graph does not realise.
+HEADLESS_ONLY_LABEL = 'headless only (not realised in the graph)'
+#: Stages that act on the suit's or the arm's pressure: nothing to act on when speech guides.
+HAPTIC_STAGES = ('pressure', 'percept', 'cue')
+#: effect_place() of an effect the condition does not use.
+UNUSED = 'unused'
+
+
+def effect_place(name: str, stage: str, cond) -> str:
+    """Where the graph realises the effect `name` (of `stage`) in condition `cond`: the node of
+    REALISED_ELSEWHERE, HEADLESS_ONLY_LABEL, UNUSED, or 'wearer_sim'."""
+    if name in REALISED_ELSEWHERE:
+        return REALISED_ELSEWHERE[name]
+    if name in HEADLESS_ONLY:
+        return HEADLESS_ONLY_LABEL
+    if (stage in HAPTIC_STAGES and not cond.haptic) or (stage == 'speech' and not cond.speech):
+        return UNUSED
+    return 'wearer_sim'
+
+
 _FRONT = (0.0, 0.0)
 
 
@@ -101,16 +121,7 @@ class SceneSide:
 
     def applied_effects(self) -> list[str]:
         """The scene's effects this side applies (the others are realised elsewhere or unused)."""
-        out = []
-        for e in self.effects:
-            if e.name in REALISED_ELSEWHERE or e.name in HEADLESS_ONLY:
-                continue
-            if e.stage in ('pressure', 'percept') and not self.haptic:
-                continue
-            if e.stage == 'speech' and not self.cond.speech:
-                continue
-            out.append(e.name)
-        return out
+        return [e.name for e in self.effects if effect_place(e.name, e.stage, self.cond) == 'wearer_sim']
 
     def present(self) -> None:
         """A new target became active: follow the guidance from here (engine.present)."""
