@@ -1,6 +1,6 @@
 """The package's ROS interface in one place: every topic and service name, its type, its QoS
-kind, who publishes and who listens, and the immersive frame. The nodes, the bag code and the
-topic tables of docs/interfaces.md all take them from here
+kind, who publishes and who listens, and the immersive frame. The nodes take their names from
+here, the bag code also the types and QoS kinds, and docs/interfaces.md its tables
 (`python -m fabric_guidance.interface --markdown` prints the tables).
 
 No rclpy at import: the bag code and the docs use this module without ROS; qos_profile()

@@ -43,7 +43,7 @@ from ..paths import config_path
 from . import paper
 
 #: Its columns, in condition order 1-4 (sim.protocols.CONDITION_NAMES).
-COLUMNS = ('surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech')
+COLUMNS = tuple(paper.CONDITIONS[c] for c in sorted(paper.CONDITIONS))
 
 
 @dataclass(frozen=True)
@@ -84,8 +84,10 @@ def paper_targets(path: Path | None = None) -> tuple[np.ndarray, np.ndarray, int
     """(means, standard errors, subjects) of the paper's table (experiments.paper, or the CSV at
     `path`), per condition 1-4."""
     if path is None:
-        table = paper.speed_table()[list(COLUMNS)].to_numpy(dtype=float)
-        return table.mean(axis=0), table.std(axis=0, ddof=1) / math.sqrt(len(table)), len(table)
+        means, ses = paper.speed_means(), paper.speed_standard_errors()
+        conditions = sorted(paper.CONDITIONS)
+        return (np.array([means[c] for c in conditions]), np.array([ses[c] for c in conditions]),
+                len(paper.SPEED_TABLE_ROWS))
     try:
         with open(path, newline='') as f:
             rows = list(csv.DictReader(f))

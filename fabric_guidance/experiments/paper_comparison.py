@@ -323,7 +323,7 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def _error(message: str) -> int:
-    print(f'{PROG}: error: {message}', file=sys.stderr)
+    subcommand.error(PROG, message)
     return 2
 
 
@@ -371,9 +371,7 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
 
-    def progress(line: str) -> None:
-        print(line, file=sys.stderr, flush=True)
-
+    progress = subcommand.printer(sys.stderr)
     started = time.monotonic()
     results = [run_seed(scenes['speed'], scenes['accuracy'], seed, args.workers, args.subjects, out, progress)
                for seed in seeds]

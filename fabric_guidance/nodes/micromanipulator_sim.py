@@ -27,6 +27,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from ..interface import LIVE_TARGETS
 from .parameters import declare
 from .qos import SENSOR_QOS
 from .spin import run
@@ -51,7 +52,7 @@ class MicromanipulatorSim(Node):
         positions = declare(self, 'object_positions', DEFAULT_POSITIONS,
                             'x, y, z of each object in the microscope frame, in object_names order', 'm',
                             read_only=True)
-        self.prefix = declare(self, 'topic_prefix', 'live_targets', 'poses go to <topic_prefix>/<name>',
+        self.prefix = declare(self, 'topic_prefix', LIVE_TARGETS, 'poses go to <topic_prefix>/<name>',
                               read_only=True)
         rate = declare(self, 'publish_rate_hz', 30.0, 'poses per second per object', 'Hz', 0.1, 1000.0,
                        read_only=True)

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 
-from ..core.safe_input import InputFileError, excerpt, load_yaml
+from ..core.safe_input import excerpt, load_yaml
 from ..core.conditions import CONDITIONS
 from ..core.feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX,
                              RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST)
@@ -375,11 +375,7 @@ def scene_path(name_or_path: str | Path) -> Path:
 def load_scene(name_or_path: str | Path) -> Scene:
     """Read and validate a scene file (a path, or the name of one of config/scenes/)."""
     path = scene_path(name_or_path)
-    try:
-        data = load_yaml(path, 'scene')
-    except InputFileError as exc:
-        raise SceneError(str(exc)) from None
-    return scene_from_dict(data, source=str(path))
+    return scene_from_dict(load_yaml(path, 'scene', SceneError), source=str(path))
 
 
 __all__ = ['AccuracyProtocol', 'CalibrationSpec', 'ControllerSpec', 'EffectSpec', 'PROTOCOLS', 'PopulationSpec',
