@@ -98,6 +98,7 @@ MALFORMED = st.one_of(
     st.integers(1, 2000).map(_oversize),                                              # oversized
     st.integers(-5, 10 ** 6).filter(lambda v: v != 1).map(lambda v: _set('version', v)),  # wrong version
     st.sampled_from(FIELDS).map(_missing),                                            # missing field
+    st.sampled_from(['clock_ping', 'targets', 'Gaze', '', None, 7]).map(lambda k: _set('kind', k)),  # other kinds
     st.tuples(st.sampled_from(FIELDS), JSON_VALUES).map(lambda fv: _set(*fv)),        # wrong type / value
     st.tuples(st.sampled_from(NUMERIC), st.sampled_from(['NaN', 'Infinity', '-Infinity', '1e400', '-1e400']))
       .map(lambda fl: _literal(*fl)),                                                 # NaN, inf

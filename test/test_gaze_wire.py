@@ -230,6 +230,8 @@ CASES = [
     (b'null', 'not_object', 'NoneType'),
     (dumps(valid_msg(version=2)), 'version', 'version 2'),
     (dumps(valid_msg(version=0, seq='x')), 'version', 'version 0'),   # version is checked first
+    (dumps(valid_msg(kind='clock_ping')), 'kind', 'clock_ping'),         # a downlink message sent back
+    (dumps(valid_msg(kind=3)), 'type', 'kind'),
     *[(_without(name), 'missing_field', name) for name in FIELDS],
     (dumps(valid_msg(version='1')), 'type', 'version'),
     (dumps(valid_msg(version=1.0)), 'type', 'version'),

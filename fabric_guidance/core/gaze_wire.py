@@ -35,8 +35,10 @@ FIELDS: tuple[str, ...] = ('version', 'seq', 'stamp', 'gaze_origin', 'gaze_direc
                            'head_position', 'head_orientation', 'eye_tracking_valid')
 
 #: The values WireFormatError.reason can take.
-REASONS: tuple[str, ...] = ('oversize', 'encoding', 'json', 'not_object', 'version',
+REASONS: tuple[str, ...] = ('oversize', 'encoding', 'json', 'not_object', 'version', 'kind',
                             'missing_field', 'type', 'non_finite', 'zero_vector', 'range')
+#: The uplink `kind` of a gaze sample, and what a datagram without `kind` is.
+GAZE_KIND = 'gaze'
 
 
 class WireFormatError(ValueError):
@@ -99,16 +101,13 @@ _LENIENT_DECODER = json.JSONDecoder(parse_int=_parse_int)
 _isfinite = math.isfinite
 
 
-def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
-    """Validate one datagram and convert it to a REP 103 GazeSample.
-
-    Raises WireFormatError (and nothing else) for any bytes that are not a valid version-1
-    sample; the first failing check, in the order of docs/gaze_wire_format.md, decides the
-    reason. Unknown extra fields are ignored.
-    """
+def decode_object(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> dict:
+    """The first checks every headset datagram passes, in either direction: size, UTF-8,
+    strict JSON (no NaN / Infinity literals) and a top-level object. Raises WireFormatError
+    (oversize, encoding, json, non_finite, not_object) and nothing else for any bytes."""
     if type(data) is not bytes:
         if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise TypeError(f'parse_datagram needs bytes, got {type(data).__name__}')
+            raise TypeError(f'a datagram must be bytes, got {type(data).__name__}')
         data = bytes(data)  # a memoryview's len() counts items, not bytes
     # Size first: nothing larger is decoded at all.
     if len(data) > max_size:
@@ -127,10 +126,42 @@ def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
         raise WireFormatError('json', f'datagram is not JSON: {exc}') from None
     if type(msg) is not dict:
         raise WireFormatError('not_object', f'datagram is a JSON {type(msg).__name__}, not an object')
+    return msg
 
+
+def message_kind(msg: dict, default: str | None = None) -> str:
+    """Check `version` (must be 1) and return `kind` (docs/headset_wire_format.md); a message
+    without `kind` is `default`, or missing_field when there is no default."""
     version = _integer(msg, 'version', ('version', f'version of {_INT_CHARS}+ digits is not supported'))
     if version != WIRE_VERSION:
         raise WireFormatError('version', f'version {version} is not supported (expected {WIRE_VERSION})')
+    if 'kind' not in msg:
+        if default is None:
+            raise WireFormatError('missing_field', "field 'kind' is missing")
+        return default
+    kind = msg['kind']
+    if type(kind) is not str:
+        raise WireFormatError('type', f'kind must be a string, got {_json_type(kind)}')
+    return kind
+
+
+def parse_datagram(data: bytes, max_size: int = DEFAULT_MAX_SIZE) -> GazeSample:
+    """Validate one datagram and convert it to a REP 103 GazeSample.
+
+    Raises WireFormatError (and nothing else) for any bytes that are not a valid version-1
+    sample; the first failing check, in the order of docs/gaze_wire_format.md, decides the
+    reason. Unknown extra fields are ignored.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise TypeError(f'parse_datagram needs bytes, got {type(data).__name__}')
+    return sample_from_object(decode_object(data, max_size))
+
+
+def sample_from_object(msg: dict) -> GazeSample:
+    """The GazeSample of a decoded uplink object (decode_object): version, kind, then the fields."""
+    kind = message_kind(msg, GAZE_KIND)
+    if kind != GAZE_KIND:
+        raise WireFormatError('kind', f'kind {kind[:40]!r} is not a gaze sample')
 
     seq = _integer(msg, 'seq', ('range', f'seq of {_INT_CHARS}+ digits is outside 0..{SEQ_MODULUS - 1}'))
     if not 0 <= seq < SEQ_MODULUS:

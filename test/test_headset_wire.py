@@ -1,0 +1,183 @@
+"""The headset link's Python side (docs/headset_wire_format.md): display messages, the clock
+exchange messages and the clock estimator, without ROS."""
+import json
+import math
+import random
+
+from hypothesis import given, settings, strategies as st
+import pytest
+
+from fabric_guidance.core import display_wire as dw
+from fabric_guidance.core.clock_sync import (MAX_DATAGRAM_BYTES, ClockEcho, ClockEstimator, answer_ping,
+                                             encode_ping, parse_ping, parse_uplink)
+from fabric_guidance.core.gaze_wire import GazeSample, WireFormatError, encode_datagram
+
+IDS = st.text(min_size=0, max_size=80)
+POINT = st.tuples(*[st.floats(-1e4, 1e4, allow_nan=False)] * 3)
+TARGET = st.fixed_dictionaries({'id': IDS, 'position': POINT, 'role': st.sampled_from(dw.ROLES)})
+FIELDS = {
+    'targets': st.fixed_dictionaries({'active': IDS, 'targets': st.lists(TARGET, max_size=20)}),
+    'dummies': st.integers(1, 8).flatmap(lambda parts: st.fixed_dictionaries({
+        'set': st.integers(0, 2 ** 32 - 1), 'part': st.integers(0, parts - 1), 'parts': st.just(parts),
+        'radius_m': st.floats(0.001, 10.0), 'positions': st.lists(POINT, max_size=40)})),
+    'event': st.fixed_dictionaries({'event_id': st.integers(0, 2 ** 32 - 1), 'event': st.sampled_from(dw.EVENTS),
+                                    'target': IDS}),
+    'prompt': st.fixed_dictionaries({'text': st.text(max_size=300), 'step': st.integers(0, 2 ** 32 - 1),
+                                     'steps': st.integers(0, 2 ** 32 - 1)}),
+    'phrase': st.fixed_dictionaries({'text': st.text(max_size=300)}),
+}
+
+
+@settings(max_examples=300)
+@given(st.sampled_from(sorted(dw.KINDS)).flatmap(lambda k: st.tuples(st.just(k), FIELDS[k])),
+       st.integers(0, 2 ** 40), st.floats(0, 2e9))
+def test_every_display_message_encodes_within_the_limit_and_decodes_to_what_was_meant(kind_fields, seq, stamp):
+    kind, fields = kind_fields
+    data = dw.encode(kind, seq, stamp, **fields)
+    assert len(data) <= MAX_DATAGRAM_BYTES
+    msg = dw.decode(data)
+    assert (msg.kind, msg.seq, msg.stamp) == (kind, seq % 2 ** 32, stamp)
+    for name, value in fields.items():
+        got = msg.fields[name]
+        if name in ('active', 'target'):
+            assert got == value[:dw.MAX_ID_CHARS]
+        elif name == 'targets':
+            assert len(got) == min(len(value), dw.MAX_TARGETS)
+            for g, v in zip(got, value):
+                assert g['id'] == v['id'][:dw.MAX_ID_CHARS] and g['role'] == v['role']
+                assert max(abs(a - b) for a, b in zip(g['position'], v['position'])) <= 0.5e-4 + 1e-9
+        elif name == 'positions':
+            assert len(got) == min(len(value), dw.MAX_DUMMIES_PER_PART)
+        elif name == 'text':
+            assert len(got) <= dw.MAX_TEXT_CHARS
+        elif name != 'radius_m':
+            assert got == value
+
+
+@given(st.binary(max_size=1400))
+def test_any_bytes_decode_to_a_message_or_a_reasoned_error(data):
+    try:
+        dw.decode(data)
+    except WireFormatError as exc:
+        assert exc.reason in ('oversize', 'encoding', 'json', 'non_finite', 'not_object', 'version', 'kind',
+                              'missing_field', 'type', 'range')
+
+
+def good(**changes):
+    msg = {'version': 1, 'kind': 'dummies', 'seq': 3, 'stamp': 1.0, 'set': 2, 'part': 0, 'parts': 2,
+           'radius_m': 0.05, 'positions': [[1, 2, 3]]}
+    msg.update(changes)
+    return json.dumps(msg).encode()
+
+
+@pytest.mark.parametrize('data, reason', [
+    (good(version=2), 'version'),
+    (good(kind='dance'), 'kind'),
+    (good(kind='clock_ping'), 'kind'),
+    (good(part=2), 'range'),
+    (good(parts=9, part=0), 'range'),
+    (good(positions=[[1, 2]]), 'type'),
+    (good(positions=[[1, 2, 1e5]]), 'range'),
+    (good(radius_m=0), 'range'),
+    (good(seq=-1), 'range'),
+    (good(set='2'), 'type'),
+    (b'{"version":1,"kind":"phrase","seq":1,"stamp":1}', 'missing_field'),
+    (b'{"version":1,"kind":"phrase","seq":1,"stamp":1,"text":NaN}', 'non_finite'),
+    (b' ' * 1201, 'oversize'),
+])
+def test_a_bad_display_message_is_rejected_with_its_reason(data, reason):
+    with pytest.raises(WireFormatError) as err:
+        dw.decode(data)
+    assert err.value.reason == reason, str(err.value)
+
+
+def test_unity_positions_are_the_inverse_of_the_bridges_conversion():
+    # Unity (x, y, z) -> REP 103 (z, -x, y) in gaze_wire; 1.5 m ahead, 0.5 m left, 0.2 m up:
+    assert dw.to_unity([1.5, 0.5, 0.2]) == [-0.5, 0.2, 1.5]
+    assert dw.from_unity(dw.to_unity([1.5, 0.5, 0.2])) == [1.5, 0.5, 0.2]
+
+
+def test_ping_echo_round_trip_copies_t1_and_carries_the_headset_times():
+    ping = encode_ping(7, 12.25)
+    assert parse_ping(ping) == (7, 12.25)
+    echo = parse_uplink(answer_ping(ping, 1000.5, 1000.5001), 1024)
+    assert echo == ClockEcho(7, 12.25, 1000.5, 1000.5001)
+    assert answer_ping(b'{"version":1,"kind":"clock_echo"}', 1.0, 1.0) is None
+    assert answer_ping(b'junk', 1.0, 1.0) is None
+
+
+def test_uplink_tells_gaze_from_echo_and_rejects_other_kinds():
+    gaze = encode_datagram(1, 5.0, [0, 1.6, 0], [0, 0, 1], [0, 1.6, 0], [0, 0, 0, 1], True)
+    assert isinstance(parse_uplink(gaze, 1024), GazeSample)
+    tagged = json.loads(gaze)
+    tagged['kind'] = 'gaze'
+    assert isinstance(parse_uplink(json.dumps(tagged).encode(), 1024), GazeSample)
+    tagged['kind'] = 'targets'
+    with pytest.raises(WireFormatError) as err:
+        parse_uplink(json.dumps(tagged).encode(), 1024)
+    assert err.value.reason == 'kind'
+    with pytest.raises(WireFormatError) as err:
+        parse_uplink(b'{"version":1,"kind":"clock_echo","ping_seq":1,"t1":1,"t2":2}', 1024)
+    assert err.value.reason == 'missing_field'
+
+
+def exchange(rng, t1, offset, drift, up, down, jitter):
+    """One exchange over paths of delay up / down (+ uniform jitter); the headset clock is
+    bridge * (1 + drift) + offset."""
+    d1, d2 = up + rng.uniform(0, jitter), down + rng.uniform(0, jitter)
+    t2 = (t1 + d1) * (1 + drift) + offset
+    t3 = t2 + 0.0002
+    t4 = (t3 - offset) / (1 + drift) + d2
+    return ClockEcho(0, t1, t2, t3), t4
+
+
+@settings(max_examples=60, deadline=None)
+@given(offset=st.floats(-1e5, 1e5), drift_ppm=st.floats(-200, 200), up=st.floats(0, 0.05),
+       down=st.floats(0, 0.05), jitter=st.floats(0, 0.03), seed=st.integers(0, 2 ** 16))
+def test_the_estimate_stays_within_the_bound_it_reports(offset, drift_ppm, up, down, jitter, seed):
+    rng, est, drift = random.Random(seed), ClockEstimator(window_s=30.0), drift_ppm * 1e-6
+    for i in range(250):
+        echo, t4 = exchange(rng, 10.0 + 0.2 * i, offset, drift, up, down, jitter)
+        assert est.add(echo, t4) is None
+        e = est.estimate()
+        if i < 2:
+            assert e is None
+            continue
+        truth = t4 * drift + offset   # headset minus bridge at t4
+        error, bound = abs(e.offset_at(t4) - truth), e.bound_at(t4)
+        assert error <= bound + 1e-6, (i, error, bound)   # 1 us: where in the exchange the offset is read
+    # Asymmetric paths shift the offset by half the difference, as the spec says, and no more.
+    assert abs(e.offset_at(t4) - truth) <= abs(up - down) / 2 + jitter + 1e-4
+    assert e.bound_at(t4) <= (up + down) / 2 + jitter + 3e-3
+
+
+def test_a_restarted_headset_clock_starts_the_estimate_again():
+    rng, est = random.Random(3), ClockEstimator()
+    for i in range(20):
+        est.add(*exchange(rng, 0.2 * i, 1000.0, 0.0, 0.01, 0.01, 0.002))
+    assert abs(est.estimate().offset_at(4.0) - 1000.0) < 0.01
+    # The app restarts: its clock starts again near 0.
+    assert est.add(*exchange(rng, 4.2, -4.0, 0.0, 0.01, 0.01, 0.002)) == 'restart'
+    assert est.restarts == 1 and est.estimate() is None
+    for i in range(22, 30):
+        est.add(*exchange(rng, 0.2 * i, -4.0, 0.0, 0.01, 0.01, 0.002))
+    assert abs(est.estimate().offset_at(6.0) + 4.0) < 0.01
+
+
+@pytest.mark.parametrize('t1, t2, t3, t4, why', [
+    (1.0, 5.0, 4.0, 2.0, 'invalid'),          # the headset answered before it received
+    (2.0, 5.0, 5.0, 1.0, 'invalid'),          # arrived before it was sent
+    (1.0, 5.0, 5.0, math.nan, 'invalid'),
+    (1.0, 5.0, 5.0, 3.0, 'rtt'),              # a 2 s round trip: beyond max_rtt_s
+])
+def test_impossible_exchanges_are_rejected_and_counted(t1, t2, t3, t4, why):
+    est = ClockEstimator(max_rtt_s=0.5)
+    assert est.add(ClockEcho(1, t1, t2, t3), t4) == why
+    assert est.rejected[why] == 1 and est.exchanges == 0
+
+
+def test_memory_stays_bounded_whatever_the_ping_rate():
+    est = ClockEstimator(window_s=1e6)
+    for i in range(10000):
+        est.add(ClockEcho(i, i * 1e-3, 5.0 + i * 1e-3, 5.0 + i * 1e-3), i * 1e-3 + 1e-4)
+    assert est.exchanges <= 4096
