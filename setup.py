@@ -43,6 +43,7 @@ setup(
             'wearer_sim = fabric_guidance.nodes.wearer_sim:main',
             'micromanipulator_sim = fabric_guidance.nodes.micromanipulator_sim:main',
             'bag_recorder = fabric_guidance.nodes.bag_recorder:main',
+            'headset_display = fabric_guidance.nodes.headset_display:main',
         ],
     },
 )

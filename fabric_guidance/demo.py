@@ -37,8 +37,13 @@ from .process_graph import Graph, Probe, free_port, wait_until
 from .sim.scene_plan import ScenePlan, plan_scene
 
 SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
+#: Distractor spheres of the paper's speed task (Section VI).
+PAPER_DUMMIES = 50
 #: Nodes in start order: the PLC side first so plc_output finds its PLC.
-NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'wearer_sim')
+NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'headset_display',
+         'wearer_sim')
+#: The report lists at most this many of the things the simulated headset showed.
+VIEW_LINES = 40
 
 
 @dataclass
@@ -71,6 +76,7 @@ class SessionWatch:
         self.bridge: dict[str, str] = {}          # gaze_bridge's last diagnostics values
         self.recorder: dict[str, int] | None = None   # bag_recorder's messages per topic, latest
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
+        self.view: list[tuple[float, str]] = []   # headset_view: what the simulated headset showed
         probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS, self.on_gaze)
         probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS, self.on_target)
         probe.subscribe(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS, self.on_active)
@@ -78,6 +84,7 @@ class SessionWatch:
         probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS, self.on_command)
         probe.subscribe(Float64MultiArray, interface.MEASURED_PRESSURE, qos.COMMAND_QOS)
         probe.subscribe(String, interface.SPEECH, qos.EVENT_QOS, lambda m: self.speech.append(m.data))
+        probe.subscribe(String, interface.HEADSET_VIEW, qos.EVENT_QOS, self.on_view)
         from diagnostic_msgs.msg import DiagnosticArray
 
         from .nodes.mock_plc import MAX_WRITTEN
@@ -86,6 +93,11 @@ class SessionWatch:
 
     def t(self) -> float:
         return time.monotonic() - self.start
+
+    def on_view(self, msg) -> None:
+        with self.lock:
+            if len(self.view) < 10 * VIEW_LINES:
+                self.view.append((self.t(), msg.data))
 
     def on_gaze(self, msg) -> None:
         q, p = msg.pose.orientation, msg.pose.position
@@ -173,7 +185,7 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     layout = cond.layout or 'suit'
     cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'), expected_channels=cmap.channels)
-    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
+    plc_port, gaze_port, display_port = free_port(), free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
         f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}')
@@ -181,11 +193,13 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     overrides = {
         'mock_plc': dict(port=plc_port),
         'plc_output': dict(plc_port=plc_port),
-        'gaze_bridge': dict(port=gaze_port),
+        # wearer_sim is the headset: it answers the bridge's clock pings and shows the display.
+        'gaze_bridge': dict(port=gaze_port, headset_address='127.0.0.1', display_port=display_port),
+        'headset_display': dict(headset_address='127.0.0.1', display_port=display_port),
         'target_selector': dict(autostart=False),
         'pressure_controller': dict(condition=cond.number, calibration_file=SIM_CALIBRATION,
                                     calibration_dir=str(log_dir / 'calibrations')),
-        'wearer_sim': dict(bridge_port=gaze_port, layout=layout),
+        'wearer_sim': dict(bridge_port=gaze_port, layout=layout, display_port=display_port),
     }
     sequence = task_sequence()
     if plan is not None:
@@ -204,6 +218,7 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         if sc.protocol.kind == 'speed':
             overrides['target_selector'].update(acceptance_deg=sc.protocol.acceptance_deg,
                                                 dwell_s=sc.protocol.dwell_s)
+            overrides['headset_display'].update(dummies=PAPER_DUMMIES)   # the speed task's distractors
         overrides['wearer_sim'].update(scene_file=str(Path(sc.source).resolve()), wearer_index=plan.wearer.index,
                                        condition=cond.number, gaze_rate_hz=plan.gaze_rate_hz)
         say('targets (yaw, pitch from the front, deg): ' +
@@ -251,7 +266,8 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
         if not complete:
             say(f'the session did not finish within {timeout_s:.0f} s')
         # Shut the lab side down first; the registers must read vented while the mock still runs.
-        for node in ('wearer_sim', 'pressure_controller', 'target_selector', 'gaze_bridge', 'plc_output'):
+        for node in ('wearer_sim', 'headset_display', 'pressure_controller', 'target_selector', 'gaze_bridge',
+                     'plc_output'):
             graph.stop(node)
         if bag is not None:
             graph.stop('bag_recorder')
@@ -290,6 +306,29 @@ def task_sequence() -> list[str]:
     return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 
+def report_headset(watch: SessionWatch, say) -> None:
+    """What the wearer saw on the (simulated) headset, and the headset clock as the bridge
+    estimated it."""
+    with watch.lock:
+        view, bridge = list(watch.view), dict(watch.bridge)
+    say()
+    if not view:
+        say('headset display: nothing arrived at the simulated headset')
+    else:
+        say(f'headset display (what wearer_sim, as the HoloLens, showed; {len(view)} changes):')
+        for t, line in view[:VIEW_LINES]:
+            say(f'  [{t:5.1f} s] {line}')
+        if len(view) > VIEW_LINES:
+            say(f'  ... {len(view) - VIEW_LINES} more')
+    if bridge.get('clock_state') == 'synchronised':
+        say(f"headset clock: offset {float(bridge['clock_offset_s']) * 1e3:+.2f} ms within "
+            f"{bridge['clock_bound_ms']} ms, drift {bridge['clock_drift_ppm']} ppm, least round trip "
+            f"{bridge['clock_rtt_min_ms']} ms; gaze stamped at capture, one-way delay p50 "
+            f"{bridge.get('delay_p50_ms', '?')} ms, p99 {bridge.get('delay_p99_ms', '?')} ms")
+    elif bridge:
+        say(f"headset clock: {bridge.get('clock_state', 'unknown')} (gaze stamped on receipt)")
+
+
 def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: ScenePlan | None = None) -> int:
     say()
     say(f'{"target":<14} {"found":<5} {"time s":>6} {"error deg":>9}   peak kPa ' +
@@ -304,6 +343,7 @@ def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: Sc
             ' '.join(f'{p:5.0f}' for p in r.peak_kpa))
     if watch.speech:
         say(f'speech (condition 4): {"; ".join(watch.speech)}')
+    report_headset(watch, say)
     say()
     total = max(len(watch.sequence), len(watch.records))
     presented = f' ({len(watch.records)} presented)' if len(watch.records) < total else ''

@@ -28,6 +28,7 @@ CONTROLLER_INPUT = 'controller_input'
 CONTROLLER_PARAMETERS = 'controller_parameters'
 CLOCK = '/clock'
 MAX_WRITTEN = 'mock_plc/max_written_kpa'
+HEADSET_VIEW = 'headset_view'
 
 START_CALIBRATION = 'start_calibration'
 ENABLE = 'enable'
@@ -107,18 +108,20 @@ TOPICS: tuple[Topic, ...] = (
     Topic(GAZE, 'geometry_msgs/msg/PoseStamped', SENSOR, 'gaze_bridge',
           'target_selector, pressure_controller',
           'position: gaze origin [m]; orientation: x axis along the gaze ray, no roll; '
-          'stamp: receive time'),
+          "stamp: the headset's capture time once its clock is estimated "
+          '([headset_wire_format.md](headset_wire_format.md)), the receive time before'),
     Topic(HEAD_POSE, 'geometry_msgs/msg/PoseStamped', SENSOR, 'gaze_bridge', '',
           'HoloLens head pose [m]; published only while something subscribes'),
     Topic(TARGET, 'geometry_msgs/msg/PointStamped', LATCHED, 'target_selector',
           'pressure_controller, wearer_sim (with a scene)',
           'active target position [m]; republished at 10 Hz'),
     Topic(ACTIVE_TARGET, 'std_msgs/msg/String', LATCHED, 'target_selector',
-          'pressure_controller, wearer_sim', "name of the active target, `''` for none"),
-    Topic(TARGET_FOUND, 'std_msgs/msg/String', EVENT, 'target_selector', '',
+          'pressure_controller, wearer_sim, headset_display', "name of the active target, `''` for none"),
+    Topic(TARGET_FOUND, 'std_msgs/msg/String', EVENT, 'target_selector', 'headset_display',
           'a target the wearer just found'),
     Topic(TARGET_MARKERS, 'visualization_msgs/msg/MarkerArray', LATCHED, 'target_selector',
-          'RViz', 'targets as 0.1 m spheres (active red, others magenta)', recorded=False),
+          'RViz, headset_display', 'targets as 0.1 m spheres (active red, others magenta), the name in '
+          '`text`; namespace `targets` (fixed) or `live_targets`', recorded=False),
     Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
           'micromanipulator stack, or micromanipulator_sim', 'target_selector',
           'live targets in the microscope frame [m], scaled by `live_scale` and shifted by '
@@ -129,16 +132,17 @@ TOPICS: tuple[Topic, ...] = (
     Topic(MEASURED_PRESSURE, 'std_msgs/msg/Float64MultiArray', COMMAND, 'plc_output',
           'wearer_sim', "regulators' measured kPa, same order"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
-          'wearer_sim (with a scene, condition 4)', "condition 4's phrase, once per target"),
-    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', '',
+          'wearer_sim (with a scene, condition 4), headset_display', "condition 4's phrase, once per target"),
+    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'headset_display',
           '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '
           '`failed: <reason>; the previous calibration is kept`'),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
           'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
-          'bag_recorder', '',
-          'bridge counts by drop reason and loss rate; task state; controller state and vent '
+          'bag_recorder, headset_display', '',
+          "bridge counts by drop reason and loss rate, the headset clock's offset, drift and bound, "
+          'the one-way delay from capture; display messages sent by kind; task state; controller state and vent '
           'reason; PLC link state and round-trip time; mock PLC violations; messages recorded '
           'per topic'),
     Topic(CONTROLLER_INPUT, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
@@ -150,6 +154,10 @@ TOPICS: tuple[Topic, ...] = (
           type_note='(YAML)'),
     Topic(CLOCK, 'rosgraph_msgs/msg/Clock', CLOCK_KIND, '`fabric-guidance replay`',
           'nodes with `use_sim_time`', "the bag's time", recorded=False),
+    Topic(HEADSET_VIEW, 'std_msgs/msg/String', EVENT, 'wearer_sim', 'the demo, tests',
+          'what the simulated headset newly shows the wearer, a line each: `next <target>`, '
+          '`found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`, `phrase <text>`, '
+          '`targets <n>, active <name>`', recorded=False),
     Topic(MAX_WRITTEN, 'std_msgs/msg/Float64MultiArray', COMMAND, 'mock_plc', 'tests',
           'largest value ever written per channel [kPa]', recorded=False),
 )

@@ -1,8 +1,11 @@
-"""The lab graph: gaze_bridge, target_selector, pressure_controller, plc_output.
+"""The lab graph: gaze_bridge, target_selector, pressure_controller, plc_output, headset_display.
 
     ros2 launch fabric_guidance guidance.launch.py plc_host:=192.168.1.50 \
         calibration_file:=/data/calibrations/alice.yaml condition:=1 \
-        bind_address:=192.168.1.10 allowed_senders:="['192.168.1.20']"
+        bind_address:=192.168.1.10 allowed_senders:="['192.168.1.20']" headset_address:=192.168.1.20
+
+headset_address goes to gaze_bridge (clock pings) and headset_display (display messages), the
+two nodes that send to the HoloLens (docs/headset.md).
 
 Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
 if given (its values win); an argument given here overrides both, an argument left empty keeps
@@ -32,8 +35,12 @@ ARGUMENTS = {
     'gaze_port': ('gaze_bridge', 'port', int, 'UDP port the gaze bridge listens on'),
     'allowed_senders': ('gaze_bridge', 'allowed_senders', list,
                         "HoloLens addresses accepted, e.g. \"['192.168.1.20']\""),
+    'headset_address': (('gaze_bridge', 'headset_display'), 'headset_address', str,
+                        "the HoloLens's address: clock pings and display messages go there"),
+    'display_port': (('gaze_bridge', 'headset_display'), 'display_port', int,
+                     "the headset app's downlink UDP port"),
 }
-NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output')
+NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
 
 
 def argument_value(name: str, kind, text: str):
@@ -57,10 +64,11 @@ def _nodes(context, *args, **kwargs):
         files.append(extra)
     use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
     overrides = {name: {'use_sim_time': use_sim_time} for name in NODES}
-    for arg, (node, parameter, kind, _) in ARGUMENTS.items():
+    for arg, (nodes, parameter, kind, _) in ARGUMENTS.items():
         text = LaunchConfiguration(arg).perform(context)
         if text:
-            overrides[node][parameter] = argument_value(arg, kind, text)
+            for node in (nodes,) if isinstance(nodes, str) else nodes:
+                overrides[node][parameter] = argument_value(arg, kind, text)
     generated = NodeOverrides(context)
     nodes = [Node(package='fabric_guidance', executable=name, name=name, output='screen',
                   parameters=[*files, generated.file(name, overrides[name])]) for name in NODES]
@@ -72,7 +80,7 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument('params_file',
                               default_value=os.path.join(share, 'config', 'params', 'guidance.yaml'),
-                              description='parameter file of the four nodes'),
+                              description='parameter file of the five nodes'),
         DeclareLaunchArgument('extra_params_file', default_value='',
                               description='a second parameter file, loaded after params_file '
                                           '(its values win; empty: none)'),

@@ -31,7 +31,7 @@ from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
-                'allowed_senders', 'use_sim_time')
+                'allowed_senders', 'headset_address', 'display_port', 'use_sim_time')
 
 
 def _graph(context, *args, **kwargs):
@@ -47,6 +47,8 @@ def _graph(context, *args, **kwargs):
     if simulated_wearer:
         arguments.setdefault('plc_host', '127.0.0.1')
         arguments.setdefault('calibration_file', os.path.join(share, 'config', 'calibrations', 'sim-wearer.yaml'))
+        arguments.setdefault('headset_address', '127.0.0.1')   # the simulated headset is wearer_sim
+        arguments.setdefault('display_port', '5006')
     remaps = [SetRemap(src=f'live_targets/{name}', dst=LaunchConfiguration(f'{name}_topic')) for name in OBJECTS]
     lab = GroupAction([
         *remaps,
@@ -65,6 +67,7 @@ def _graph(context, *args, **kwargs):
     ports = NodeOverrides(context)
     mock_ports = {'port': int(arguments['plc_port'])} if 'plc_port' in arguments else {}
     wearer_ports = {'bridge_port': int(arguments['gaze_port'])} if 'gaze_port' in arguments else {}
+    wearer_ports['display_port'] = int(arguments['display_port'])
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
                     output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)])
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',

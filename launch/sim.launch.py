@@ -3,7 +3,7 @@ wearer, with the simulated wearer's calibration and config/params/sim.yaml over 
 for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
-    ros2 launch fabric_guidance sim.launch.py plc_port:=1602 gaze_port:=5105   # a second one
+    ros2 launch fabric_guidance sim.launch.py plc_port:=1602 gaze_port:=5105 display_port:=5106   # a second one
 
 The lab graph starts once the mock PLC listens (plc_output's first connection then succeeds).
 On Ctrl-C the mock PLC stays up until plc_output has vented and closed its connection
@@ -27,6 +27,7 @@ def _graph(context, *args, **kwargs):
     sim_params = os.path.join(share, 'config', 'params', 'sim.yaml')
     plc_port = LaunchConfiguration('plc_port').perform(context)
     gaze_port = LaunchConfiguration('gaze_port').perform(context)
+    display_port = LaunchConfiguration('display_port').perform(context)
     lab = IncludeLaunchDescription(
         PythonLaunchDescriptionSource(os.path.join(share, 'launch', 'guidance.launch.py')),
         launch_arguments={
@@ -36,6 +37,9 @@ def _graph(context, *args, **kwargs):
             'plc_host': '127.0.0.1',
             'plc_port': plc_port,
             'gaze_port': gaze_port,
+            # The simulated headset is wearer_sim, on this machine.
+            'headset_address': '127.0.0.1',
+            'display_port': display_port,
         }.items())
     ports = NodeOverrides(context)
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
@@ -44,7 +48,8 @@ def _graph(context, *args, **kwargs):
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
                   output='screen',
                   parameters=[sim_params,
-                              ports.file('wearer_sim', {'bridge_port': int(gaze_port)})])
+                              ports.file('wearer_sim', {'bridge_port': int(gaze_port),
+                                                        'display_port': int(display_port)})])
     return [mock_plc, wearer, after_mock_plc_listens(mock_plc, [lab]), ports.cleanup_action()]
 
 
@@ -65,5 +70,7 @@ def generate_launch_description():
                               description="the mock PLC's Modbus TCP port"),
         DeclareLaunchArgument('gaze_port', default_value='5005',
                               description='UDP port of the gaze bridge'),
+        DeclareLaunchArgument('display_port', default_value='5006',
+                              description="UDP port of the simulated headset's display (wearer_sim)"),
         OpaqueFunction(function=_graph),
     ])

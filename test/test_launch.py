@@ -45,7 +45,7 @@ from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  #
 PREFIX = os.path.join(INSTALL, 'fabric_guidance')
 SHARE = os.path.join(PREFIX, 'share', 'fabric_guidance')
 EXECUTABLES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'mock_plc',
-               'wearer_sim', 'micromanipulator_sim', 'bag_recorder', 'fabric-guidance')
+               'wearer_sim', 'micromanipulator_sim', 'bag_recorder', 'headset_display', 'fabric-guidance')
 P_MAX = 375.0
 #: Seven processes' start-up plus four guided turns of a few seconds each on a loaded machine.
 SESSION_DEADLINE_S = 90.0
@@ -134,7 +134,8 @@ def test_colcon_build_installed_the_package():
 # ------------------------------------------------------------------------------- sim.launch.py
 @pytest.fixture
 def sim_ports():
-    return {'plc_port': free_port(), 'gaze_port': free_port(socket.SOCK_DGRAM)}
+    return {'plc_port': free_port(), 'gaze_port': free_port(socket.SOCK_DGRAM),
+            'display_port': free_port(socket.SOCK_DGRAM)}
 
 
 @launch_pytest.fixture
@@ -189,7 +190,8 @@ def lab_arguments(plc, tmp_path):
     return {'plc_host': '127.0.0.1', 'plc_port': plc.port,
             'calibration_file': os.path.join(SHARE, 'config', 'calibrations', 'sim-wearer.yaml'),
             'condition': 3, 'bind_address': '127.0.0.1', 'gaze_port': free_port(socket.SOCK_DGRAM),
-            'allowed_senders': "['127.0.0.2', '127.0.0.3']", 'use_sim_time': 'false'}
+            'allowed_senders': "['127.0.0.2', '127.0.0.3']", 'use_sim_time': 'false',
+            'headset_address': '127.0.0.2', 'display_port': free_port(socket.SOCK_DGRAM)}
 
 
 @launch_pytest.fixture
@@ -210,7 +212,9 @@ def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_ar
         'pressure_controller': {'calibration_file': lab_arguments['calibration_file'],
                                 'condition': 3},
         'gaze_bridge': {'bind_address': '127.0.0.1', 'port': lab_arguments['gaze_port'],
-                        'allowed_senders': ['127.0.0.2', '127.0.0.3']},
+                        'allowed_senders': ['127.0.0.2', '127.0.0.3'], 'headset_address': '127.0.0.2',
+                        'display_port': lab_arguments['display_port']},
+        'headset_display': {'headset_address': '127.0.0.2', 'display_port': lab_arguments['display_port']},
         'target_selector': {'use_sim_time': False},
     }
     with Probe(domain_id) as probe:

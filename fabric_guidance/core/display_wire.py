@@ -209,3 +209,74 @@ _CHECKS = {
 }
 
 assert all(name in _CHECKS for names in KINDS.values() for name in names)
+
+
+class DisplayView:
+    """What the headset shows, built from display messages as the C# DisplayState builds it:
+    stale seqs dropped, each event_id shown once, a dummy set shown once all its parts arrived.
+    apply() returns what the wearer newly sees, as short lines ('next front_left', 'found
+    front_left', 'dummies 50', 'prompt Face front and rest (0/4)', 'phrase ...', 'targets 4').
+    Memory is bounded (EVENT_MEMORY event ids, one set being assembled)."""
+
+    EVENT_MEMORY = 64
+    RESTART_THRESHOLD = 1000
+
+    def __init__(self):
+        self.active = ''
+        self.targets: tuple = ()
+        self.dummies: tuple = ()
+        self.dummy_set = 0
+        self.prompt = ('', 0, 0)
+        self.phrase = ''
+        self.applied = self.stale = 0
+        self._last_seq: int | None = None
+        self._parts: dict[int, tuple] = {}
+        self._assembling = (0, 0)
+        self._events: dict[int, None] = {}   # insertion-ordered: the oldest id is forgotten first
+
+    def apply(self, msg: DisplayMessage) -> list[str]:
+        if self._last_seq is not None:
+            ahead = (msg.seq - self._last_seq) % UINT32
+            if ahead == 0 or (ahead >= UINT32 // 2 and UINT32 - ahead <= self.RESTART_THRESHOLD):
+                self.stale += 1
+                return []
+        self._last_seq = msg.seq
+        self.applied += 1
+        f, seen = msg.fields, []
+        if msg.kind == 'targets':
+            if (f['active'], len(f['targets'])) != (self.active, len(self.targets)):
+                seen.append(f"targets {len(f['targets'])}, active {f['active'] or '-'}")
+            self.active, self.targets = f['active'], f['targets']
+        elif msg.kind == 'event':
+            if f['event_id'] not in self._events:
+                self._events[f['event_id']] = None
+                if len(self._events) > self.EVENT_MEMORY:
+                    del self._events[next(iter(self._events))]
+                seen.append(f"{f['event']} {f['target']}".rstrip())
+        elif msg.kind == 'dummies':
+            seen += self._dummies(f)
+        elif msg.kind == 'prompt':
+            prompt = (f['text'], f['step'], f['steps'])
+            if prompt != self.prompt and f['text']:
+                seen.append(f"prompt {f['text']} ({f['step']}/{f['steps']})")
+            self.prompt = prompt
+        elif msg.kind == 'phrase':
+            if f['text'] != self.phrase and f['text']:
+                seen.append(f"phrase {f['text']}")
+            self.phrase = f['text']
+        return seen
+
+    def _dummies(self, f: dict) -> list[str]:
+        if f['set'] == 0:
+            self.dummy_set, self.dummies, self._parts = 0, (), {}
+            return []
+        if f['set'] == self.dummy_set:
+            return []
+        if (f['set'], f['parts']) != self._assembling:
+            self._parts, self._assembling = {}, (f['set'], f['parts'])
+        self._parts[f['part']] = f['positions']
+        if len(self._parts) < f['parts']:
+            return []
+        self.dummies = tuple(p for i in range(f['parts']) for p in self._parts[i])
+        self.dummy_set, self._parts = f['set'], {}
+        return [f'dummies {len(self.dummies)}']

@@ -11,6 +11,15 @@ to it, `head_pose`.
 The sequence number is tracked before the eye-tracking check so that samples the bridge
 drops on purpose are not counted as lost on the network.
 
+The headset's clock (docs/headset_wire_format.md): with headset_address set, the bridge sends
+a clock_ping every clock_ping_period_s from its own socket to headset_address:display_port and
+feeds the clock_echo answers to core.clock_sync.ClockEstimator. Once that has an estimate,
+`gaze` and `head_pose` carry the capture time (the datagram's `stamp` on the bridge's clock,
+mapped to ROS time) instead of the receive time, and /diagnostics reports the one-way delay
+from capture to receipt. A headset clock that runs backwards, a sender restart or a capture
+time that cannot be (in the future, or older than MAX_DELAY_S) restarts the estimate or falls
+back to the receive time for that sample; nothing is published with a stamp it cannot stand by.
+
 Publishing happens on the receiver thread (rclpy publishers are thread-safe), so the rate
 does not depend on the executor; nothing is logged per sample. /diagnostics reports the
 counters every diagnostics_period_s.
@@ -30,7 +39,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
-from fabric_guidance.core.gaze_wire import REASONS, SeqStatus, SequenceTracker, WireFormatError, parse_datagram
+from rclpy.duration import Duration
+
+from fabric_guidance.core.clock_sync import ClockEcho, ClockEstimator, encode_ping, parse_uplink
+from fabric_guidance.core.gaze_wire import REASONS, SeqStatus, SequenceTracker, WireFormatError
 from fabric_guidance.core.geometry import GeometryError, ray_orientation
 from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
@@ -45,6 +57,10 @@ RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 RECEIVE_TIMEOUT_S = 0.1
 #: Loss rate (sequence gaps over the last period) above which the stream is reported WARN.
 MAX_LOSS_RATE = 0.05
+#: A capture this much older than its receipt is not believed: the stamp falls back to receipt [s].
+MAX_DELAY_S = 1.0
+#: One-way delays kept for the diagnostics percentiles (more than a period at 1 kHz).
+DELAY_BUFFER = 4096
 #: Drop reasons of the bridge besides WireFormatError.reason.
 BRIDGE_REASONS: tuple[str, ...] = ('sender', 'stale', 'eye_tracking_invalid', 'internal')
 
@@ -67,12 +83,39 @@ class GazeBridge(Node):
                                 'frame of the published poses (the immersive space)', read_only=True)
         self.period = declare(self, 'diagnostics_period_s', 1.0, 'diagnostics period', 's', 0.05, 60.0,
                               read_only=True)
+        self.headset_address = declare(self, 'headset_address', '',
+                                       "the HoloLens's IP address, where clock pings go ('' = no clock "
+                                       'exchange: gaze is stamped on receipt)', read_only=True)
+        self.display_port = declare(self, 'display_port', 5006, "the headset's downlink UDP port (pings)",
+                                    '-', 1, 65535, read_only=True)
+        ping_period = declare(self, 'clock_ping_period_s', 0.2, 'time between clock pings', 's', 0.01, 10.0,
+                              read_only=True)
+        window = declare(self, 'clock_window_s', 30.0, 'clock exchanges the offset and drift are fitted over',
+                         's', 1.0, 600.0, read_only=True)
+        self.stamp_source = declare(self, 'stamp_source', 'capture',
+                                    "'capture': the headset's capture time once the clock is estimated, "
+                                    "receipt until then; 'receipt': always the receive time", read_only=True)
+        if self.stamp_source not in ('capture', 'receipt'):
+            raise ValueError(f"parameter 'stamp_source': {self.stamp_source!r} is not 'capture' or 'receipt'")
 
         try:
             family = socket.AF_INET6 if ipaddress.ip_address(self.bind_address).version == 6 else socket.AF_INET
         except ValueError:
             raise ValueError(f"parameter 'bind_address': {self.bind_address!r} is not an IP address") from None
         self.allowed_senders = self._parse_senders(allowed)
+        self._ping_target = None
+        if self.headset_address:
+            try:
+                headset = ipaddress.ip_address(self.headset_address)
+            except ValueError:
+                raise ValueError(f"parameter 'headset_address': {self.headset_address!r} is not an IP "
+                                 'address') from None
+            if family == socket.AF_INET6 and headset.version == 4:
+                headset = ipaddress.ip_address(f'::ffff:{headset}')
+            elif family == socket.AF_INET and headset.version == 6:
+                raise ValueError(f"parameter 'headset_address': {headset} is IPv6 but 'bind_address' "
+                                 f'{self.bind_address} is IPv4')
+            self._ping_target = (str(headset), self.display_port)
         if not self.allowed_senders:
             self.get_logger().warn("parameter 'allowed_senders' is empty: every datagram will be dropped")
 
@@ -82,6 +125,12 @@ class GazeBridge(Node):
         self._published = 0
         self._tracker = SequenceTracker()
         self._last = (0, 0, 0, 0, time.monotonic())  # received, published, seq received, seq lost, when
+        self._headset_clock = ClockEstimator(window_s=window)
+        self._ping_seq = 0
+        self._echoes = 0
+        self._delays: list[float] = []      # one-way delays of this period [s], at most DELAY_BUFFER
+        self._stamp_fallbacks = 0           # captures not believed: stamped on receipt
+        self._captured = 0                  # published with the capture time
 
         self._gaze_pub = self.create_publisher(PoseStamped, GAZE, SENSOR_QOS)
         self._head_pub = self.create_publisher(PoseStamped, HEAD_POSE, SENSOR_QOS)
@@ -102,9 +151,13 @@ class GazeBridge(Node):
         self._thread = threading.Thread(target=self._receive_loop, name='gaze_bridge_udp', daemon=True)
         self._thread.start()
         self._timer = self.create_timer(self.period, self._publish_diagnostics)
+        if self._ping_target is not None:
+            self._ping_timer = self.create_timer(ping_period, self._ping)
         self.get_logger().info(
             f'listening on {self.bind_address}:{self.port} (receive buffer {self.receive_buffer_bytes} bytes), '
-            f'accepting {sorted(self.allowed_senders)}, publishing {GAZE} and {HEAD_POSE} in {self.frame_id!r}')
+            f'accepting {sorted(self.allowed_senders)}, publishing {GAZE} and {HEAD_POSE} in {self.frame_id!r}; '
+            + (f'clock pings to {self._ping_target[0]}:{self._ping_target[1]} every {ping_period} s'
+               if self._ping_target else "no clock exchange ('headset_address' empty): stamped on receipt"))
 
     @staticmethod
     def _parse_senders(values) -> frozenset[str]:
@@ -151,7 +204,8 @@ class GazeBridge(Node):
                                         throttle_duration_sec=5.0)
 
     def _handle(self, data: bytes, sender: str) -> None:
-        stamp = self.get_clock().now().to_msg()
+        received_mono = time.monotonic()
+        now = self.get_clock().now()
         lock, dropped = self._lock, self._dropped
         if sender not in self.allowed_senders:
             with lock:
@@ -159,11 +213,16 @@ class GazeBridge(Node):
                 dropped['sender'] += 1
             return
         try:
-            sample = parse_datagram(data, self.max_datagram_bytes)
+            sample = parse_uplink(data, self.max_datagram_bytes)
         except WireFormatError as exc:
             with lock:
                 self._received += 1
                 dropped[exc.reason] = dropped.get(exc.reason, 0) + 1
+            return
+        if type(sample) is ClockEcho:
+            with lock:
+                self._echoes += 1
+                self._headset_clock.add(sample, received_mono)
             return
         with lock:
             self._received += 1
@@ -171,6 +230,9 @@ class GazeBridge(Node):
             if seq_status is SeqStatus.STALE:
                 dropped['stale'] += 1
                 return
+            if seq_status is SeqStatus.RESTART:
+                self._headset_clock.restart()   # a new app: a new clock origin
+            stamp = self._stamp(sample.stamp, received_mono, now)
             if self.require_valid and not sample.eye_tracking_valid:
                 dropped['eye_tracking_invalid'] += 1
                 return
@@ -200,6 +262,43 @@ class GazeBridge(Node):
         with lock:
             self._published += 1
 
+    def _stamp(self, capture_headset: float, received_mono: float, now):
+        """The header stamp of a sample: its capture time in ROS time when the clock estimate
+        allows, else `now` (its receipt). Called with the lock held."""
+        estimate = self._headset_clock.estimate()
+        if estimate is None or self.stamp_source != 'capture':
+            return now.to_msg()
+        delay = received_mono - estimate.to_bridge(capture_headset, received_mono)
+        bound = estimate.bound_at(received_mono)
+        if delay < -bound - 0.05:
+            # Captured well after it arrived: the headset's clock jumped ahead (a restarted app).
+            self._headset_clock.restart()
+            self._stamp_fallbacks += 1
+            return now.to_msg()
+        if delay > MAX_DELAY_S:
+            self._stamp_fallbacks += 1
+            return now.to_msg()
+        delay = max(delay, 0.0)   # within the bound of zero: no stamp in the future
+        if len(self._delays) < DELAY_BUFFER:
+            self._delays.append(delay)
+        self._captured += 1
+        return (now - Duration(nanoseconds=int(delay * 1e9))).to_msg()
+
+    def _ping(self) -> None:
+        with self._lock:
+            seq = self._ping_seq
+            self._ping_seq = (seq + 1) % 2 ** 32
+        try:
+            self._sock.sendto(encode_ping(seq, time.monotonic()), self._ping_target)
+        except OSError as exc:
+            self.get_logger().warn(f'clock ping to {self._ping_target[0]}:{self._ping_target[1]} failed: {exc}',
+                                   throttle_duration_sec=10.0)
+
+    def clock_estimate(self):
+        """The current ClockEstimate (None before enough exchanges), for tests and tools."""
+        with self._lock:
+            return self._headset_clock.estimate()
+
     # --- diagnostics ----------------------------------------------------------------------
 
     def _publish_diagnostics(self) -> None:
@@ -209,6 +308,11 @@ class GazeBridge(Node):
             seq_received, seq_lost = self._tracker.received, self._tracker.lost
             loss_rate, restarts = self._tracker.loss_rate, self._tracker.restarts
             dropped = dict(self._dropped)
+            delays, self._delays = self._delays, []
+            clock = self._headset_clock
+            estimate, clock_restarts, echoes = clock.estimate(), clock.restarts, self._echoes
+            clock_rejected = sum(clock.rejected.values())
+            captured, fallbacks = self._captured, self._stamp_fallbacks
         last_received, last_published, last_seq_received, last_seq_lost, last_time = self._last
         self._last = (received, published, seq_received, seq_lost, now)
         dt = max(now - last_time, 1e-9)
@@ -241,8 +345,43 @@ class GazeBridge(Node):
             'receive_rate_hz': f'{new_received / dt:.1f}',
             'publish_rate_hz': f'{new_published / dt:.1f}',
             'receive_buffer_bytes': self.receive_buffer_bytes,
+            **self._clock_values(estimate, now, delays, echoes, clock_restarts, clock_rejected, captured,
+                                 fallbacks),
         }
         publish_diagnostics(self, self._diag_pub, [status(self, 'gaze stream', level, message, values)])
+
+    def _clock_values(self, estimate, now, delays, echoes, restarts, rejected, captured, fallbacks) -> dict:
+        if self._ping_target is None:
+            state = 'no headset_address'
+        elif estimate is None:
+            state = 'waiting for clock echoes' if not restarts else 'restarted, waiting for echoes'
+        else:
+            state = 'synchronised'
+        values = {
+            'stamp_source': 'capture' if estimate is not None and self.stamp_source == 'capture' else 'receipt',
+            'clock_state': state,
+            'clock_echoes': echoes,
+            'clock_restarts': restarts,
+            'clock_rejected': rejected,
+            'stamped_capture': captured,
+            'stamp_fallbacks': fallbacks,
+        }
+        if estimate is not None:
+            values.update({
+                'clock_offset_s': f'{estimate.offset_at(now):.6f}',
+                'clock_drift_ppm': f'{estimate.drift * 1e6:.1f}',
+                'clock_rtt_min_ms': f'{estimate.rtt_min * 1e3:.3f}',
+                'clock_bound_ms': f'{estimate.bound_at(now) * 1e3:.3f}',
+                'clock_exchanges': estimate.exchanges,
+            })
+        if delays:
+            d = sorted(delays)
+            values.update({
+                'delay_p50_ms': f'{d[len(d) // 2] * 1e3:.3f}',
+                'delay_p99_ms': f'{d[min(len(d) - 1, int(0.99 * len(d)))] * 1e3:.3f}',
+                'delay_max_ms': f'{d[-1] * 1e3:.3f}',
+            })
+        return values
 
     # --- shutdown -------------------------------------------------------------------------
 

@@ -53,6 +53,7 @@ DIAGNOSTICS_TICKS = 10
 MARKER_DIAMETER_M = 0.1
 #: The wearer's front, where the speed protocol's wearer returns between targets: +x (REP 103).
 FRONT = (1.0, 0.0, 0.0)
+MARKER_NS_FIXED, MARKER_NS_LIVE = 'targets', 'live_targets'
 ACTIVE_RGBA = (1.0, 0.0, 0.0, 1.0)
 INACTIVE_RGBA = (1.0, 0.0, 1.0, 1.0)
 
@@ -218,7 +219,9 @@ class TargetSelector(Node):
             m = Marker()
             m.header.stamp = stamp
             m.header.frame_id = self.frame_id
-            m.ns = 'targets'
+            # The namespace tells fixed targets from live ones (RViz lists them apart; the
+            # headset display draws live objects as such).
+            m.ns = MARKER_NS_LIVE if name in self.live_names else MARKER_NS_FIXED
             m.id = i
             m.type = Marker.SPHERE
             if position is None:

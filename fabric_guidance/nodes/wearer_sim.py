@@ -15,14 +15,23 @@ Two wearers:
   dt = 1/gaze_rate_hz locked to the wall clock (a late timer tick runs the steps it missed, up
   to MAX_CATCH_UP_STEPS), one datagram per step at most.
 
+It is also the simulated headset's display (display_port > 0): it listens for the display
+messages of headset_display and the clock pings of gaze_bridge (docs/headset_wire_format.md),
+answers each ping at once from its gaze socket (t2, t3 on the clock of its gaze stamps), and
+publishes on headset_view one line for each thing the wearer newly sees (core.display_wire.
+DisplayView): `next <target>`, `found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`,
+`phrase <text>`, `targets <n>, active <name>`.
+
 Subscribes  measured_pressure (Float64MultiArray, kPa), active_target (String); with a scene
             also target (PointStamped: visual capture) and speech (String, condition 4)
-Sends       UDP gaze datagrams to bridge_host:bridge_port
+Publishes   headset_view (String)
+Sends       UDP gaze datagrams and clock echoes to bridge_host:bridge_port
 """
 from __future__ import annotations
 
 import socket
 import sys
+import threading
 import time
 
 import numpy as np
@@ -31,12 +40,14 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 
 from ..core import ChannelMap, PowerLaw, condition as condition_of, ray_orientation
-from ..core.gaze_wire import encode_datagram, ros_to_unity_point, ros_to_unity_quaternion
+from ..core import display_wire
+from ..core.clock_sync import MAX_DATAGRAM_BYTES, answer_ping
+from ..core.gaze_wire import WireFormatError, encode_datagram, ros_to_unity_point, ros_to_unity_quaternion
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
-from ..interface import ACTIVE_TARGET, MEASURED_PRESSURE, SPEECH, TARGET
+from ..interface import ACTIVE_TARGET, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
 from .parameters import declare, declare_config_file
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
 from .spin import run
@@ -73,6 +84,10 @@ class WearerSim(Node):
         condition = declare(self, 'condition', 0, "with scene_file: the paper's condition 1-4 (its layout wins "
                             'over layout; 4: the wearer hears speech and ignores the suit); 0 = from layout '
                             '(suit: 1, arm: 3)', low=0, high=4)
+        display_bind = declare(self, 'display_bind_address', '127.0.0.1',
+                               "where the simulated headset's display listens", read_only=True)
+        display_port = declare(self, 'display_port', 0, "the simulated headset's display port (display "
+                               'messages and clock pings; 0 = none)', '-', 0, 65535, read_only=True)
         if len(laws) != 12:
             raise ValueError(f'parameter laws needs 12 numbers (a, b, c for 4 directions), got {len(laws)}')
         self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
@@ -109,6 +124,21 @@ class WearerSim(Node):
         if self.address[0] in ('localhost', '127.0.0.1') or self.address[0].startswith('127.'):
             # Sending alone would bind the socket to 0.0.0.0: reachable from the network.
             self.sock.bind(('127.0.0.1', 0))
+        self.view = display_wire.DisplayView()
+        self.view_pub = self.create_publisher(String, HEADSET_VIEW, EVENT_QOS)
+        self._display_sock = None
+        self._stop = threading.Event()
+        if display_port:
+            self._display_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                self._display_sock.bind((display_bind, display_port))
+            except OSError as exc:
+                self._display_sock.close()
+                raise OSError(f"cannot listen on {display_bind}:{display_port} (parameters 'display_bind_address', "
+                              f"'display_port'): {exc}") from None
+            self._display_sock.settimeout(0.1)
+            self._display_thread = threading.Thread(target=self._display_loop, name='headset_display', daemon=True)
+            self._display_thread.start()
         self.create_subscription(Float64MultiArray, MEASURED_PRESSURE, self.on_pressure, COMMAND_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
         if self.scene_side is not None:
@@ -195,7 +225,35 @@ class WearerSim(Node):
         except OSError as exc:  # the bridge not there yet is no reason to stop
             self.get_logger().warn(f'cannot send gaze: {exc}', throttle_duration_sec=5.0)
 
+    def _display_loop(self) -> None:
+        """The headset's receive side: answer pings at once, show display messages."""
+        sock = self._display_sock
+        while not self._stop.is_set():
+            try:
+                data, _ = sock.recvfrom(MAX_DATAGRAM_BYTES + 1)
+            except (socket.timeout, OSError):
+                continue
+            t2 = time.monotonic()
+            echo = answer_ping(data, t2, time.monotonic())
+            if echo is not None:
+                try:
+                    self.sock.sendto(echo, self.address)
+                except OSError:
+                    pass   # the bridge gone: the next ping tries again
+                continue
+            try:
+                seen = self.view.apply(display_wire.decode(data))
+            except WireFormatError as exc:
+                self.get_logger().warn(f'display datagram dropped: {exc}', throttle_duration_sec=5.0)
+                continue
+            for line in seen:
+                self.view_pub.publish(String(data=line))
+
     def safe_shutdown(self) -> None:
+        self._stop.set()
+        if self._display_sock is not None:
+            self._display_thread.join(1.0)
+            self._display_sock.close()
         self.sock.close()
 
 

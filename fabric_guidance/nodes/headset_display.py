@@ -1,0 +1,256 @@
+"""headset_display: what the wearer must see, sent to the HoloLens (docs/headset_wire_format.md).
+
+It turns the graph's task state into display messages (core.display_wire) and sends them over
+UDP to headset_address:display_port, and nowhere else:
+
+- targets: target_markers (every target with its name and position; namespace live_targets for
+  the micromanipulator's objects) and active_target, positions converted to Unity world;
+- event: `next` when a target becomes active, `found` on target_found; each sent three times,
+  EVENT_REPEAT_S apart, with one event_id, since UDP may lose one;
+- dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
+  active target, uniform in azimuth within +-dummy_azimuth_deg and in elevation within
+  +-dummy_elevation_deg around the front, at the active target's distance;
+- prompt: Algorithm 1's steps from calibration_status ("Face front and rest", "Hold still:
+  <direction>, step i of n"), cleared when the calibration ends;
+- phrase: condition 4's phrase from speech.
+
+targets, dummies, prompt and phrase are sent on change and again at refresh_hz, whole, so a
+lost datagram or a restarted app is repaired within one refresh. /diagnostics counts what was
+sent by kind and the send errors.
+
+Subscribed: target_markers (visualization_msgs/MarkerArray), active_target, target_found,
+            calibration_status, speech (std_msgs/String)
+Published:  /diagnostics; UDP datagrams to headset_address:display_port
+"""
+from __future__ import annotations
+
+from collections import deque
+import ipaddress
+import math
+import re
+import socket
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import Marker, MarkerArray
+
+from fabric_guidance.core import display_wire
+from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATUS, DIAGNOSTICS, SPEECH, TARGET_FOUND,
+                                       TARGET_MARKERS)
+from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.parameters import declare
+from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS
+from fabric_guidance.nodes.spin import run
+
+#: Each event is sent this many times, EVENT_REPEAT_S apart (the headset shows each id once).
+EVENT_SENDS = 3
+EVENT_REPEAT_S = 0.02
+#: The marker namespace of the micromanipulator's live objects (target_selector).
+LIVE_NAMESPACE = 'live_targets'
+#: calibration_status lines (pressure_controller): rest before a direction, a step, the end.
+_REST = re.compile(r'rest before (\w+) step \d+/(\d+)')
+_STEP = re.compile(r'apply (\w+) step (\d+)/(\d+)')
+
+
+class HeadsetDisplay(Node):
+
+    def __init__(self):
+        super().__init__('headset_display')
+        address = declare(self, 'headset_address', '127.0.0.1', "the HoloLens's IP address (the only destination)",
+                          read_only=True)
+        port = declare(self, 'display_port', 5006, "the headset's downlink UDP port", '-', 1, 65535, read_only=True)
+        refresh_hz = declare(self, 'refresh_hz', 2.0, 'the whole display state is sent again this often', 'Hz',
+                             0.1, 50.0, read_only=True)
+        self.dummies = declare(self, 'dummies', 0, "distractor spheres per target (the paper's speed task: 50)",
+                               '-', 0, display_wire.MAX_DUMMIES_PER_PART * display_wire.MAX_DUMMY_PARTS,
+                               read_only=True)
+        self.dummy_seed = declare(self, 'dummy_seed', 0, 'seed of the dummy positions', '-', 0, 2 ** 31 - 1,
+                                  read_only=True)
+        self.dummy_radius_m = declare(self, 'dummy_radius_m', 0.05, 'dummy sphere radius', 'm', 0.001, 1.0,
+                                      read_only=True)
+        self.dummy_azimuth_deg = declare(self, 'dummy_azimuth_deg', 60.0, 'dummies within +- this azimuth of the '
+                                         'front', 'deg', 0.0, 180.0, read_only=True)
+        self.dummy_elevation_deg = declare(self, 'dummy_elevation_deg', 30.0, 'dummies within +- this elevation',
+                                           'deg', 0.0, 90.0, read_only=True)
+        try:
+            ip = ipaddress.ip_address(address)
+        except ValueError:
+            raise ValueError(f"parameter 'headset_address': {address!r} is not an IP address") from None
+        self.destination = (str(ip), port)
+        self._sock = socket.socket(socket.AF_INET6 if ip.version == 6 else socket.AF_INET, socket.SOCK_DGRAM)
+
+        self.active = ''
+        self.targets: list[dict] = []          # {'id', 'position' (Unity), 'role'}, target_markers' order
+        self.distance_m = 2.0                  # of the active target from the origin, for the dummies
+        self.dummy_set = 0
+        self.dummy_positions: list[list[float]] = []
+        self.prompt = ('', 0, 0)
+        self.phrase = ''
+        self._seq = 0
+        self._event_id = 0
+        self._repeats: deque = deque(maxlen=64)   # (due monotonic, datagram) of events still to repeat
+        self.sent = {kind: 0 for kind in display_wire.KINDS}
+        self.send_errors = 0
+        self.bytes_sent = 0
+
+        self.create_subscription(MarkerArray, TARGET_MARKERS, self.on_markers, LATCHED_QOS)
+        self.create_subscription(String, ACTIVE_TARGET, self.on_active, LATCHED_QOS)
+        self.create_subscription(String, TARGET_FOUND, self.on_found, EVENT_QOS)
+        self.create_subscription(String, CALIBRATION_STATUS, self.on_calibration, EVENT_QOS)
+        self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.create_timer(1.0 / refresh_hz, self.send_state)
+        self.create_timer(EVENT_REPEAT_S, self._send_repeats)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f'display messages to {self.destination[0]}:{self.destination[1]}, refreshed at '
+                               f'{refresh_hz} Hz; {self.dummies} dummies per target')
+
+    # --- sending --------------------------------------------------------------------------
+
+    def _send(self, kind: str, **fields) -> bytes:
+        data = display_wire.encode(kind, self._seq, self.get_clock().now().nanoseconds * 1e-9, **fields)
+        self._seq = (self._seq + 1) % display_wire.UINT32
+        self._send_bytes(kind, data)
+        return data
+
+    def _send_bytes(self, kind: str, data: bytes) -> None:
+        try:
+            self._sock.sendto(data, self.destination)
+        except OSError as exc:   # no route to the headset yet: the refresh tries again
+            self.send_errors += 1
+            self.get_logger().warn(f'display message to {self.destination[0]}:{self.destination[1]} failed: {exc}',
+                                   throttle_duration_sec=10.0)
+            return
+        self.sent[kind] += 1
+        self.bytes_sent += len(data)
+
+    def send_state(self) -> None:
+        """The whole display state, as on every refresh."""
+        self._send('targets', active=self.active, targets=self.targets)
+        self.send_dummies()
+        text, step, steps = self.prompt
+        self._send('prompt', text=text, step=step, steps=steps)
+        self._send('phrase', text=self.phrase)
+
+    def send_dummies(self) -> None:
+        per = display_wire.MAX_DUMMIES_PER_PART
+        parts = max(1, math.ceil(len(self.dummy_positions) / per))
+        for part in range(parts):
+            self._send('dummies', set=self.dummy_set, part=part, parts=parts, radius_m=self.dummy_radius_m,
+                       positions=self.dummy_positions[part * per:(part + 1) * per])
+
+    def event(self, name: str, target: str) -> None:
+        self._event_id = (self._event_id + 1) % display_wire.UINT32
+        now = time.monotonic()
+        for i in range(EVENT_SENDS):
+            data = display_wire.encode('event', self._seq, self.get_clock().now().nanoseconds * 1e-9,
+                                       event_id=self._event_id, event=name, target=target)
+            self._seq = (self._seq + 1) % display_wire.UINT32
+            if i == 0:
+                self._send_bytes('event', data)
+            else:
+                self._repeats.append((now + i * EVENT_REPEAT_S, data))
+
+    def _send_repeats(self) -> None:
+        now = time.monotonic()
+        while self._repeats and self._repeats[0][0] <= now:
+            self._send_bytes('event', self._repeats.popleft()[1])
+
+    # --- callbacks ------------------------------------------------------------------------
+
+    def on_markers(self, msg: MarkerArray) -> None:
+        targets = []
+        for m in msg.markers:
+            if m.action != Marker.ADD or not m.text:
+                continue
+            p = m.pose.position
+            if not all(math.isfinite(c) for c in (p.x, p.y, p.z)):
+                continue
+            targets.append({'id': m.text, 'position': display_wire.to_unity((p.x, p.y, p.z)),
+                            'role': 'live' if m.ns == LIVE_NAMESPACE else 'target'})
+            if m.text == self.active:
+                self.distance_m = math.hypot(p.x, p.y, p.z)
+        if len(targets) > display_wire.MAX_TARGETS:
+            self.get_logger().warn(f'{len(targets)} targets: the headset is sent the first '
+                                   f'{display_wire.MAX_TARGETS} (docs/headset_wire_format.md)', once=True)
+        changed = targets != self.targets
+        self.targets = targets
+        if changed:
+            self._send('targets', active=self.active, targets=self.targets)
+
+    def on_active(self, msg: String) -> None:
+        if msg.data == self.active:
+            return
+        self.active = msg.data
+        for t in self.targets:
+            if t['id'] == self.active:
+                x, y, z = display_wire.from_unity(t['position'])
+                self.distance_m = math.hypot(x, y, z)
+        if self.active and self.dummies:
+            self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
+            self.dummy_positions = self.draw_dummies(self.dummy_set)
+        self._send('targets', active=self.active, targets=self.targets)
+        if self.dummies:
+            self.send_dummies()
+        if self.active:
+            self.event('next', self.active)
+
+    def draw_dummies(self, dummy_set: int) -> list[list[float]]:
+        """The dummy positions of a set (Unity world): seeded by dummy_seed and the set number."""
+        rng = np.random.default_rng([self.dummy_seed, dummy_set])
+        az = np.radians(rng.uniform(-self.dummy_azimuth_deg, self.dummy_azimuth_deg, self.dummies))
+        el = np.radians(rng.uniform(-self.dummy_elevation_deg, self.dummy_elevation_deg, self.dummies))
+        r = self.distance_m
+        # REP 103: x forward, y left (azimuth positive to the left), z up.
+        ros = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
+        return [display_wire.to_unity(p) for p in ros]
+
+    def on_found(self, msg: String) -> None:
+        self.event('found', msg.data)
+
+    def on_calibration(self, msg: String) -> None:
+        text = msg.data
+        rest, step = _REST.match(text), _STEP.match(text)
+        if rest:
+            prompt = ('Face front and rest', 0, int(rest.group(2)))
+        elif step:
+            prompt = (f'Hold still: {step.group(1)}, step {step.group(2)} of {step.group(3)}',
+                      int(step.group(2)), int(step.group(3)))
+        elif text.startswith(('done', 'failed')):
+            prompt = ('', 0, 0)
+        else:
+            return
+        if prompt != self.prompt:
+            self.prompt = prompt
+            self._send('prompt', text=prompt[0], step=prompt[1], steps=prompt[2])
+
+    def on_speech(self, msg: String) -> None:
+        self.phrase = msg.data
+        self._send('phrase', text=self.phrase)
+
+    # --- diagnostics and shutdown -------------------------------------------------------------
+
+    def _publish_diagnostics(self) -> None:
+        level = DiagnosticStatus.WARN if self.send_errors else DiagnosticStatus.OK
+        values = {'destination': f'{self.destination[0]}:{self.destination[1]}', 'active': self.active,
+                  'targets': len(self.targets), 'dummy_set': self.dummy_set, 'send_errors': self.send_errors,
+                  'bytes_sent': self.bytes_sent, **{f'sent_{k}': n for k, n in self.sent.items()}}
+        message = f'{sum(self.sent.values())} display messages sent' + (
+            f', {self.send_errors} failed' if self.send_errors else '')
+        publish_diagnostics(self, self._diag_pub, [status(self, 'display', level, message, values)])
+
+    def destroy_node(self):
+        self._sock.close()
+        return super().destroy_node()
+
+
+def main(args=None):
+    return run(lambda: HeadsetDisplay(), args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
