@@ -27,7 +27,7 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
   test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
-.PHONY: demo test test-deep test-launch test-py312 bench venv clean system-deps test-pymodbus
+.PHONY: test-hololens demo test test-deep test-launch test-py312 bench venv clean system-deps test-pymodbus
 
 venv: $(STAMP)
 
@@ -43,6 +43,7 @@ demo: $(STAMP)
 # The suite, then the Modbus tests under the other supported pymodbus releases, then the
 # launch files under the real launch system (where the ros-tooling wheels are beside the clone).
 test: $(STAMP)
+	@$(MAKE) --no-print-directory test-hololens
 	$(PY) -m pytest
 	$(MAKE) --no-print-directory test-pymodbus
 	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch; else \
@@ -124,13 +125,20 @@ test-pymodbus: $(STAMP) $(PYMODBUS_VERSIONS:%=.venv-pymodbus-%/.installed)
 test-deep: $(STAMP)
 	HYPOTHESIS_PROFILE=deep $(PY) -m pytest -m property -p no:cacheprovider
 
+# The headset library's C# core and its tests (hololens/, Debian's mcs and mono); the graph tests
+# in pytest run the same build against the nodes. Without mono: one SKIPPED line.
+test-hololens:
+	@if command -v mcs >/dev/null && command -v mono >/dev/null; then \
+	  $(MAKE) --no-print-directory -C hololens all test; else \
+	  echo "SKIPPED hololens C# tests: mcs/mono absent (make system-deps installs mono-mcs mono-runtime)"; fi
+
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)
 	$(VENV)/bin/fabric-guidance bench --out bench/results.json
 
 # The distribution's packages some tests use (root; CI runs this before `make test`). Without
-# them the PLC program's, mbpoll's and the loopback tests skip with their reason.
-SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2
+# them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their reason.
+SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime
 system-deps:
 	@if [ "$$(id -u)" != 0 ]; then echo "system-deps: run as root (apt-get install $(SYSTEM_DEPS))"; exit 1; fi
 	apt-get update -qq || (sleep 10 && apt-get update -qq)

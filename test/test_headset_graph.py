@@ -1,0 +1,350 @@
+"""The compiled C# headset (hololens/, built with mcs, run with mono) against the real nodes:
+its gaze through gaze_bridge under a German locale, seq wrap, an app restart and a lost eye;
+the clock estimate under injected delay and jitter; and the display messages of real
+target_selector, micromanipulator_sim and pressure_controller runs received by its decoder."""
+import json
+import math
+import socket
+import statistics
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+import pytest
+from std_srvs.srv import Trigger
+import transforms3d
+import yaml
+
+from fabric_guidance import interface
+from fabric_guidance.core import display_wire
+from fabric_guidance.core.geometry import azimuth_deg, elevation_deg, ray_direction
+from fabric_guidance.nodes import qos
+from headset_harness import DelayProxy, Harness, build_harness, pose_line, unity_euler_quat
+from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
+
+pytestmark = pytest.mark.graph
+FILES = ('params/guidance.yaml',)
+GERMAN = {'LANG': 'de_DE.UTF-8', 'LC_ALL': 'de_DE.UTF-8'}
+#: Measured clock errors, printed at the end of the module (the figures the closing note quotes).
+CLOCK_FIGURES: list[str] = []
+
+
+@pytest.fixture(scope='module', autouse=True)
+def harness_built():
+    build_harness()
+    yield
+    if CLOCK_FIGURES:
+        print('\nclock estimate under injected delay (capture stamp minus arrival at the proxy):')
+        for line in CLOCK_FIGURES:
+            print('  ' + line)
+
+
+class Bridge:
+    """A real gaze_bridge pinging `display_port`, and a probe on its output."""
+
+    def __init__(self, tmp_path, display_port: int, **params):
+        self.port = free_port(socket.SOCK_DGRAM)
+        self.graph = Graph(tmp_path / 'logs')
+        self.graph.start('gaze_bridge', FILES, port=self.port, headset_address='127.0.0.1',
+                         display_port=display_port, diagnostics_period_s=0.5, **params)
+        self.probe = Probe(self.graph.domain_id)
+        self.gaze = self.probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        self.head = self.probe.subscribe(PoseStamped, interface.HEAD_POSE, qos.SENSOR_QOS)
+        self.diagnostics = self.probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+        # Listening, and matched to the probe: no sample is published before the probe hears it.
+        wait_until(lambda: 'listening on' in self.graph.log('gaze_bridge'), 30.0, what='gaze_bridge listening')
+        wait_until(lambda: self.probe.hears(interface.GAZE) and self.probe.hears(interface.HEAD_POSE), 30.0,
+                   what='the probe matched to gaze and head_pose')
+
+    def values(self) -> dict:
+        for array in reversed(list(self.diagnostics)):
+            for st in array.status:
+                if st.name == 'gaze_bridge: gaze stream':
+                    return {kv.key: kv.value for kv in st.values}
+        return {}
+
+    def close(self):
+        self.probe.close()
+        self.graph.stop_all()
+
+
+@pytest.fixture
+def bridge_at(tmp_path):
+    made = []
+
+    def make(display_port, **params):
+        made.append(Bridge(tmp_path, display_port, **params))
+        return made[-1]
+    yield make
+    for b in made:
+        b.close()
+
+
+def stamp_s(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def test_german_locale_poses_arrive_in_rep103_with_seq_wrap_and_a_lost_eye_skipped(tmp_path, bridge_at):
+    # Gaze 40 deg left and 20 deg up, the head turned 30 deg right (Unity Euler(0, 30, 0)); every
+    # third frame the eye is lost (NaN): the sender skips it.
+    poses = tmp_path / 'poses.jsonl'
+    good = pose_line(40.0, 20.0, unity_euler_quat(y_deg=30.0))
+    lost = json.loads(good)
+    lost['gaze_direction'] = 'nan'
+    poses.write_text('\n'.join([good, good, json.dumps(lost)]) + '\n')
+    listen = free_port(socket.SOCK_DGRAM)
+    bridge = bridge_at(listen)
+    harness = Harness(tmp_path / 'harness.log', '--uplink', f'127.0.0.1:{bridge.port}', '--listen',
+                      f'127.0.0.1:{listen}', '--poses', str(poses), '--rate', '60', '--frames', '150',
+                      '--seq-start', '4294967230', '--duration', '6', '--culture', 'de-DE', env=GERMAN)
+    counts = harness.wait()
+    assert counts['skipped'] == 50 and counts['sent'] == 100, counts
+    wait_until(lambda: bridge.values().get('received') == '100', 20.0, what='the bridge to count 100 datagrams')
+    v = bridge.values()
+    # Across the wrap from 4294967295 to 0 nothing is lost, stale or a restart; nothing dropped.
+    assert (v['published'], v['lost'], v['sender_restarts'], v['dropped']) == ('100', '0', '0', '0'), v
+    sent = [e for e in harness.log() if 'sent' in e]
+    assert any(e['sent'] == 4294967295 for e in sent) and any(e['sent'] == 0 for e in sent)
+    # REP 103: gaze 40 deg left is azimuth +40, 20 deg up elevation +20; the head turned right is
+    # yaw -30; the origin (Unity x 0.1, y 1.6, z 0.2) is (0.2, -0.1, 1.6).
+    wait_until(lambda: bridge.gaze and bridge.head, 10.0, what='gaze and head_pose')
+    for g in list(bridge.gaze):
+        o, p = g.pose.orientation, g.pose.position
+        d = ray_direction([o.x, o.y, o.z, o.w])
+        assert azimuth_deg(d) == pytest.approx(40.0, abs=1e-6) and elevation_deg(d) == pytest.approx(20.0, abs=1e-6)
+        assert (p.x, p.y, p.z) == pytest.approx((0.2, -0.1, 1.6), abs=1e-9)
+        assert g.header.frame_id == interface.IMMERSIVE_FRAME
+    h = bridge.head[-1].pose.orientation
+    yaw, pitch, roll = transforms3d.euler.quat2euler([h.w, h.x, h.y, h.z], 'rzyx')
+    assert math.degrees(yaw) == pytest.approx(-30.0, abs=1e-6)
+    assert math.degrees(pitch) == pytest.approx(0.0, abs=1e-6) and math.degrees(roll) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_head_pitched_down_is_positive_pitch(tmp_path, bridge_at):
+    poses = tmp_path / 'poses.jsonl'
+    poses.write_text(pose_line(-25.0, -10.0, unity_euler_quat(x_deg=15.0)) + '\n')   # Unity: x > 0 looks down
+    listen = free_port(socket.SOCK_DGRAM)
+    bridge = bridge_at(listen)
+    harness = Harness(tmp_path / 'harness.log', '--uplink', f'127.0.0.1:{bridge.port}', '--listen',
+                      f'127.0.0.1:{listen}', '--poses', str(poses), '--rate', '30', '--duration', '3',
+                      '--culture', 'de-DE', env=GERMAN)
+    harness.wait()
+    wait_until(lambda: bridge.head and bridge.gaze, 10.0, what='head_pose and gaze')
+    h = bridge.head[-1].pose.orientation
+    yaw, pitch, roll = transforms3d.euler.quat2euler([h.w, h.x, h.y, h.z], 'rzyx')
+    assert (math.degrees(yaw), math.degrees(pitch), math.degrees(roll)) == pytest.approx((0.0, 15.0, 0.0), abs=1e-6)
+    o = bridge.gaze[-1].pose.orientation
+    d = ray_direction([o.x, o.y, o.z, o.w])
+    assert (azimuth_deg(d), elevation_deg(d)) == pytest.approx((-25.0, -10.0), abs=1e-6)
+
+
+def test_an_app_restart_restarts_the_clock_estimate_and_it_synchronises_again(tmp_path, bridge_at):
+    listen = free_port(socket.SOCK_DGRAM)
+    bridge = bridge_at(listen)
+    # seq from 5000, then at frame 240 (4 s) the app restarts: seq 0, its clock 500 s back.
+    harness = Harness(tmp_path / 'harness.log', '--uplink', f'127.0.0.1:{bridge.port}', '--listen',
+                      f'127.0.0.1:{listen}', '--rate', '60', '--seq-start', '5000', '--restart-after', '240',
+                      '--duration', '9')
+    wait_until(lambda: bridge.values().get('clock_state') == 'synchronised', 8.0, what='synchronised before')
+    wait_until(lambda: bridge.values().get('sender_restarts') == '1', 15.0, what='the restart seen')
+    v = wait_until(lambda: (lambda v: v if v.get('clock_state') == 'synchronised' and int(v['clock_restarts']) >= 1
+                            and int(v['clock_exchanges']) >= 3 else None)(bridge.values()), 15.0,
+                   what='synchronised again after the restart')
+    harness.wait()
+    assert int(v['stamp_fallbacks']) <= 3, v   # at most the samples between the restart and its detection
+    # Capture stamps follow the frames in order through the restart (the new clock's origin
+    # never shows through as a jump back).
+    stamps = [stamp_s(g) for g in bridge.gaze]
+    assert all(b >= a - 0.05 for a, b in zip(stamps, stamps[1:])), 'capture stamps ran backwards'
+
+
+#: Frames of the clock runs carry their index in the gaze origin (Unity x = index * TAG_M), so a
+#: published gaze names the frame it was captured in.
+TAG_FRAMES, TAG_M = 2000, 1e-4
+
+
+def clock_run(tmp_path, bridge_at, up_s, down_s, jitter_s, drift_ppm, label):
+    """The harness behind a DelayProxy; the errors of the capture stamps against the proxy's
+    arrival times [ms], the bound the bridge reports [ms] and its last diagnostics values."""
+    poses = tmp_path / f'{label}_poses.jsonl'
+    poses.write_text('\n'.join(pose_line(0.0, 0.0, (0, 0, 0, 1), origin=(i * TAG_M, 1.6, 0.0))
+                               for i in range(TAG_FRAMES)) + '\n')
+    listen = free_port(socket.SOCK_DGRAM)
+    proxy = DelayProxy(up_s, down_s, jitter_s, seed=7)
+    try:
+        proxy.headset = ('127.0.0.1', listen)
+        b = bridge_at(proxy.down_port)          # pings go to the proxy, then to the harness
+        proxy.bridge = ('127.0.0.1', b.port)
+        harness = Harness(tmp_path / f'{label}.log', '--uplink', f'127.0.0.1:{proxy.up_port}', '--listen',
+                          f'127.0.0.1:{listen}', '--poses', str(poses), '--rate', '60', '--duration', '14',
+                          '--clock-drift-ppm', str(drift_ppm))
+        wait_until(lambda: b.values().get('clock_state') == 'synchronised'
+                   and int(b.values().get('clock_exchanges', 0)) >= 25, 12.0, what='25 clock exchanges')
+        start = len(b.gaze)
+        wait_until(lambda: len(b.gaze) - start >= 200, 10.0, what='200 gaze samples after synchronising')
+        values = b.values()
+        harness.wait()
+        by_tag: dict[int, list[float]] = {}
+        for seq, t in proxy.arrivals.items():
+            by_tag.setdefault(seq % TAG_FRAMES, []).append(t)
+        errors = []
+        for g in list(b.gaze)[start:]:
+            tag = round(-g.pose.position.y / TAG_M)     # REP 103 y = -Unity x
+            truth = min(by_tag[tag], key=lambda t: abs(t - stamp_s(g)))
+            errors.append((stamp_s(g) - truth) * 1e3)
+        return np.array(errors), float(values['clock_bound_ms']), values
+    finally:
+        proxy.close()
+
+
+def test_the_clock_estimate_stays_within_its_bound_under_injected_delay_and_jitter(tmp_path, bridge_at):
+    # 20 ms each way, +0..10 ms jitter each way, the headset's clock 100 ppm fast.
+    errors, bound_ms, values = clock_run(tmp_path, bridge_at, 0.020, 0.020, 0.010, 100.0, 'symmetric')
+    CLOCK_FIGURES.append(
+        f'20 ms +0..10 ms jitter each way, drift 100 ppm: error p50 {np.median(errors):+.2f} ms, p99 |e| '
+        f'{np.percentile(np.abs(errors), 99):.2f} ms, max |e| {np.abs(errors).max():.2f} ms; bound reported '
+        f'{bound_ms:.2f} ms; drift estimated {values["clock_drift_ppm"]} ppm')
+    # Loopback and scheduling between the harness's stamp and the proxy's receipt: 2 ms allowance.
+    assert np.abs(errors).max() <= bound_ms + 2.0, (errors.min(), errors.max(), bound_ms)
+    assert abs(float(values['clock_drift_ppm']) - 100.0) < 200.0, values
+    # The one-way delay the bridge reports includes the 20..30 ms injected on the way up.
+    assert 15.0 < float(values['delay_p50_ms']) < 60.0, values
+
+
+def test_an_asymmetric_path_shifts_the_estimate_by_half_the_difference(tmp_path, bridge_at):
+    # 30 ms up, 5 ms down, no jitter: the exchange cannot see the asymmetry and reads the
+    # offset 12.5 ms off, so the capture stamps come out 12.5 ms late (docs/headset_wire_format.md).
+    errors, bound_ms, _ = clock_run(tmp_path, bridge_at, 0.030, 0.005, 0.0, 0.0, 'asymmetric')
+    CLOCK_FIGURES.append(f'30 ms up, 5 ms down: error p50 {np.median(errors):+.2f} ms (expected +12.5), bound '
+                         f'{bound_ms:.2f} ms')
+    assert statistics.median(errors) == pytest.approx(12.5, abs=3.0)
+    assert np.abs(errors).max() <= bound_ms + 2.0
+
+
+# --- the display downlink -------------------------------------------------------------------
+
+def display_graph(tmp_path, listen, nodes, **display_params):
+    graph = Graph(tmp_path / 'display_logs')
+    for node, files, params in nodes:
+        graph.start(node, files, **params)
+    graph.start('headset_display', FILES, headset_address='127.0.0.1', display_port=listen, **display_params)
+    return graph
+
+
+def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path):
+    listen = free_port(socket.SOCK_DGRAM)
+    harness = Harness(tmp_path / 'harness.log', '--uplink', '127.0.0.1:9', '--listen', f'127.0.0.1:{listen}',
+                      '--frames', '0', '--duration', '40')
+    graph = display_graph(tmp_path, listen, [('target_selector', FILES, dict(autostart=False))],
+                          dummies=50, dummy_seed=3)
+    try:
+        with Probe(graph.domain_id) as probe:
+            gaze_pub = probe.node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+            probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
+            wait_until(lambda: any(m['event'] == 'next' for m in harness.messages('event')), 20.0,
+                       what='a next event at the headset')
+            active = [m for m in harness.messages('targets') if m['active']][-1]
+            # Look at the active target (from the fixed positions of guidance.yaml) until found.
+            params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']
+            names = params['ros__parameters']['target_names']
+            positions = params['ros__parameters']['target_positions']
+            target = np.array(positions[3 * names.index(active['active']):][:3])
+
+            def look():
+                msg = PoseStamped()
+                msg.header.frame_id = interface.IMMERSIVE_FRAME
+                d = target / np.linalg.norm(target)
+                yaw, pitch = math.atan2(d[1], d[0]), math.asin(d[2])
+                q = transforms3d.euler.euler2quat(yaw, -pitch, 0.0, 'rzyx')   # w, x, y, z
+                msg.pose.orientation.w, msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z = q
+                gaze_pub.publish(msg)
+                return any(m['event'] == 'found' for m in harness.messages('event'))
+            wait_until(look, 20.0, interval=0.05, what='a found event at the headset')
+        harness.proc.terminate()
+        harness.proc.communicate(timeout=10)
+    finally:
+        graph.stop_all()
+        harness.close()
+    targets = [m for m in harness.messages('targets') if m['active']][-1]
+    # Every fixed target at its Unity position: (x, y, z)_Unity = (-y, z, x)_ROS.
+    for t in targets['targets']:
+        i = names.index(t['id'])
+        x, y, z = positions[3 * i:3 * i + 3]
+        assert t['position'] == pytest.approx([-y, z, x], abs=1e-4) and t['role'] == 'target'
+    # 50 dummies in two parts of 25, at the active target's distance, within +-60 / +-30 deg.
+    dummies = [m for m in harness.messages('dummies') if m['set'] > 0]
+    last_set = dummies[-1]['set']
+    parts = {m['part']: m['positions'] for m in dummies if m['set'] == last_set}
+    assert sorted(parts) == [0, 1] and sum(len(p) for p in parts.values()) == 50
+    # (the set drawn for the target active last: auto_advance went on after the found one)
+    shown = next(t for t in targets['targets'] if t['id'] == targets['active'])
+    r = np.linalg.norm(shown['position'])
+    for p in parts[0] + parts[1]:
+        ros = np.array(display_wire.from_unity(p))
+        assert np.linalg.norm(ros) == pytest.approx(r, abs=1e-3)
+        assert abs(azimuth_deg(ros)) <= 60.0 + 1e-6 and abs(elevation_deg(ros)) <= 30.0 + 1e-6
+    # Each event sent three times, logged three times, one id.
+    found = [m for m in harness.messages('event') if m['event'] == 'found']
+    assert len({m['event_id'] for m in found}) == 1 and found[0]['target'] == active['active']
+
+
+def test_the_micromanipulator_objects_reach_the_headset_as_live_objects(tmp_path):
+    listen = free_port(socket.SOCK_DGRAM)
+    harness = Harness(tmp_path / 'harness.log', '--uplink', '127.0.0.1:9', '--listen', f'127.0.0.1:{listen}',
+                      '--frames', '0', '--duration', '40')
+    micro_files = ('params/guidance.yaml', 'params/micromanipulation.yaml')
+    graph = display_graph(tmp_path, listen, [('micromanipulator_sim', micro_files, {}),
+                                             ('target_selector', micro_files, {})])
+    try:
+        def live(m):
+            return [t for t in m['targets'] if t['role'] == 'live']
+        wait_until(lambda: any(len(live(m)) == 3 for m in harness.messages('targets')), 30.0,
+                   what='three live objects at the headset')
+        harness.proc.terminate()
+        harness.proc.communicate(timeout=10)
+    finally:
+        graph.stop_all()
+        harness.close()
+    params = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
+    selector, stack = params['target_selector']['ros__parameters'], params['micromanipulator_sim']['ros__parameters']
+    scale, offset = selector['live_scale'], np.array(selector['live_offset'])
+    drift = stack['drift_amplitude_m'] * scale
+    last = [m for m in harness.messages('targets') if len(live(m)) == 3][-1]
+    assert last['active'] == stack['object_names'][0]
+    for t in live(last):
+        i = stack['object_names'].index(t['id'])
+        expected = np.array(stack['object_positions'][3 * i:3 * i + 3]) * scale + offset
+        assert np.linalg.norm(np.array(display_wire.from_unity(t['position'])) - expected) <= drift + 1e-3
+
+
+def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path):
+    """The harness is the headset both ways: its still gaze goes through gaze_bridge to
+    pressure_controller, whose Algorithm 1 steps come back to it as prompts."""
+    listen = free_port(socket.SOCK_DGRAM)
+    gaze_port = free_port(socket.SOCK_DGRAM)
+    harness = Harness(tmp_path / 'harness.log', '--uplink', f'127.0.0.1:{gaze_port}', '--listen',
+                      f'127.0.0.1:{listen}', '--rate', '30', '--duration', '60')
+    graph = display_graph(tmp_path, listen, [
+        ('gaze_bridge', FILES, dict(port=gaze_port)),
+        ('pressure_controller', FILES, dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+                                            calibration_dir=str(tmp_path / 'cal'), calibration_steps=3,
+                                            calibration_dwell_s=0.4, calibration_rest_s=0.3,
+                                            calibration_window_s=0.1, wearer='still'))])
+    try:
+        with Probe(graph.domain_id) as probe:
+            wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
+                       interval=0.5, what='start_calibration accepted')
+
+            def prompts():
+                return [m for m in harness.messages('prompt')]
+            wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in prompts()), 30.0,
+                       what='the third step of the left direction at the headset')
+        harness.proc.terminate()
+        harness.proc.communicate(timeout=10)
+    finally:
+        graph.stop_all()
+        harness.close()
+    texts = [m['text'] for m in prompts()]
+    assert 'Face front and rest' in texts
+    steps = [m for m in prompts() if m['text'].startswith('Hold still: left')]
+    assert {(m['step'], m['steps']) for m in steps} >= {(1, 3), (2, 3), (3, 3)}

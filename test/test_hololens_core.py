@@ -1,0 +1,21 @@
+"""The headset library's C# core (hololens/): it builds with Debian's mcs and its own tests pass
+under mono. Its build output stays out of git."""
+import re
+import subprocess
+
+from headset_harness import HOLOLENS, build_harness
+from rosgraph import ROOT
+
+
+def test_the_csharp_core_builds_and_its_tests_pass():
+    build_harness()
+    done = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'test'], capture_output=True,
+                          text=True, timeout=300)
+    summary = re.search(r'^(\d+) passed, (\d+) failed$', done.stdout, re.M)
+    assert done.returncode == 0 and summary, done.stdout + done.stderr
+    assert int(summary.group(1)) >= 10 and summary.group(2) == '0', summary.group(0)
+
+
+def test_the_build_output_is_not_tracked():
+    ignored = subprocess.run(['git', 'check-ignore', '-q', 'hololens/build/HeadsetHarness.exe'], cwd=ROOT)
+    assert ignored.returncode == 0
