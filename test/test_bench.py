@@ -3,6 +3,7 @@ every level lands on its own register count, and a quick run end to end (every k
 there, numbers finite and consistent). No timing is asserted: the figures are read, not tested."""
 import json
 import math
+import shutil
 import subprocess
 import sys
 
@@ -68,6 +69,14 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     # The recorded event-driven session replays offline bit for bit.
     assert r['replay']['exact'] and r['replay']['compared'] > 0
     assert r['machine']['cores'] >= 1 and r['machine']['python'] and r['machine']['rclpy']
+    # The compiled C# headset's capture-to-register figure, where mono is installed.
+    cs = r['capture_to_register_ms']
+    if shutil.which('mono') and shutil.which('mcs'):
+        assert cs.get('applied', 0) > 0, cs
+        assert 0 < cs['p50'] <= cs['p99'] <= cs['max'] < 1000 and finite(cs['clock_bound_ms'])
+    else:
+        assert 'mcs' in cs['skipped'] or 'mono' in cs['skipped']
     table = out.with_suffix('.md').read_text()
+    assert 'capture to register, C# headset' in table
     assert '| figure | value | goal | met |' in table and 'gaze to register, 90 Hz' in table
     assert 'gaze to register, 90 Hz' in run.stdout

@@ -34,11 +34,12 @@ class Plan:
     replay_s: float = 5.0
     headless_repetitions: int | None = None
     blocks: int = 4
+    csharp_90: int = 1000
 
 
 FULL = Plan()
 QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
-             fits=30, replay_s=1.5, headless_repetitions=1, blocks=2)
+             fits=30, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60)
 
 #: Goals of the issue, read off the figures (never asserted).
 GOALS = {
@@ -126,6 +127,13 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     else:
         say(f"  offline replay: {replay['session_s']:.1f} s session, {replay['steps']} steps, "
             f"{'exact' if replay['exact'] else 'NOT exact'}, {replay['speedup']:.0f}x real time")
+    say(f'the compiled C# headset (hololens/) as the source: {plan.csharp_90} frames at 90 Hz, capture to '
+        "register on its own clock, mapped by the bridge's estimate ...")
+    from .headset import capture_to_register
+    csharp = capture_to_register(work / 'csharp', say, 90.0, plan.csharp_90, plan.warmup_s)
+    results['capture_to_register_ms'] = csharp
+    say('  ' + (f"skipped: {csharp['skipped']}" if 'skipped' in csharp else
+                _line(csharp) + f"; clock bound {csharp['clock_bound_ms']:.2f} ms"))
     package_p99, floor_p99 = results['e2e_latency_ms']['90']['p99'], results['floor_latency_ms']['p99']
     results['ratio_p99'] = (package_p99 / floor_p99) if package_p99 is not None and floor_p99 else None
     results['wall_s'] = time.monotonic() - t_all
@@ -174,6 +182,11 @@ def markdown(r: dict) -> str:
         rows.append(('floor, 1000 Hz: p50 / p99 / max [ms]',
                      f"{_fmt(fl1000['p50'])} / {_fmt(fl1000['p99'])} / {_fmt(fl1000['max'])} "
                      f"({fl1000['applied']} / {fl1000['sent']})", '', ''))
+    cs = r.get('capture_to_register_ms', {'skipped': 'not measured'})
+    rows.append(('capture to register, C# headset, 90 Hz: p50 / p99 / max [ms]',
+                 f"skipped: {cs['skipped']}" if 'skipped' in cs else
+                 f"{_fmt(cs['p50'])} / {_fmt(cs['p99'])} / {_fmt(cs['max'])} ({cs['applied']} / {cs['sent']}; "
+                 f"clock bound {_fmt(cs['clock_bound_ms'])})", '', ''))
     c, g, f = r['controller_step_us'], r['gaze_parse_us'], r['fit_ms']
     rows += [
         ('controller step p50 / p99 [us]', f"{_fmt(c['p50'], 1)} / {_fmt(c['p99'], 1)}", 'p50 < 50',

@@ -28,7 +28,7 @@ static class HeadsetHarness
   --clock-offset S        headset clock = seconds since start + S (default 1000)
   --clock-drift-ppm P     the headset clock runs at 1 + P * 1e-6 (default 0)
   --culture NAME          the thread's culture (e.g. de-DE): the wire must not depend on it
-  --log FILE              JSON lines of what was sent, skipped, received and dropped";
+  --log FILE              JSON lines of what was sent (with its stamp), skipped, received and dropped";
 
     static int Main(string[] args)
     {
@@ -99,7 +99,8 @@ static class HeadsetHarness
                     link.Restart(new StopwatchClock(offset / 2.0, drift));   // a new app: seq 0, another clock origin
                 uint seq = link.NextSeq;
                 if (link.SendGaze(poses[(int)(frame % poses.Count)]))
-                    write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"sent\":" + seq.ToString(inv) + "}");
+                    write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"sent\":" + seq.ToString(inv) +
+                          ",\"stamp\":" + Json.Number(link.LastStamp) + "}");
                 else
                     write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"skipped\":\"nan\"}");
                 frame++;

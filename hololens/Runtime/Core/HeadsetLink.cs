@@ -45,6 +45,8 @@ namespace FabricGuidance.Headset
 
         public IPEndPoint ListenEndPoint { get { return (IPEndPoint)down.Client.LocalEndPoint; } }
         public uint NextSeq { get { return seq; } }
+        /// <summary>The stamp of the last gaze frame sent (the headset clock at capture).</summary>
+        public double LastStamp { get; private set; }
 
         public void Start()
         {
@@ -55,8 +57,10 @@ namespace FabricGuidance.Headset
         /// <summary>Send one gaze frame stamped now; false (and counted) when it holds NaN or infinity.</summary>
         public bool SendGaze(GazeFrame frame)
         {
-            byte[] data = GazeWire.Encode(seq, Clock.Now(), frame);
+            double stamp = Clock.Now();
+            byte[] data = GazeWire.Encode(seq, stamp, frame);
             if (data == null) { Skipped++; return false; }
+            LastStamp = stamp;
             lock (sendLock) up.Send(data, data.Length, uplink);
             seq++;   // uint: wraps to 0 after 4294967295, as the format says
             Sent++;
