@@ -258,6 +258,18 @@ class FeedbackLaw:
         return self.pressure
 
 
+def step_directions(directions: Sequence[FeedbackLaw], h_target: float, v_target: float, h: float,
+                    v: float, t: float) -> tuple[float, float, float, float]:
+    """Eq. 5 in each direction (left, right, down, up) from the signed horizontal and vertical
+    angles of the target and of the gaze (geometry.split_directions: h, -h, -v, v). Every
+    direction is stepped, also one whose theta_t <= 0: its step() resets it and commands 0
+    (Eq. 5's third case), so when theta_t turns positive again it starts afresh from
+    f(theta_t). The one place the node's controller and the simulator split Eq. 5."""
+    left, right, down, up = directions
+    return (left.step(h_target, h, t), right.step(-h_target, -h, t), down.step(-v_target, -v, t),
+            up.step(v_target, v, t))
+
+
 class GuidanceController:
     """Eq. 5 in all four directions for one target, from gaze directions (REP 103).
 
@@ -328,11 +340,8 @@ class GuidanceController:
         at = angles_between(self.initial_gaze, target)
         a = angles_between(self.initial_gaze, gaze)
         _finite(t, 'time')
-        # split_directions written out: (left, right, down, up) = (h, -h, -v, v).
-        ht, vt, h, v = at.horizontal, at.vertical, a.horizontal, a.vertical
-        left, right, down, up = self.directions
-        out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t),
-                        up.step(vt, v, t)])
+        out = np.array(step_directions(self.directions, at.horizontal, at.vertical, a.horizontal,
+                                       a.vertical, t))
         if self.stall.timeout_s is not None:
             # The full gaze-to-target angle (atan2 form), in scalar math: this runs every step.
             ax, ay, az = (float(c) for c in gaze)
