@@ -18,7 +18,8 @@ from .feedback import GuidanceController
 from .geometry import target_direction
 from .power_law import PowerLaw
 
-__all__ = ['ControllerSetup', 'StepInput', 'build_controller', 'controller_gain', 'guidance_step', 'safe_command', 'why_not_guide']
+__all__ = ['ControllerSetup', 'StepInput', 'build_controller', 'controller_gain', 'guidance_step', 'safe_command',
+           'why_not_guide']
 
 
 @dataclass

@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, field, fields, replace
 import math
-import multiprocessing
 import os
 from pathlib import Path
 import sys
@@ -52,6 +51,7 @@ from ..sim.engine import package_channel_map
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene, load_scene
+from ..workers import WorkerPool
 from .fit_wearer import FREE
 from .report import image_path, md_table
 from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, as_protocol, calibration_key
@@ -313,23 +313,6 @@ def headlines(per_wearer: dict[int, dict]) -> dict[str, float]:
             'c4_error_deg': m('error_4')}
 
 
-class _Pool:
-    def __init__(self, workers: int, jobs_per_map: int):
-        self.pool = None
-        if workers > 1 and jobs_per_map > 1:
-            methods = multiprocessing.get_all_start_methods()
-            ctx = multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
-            self.pool = ctx.Pool(min(workers, jobs_per_map))
-
-    def map(self, fn, jobs):
-        return [fn(j) for j in jobs] if self.pool is None else self.pool.map(fn, jobs, chunksize=1)
-
-    def close(self):
-        if self.pool is not None:
-            self.pool.close()
-            self.pool.join()
-
-
 @dataclass
 class Run:
     parameter: str          # '' for a baseline
@@ -433,7 +416,7 @@ def run_sensitivity(settings: Settings,
                 plan.append((p.key, side, v, spd.seed, apply(spd, 'speed', p, v),
                              apply(acc, 'accuracy', p, v)))
     start = time.perf_counter()
-    pool = _Pool(settings.workers, settings.subjects)
+    pool = WorkerPool(settings.workers, settings.subjects)
     baselines, runs = [], []
     try:
         for i, (key, side, v, seed, s_scene, a_scene) in enumerate(plan, start=1):

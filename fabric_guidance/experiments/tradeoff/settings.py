@@ -3,8 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 import math
+from typing import Callable
 
-from ...core.feedback import RATE_THRESHOLD_DPS
+from ...core.controller_parameters import default
 from ...sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
 
 
@@ -13,45 +14,73 @@ from ...sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
 DEFAULT_SPEED_SCENE = 'paper-fitted-speed'
 DEFAULT_ACCURACY_SCENE = 'paper-fitted-accuracy'
 
-KNOBS = ('acceptance_tolerance', 'gain', 'calibration_points', 'control_rate', 'rate_threshold',
-         'fit_tolerance')
 #: The paper's conditions drawn on the plane, at the package defaults.
 PLANE_CONDITIONS = (1, 2, 3, 4)
 CONDITION_LABELS = {1: '1 suit, adjusted', 2: '2 suit, fixed', 3: '3 arm band, adjusted',
                     4: '4 speech'}
 
-DEFAULT_GRIDS = {
-    'acceptance_tolerance': (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0),
-    'gain': (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5),
-    'calibration_points': (3, 4, 5, 6, 8, 10, 12, 15, 20),
-    'control_rate': (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
-    'rate_threshold': (3.0, 7.0, RATE_THRESHOLD_DPS, 30.0, 60.0, 120.0),
-    'fit_tolerance': (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12),
-}
-QUICK_GRIDS = {
-    'acceptance_tolerance': (2.0, 5.0, 10.0),
-    'gain': (0.0, 0.05, 0.5),
-    'calibration_points': (3, 10, 20),
-    'control_rate': (5.0, 30.0, 60.0),
-    'rate_threshold': (3.0, RATE_THRESHOLD_DPS, 60.0),
-    'fit_tolerance': (1e-2, 1e-6, 1e-10),
-}
-#: The value the package runs with, and where it comes from.
-REFERENCE = {'acceptance_tolerance': (5.0, 'the paper'), 'gain': (0.05, 'the paper'),
-             'calibration_points': (10, 'the paper'), 'control_rate': (30.0, 'node default'),
-             'rate_threshold': (RATE_THRESHOLD_DPS, 'core default'),
-             'fit_tolerance': (1e-10, 'core default'),
-             # not a knob: the plane's conditions have no package value to mark
-             'condition': (math.nan, '')}
-KNOB_TITLES = {'acceptance_tolerance': 'acceptance tolerance (deg)', 'gain': 'adjustment gain G (Eq. 5)',
-               'calibration_points': 'calibration points per direction (Algorithm 1)',
-               'control_rate': 'control rate (Hz)',
-               'rate_threshold': 'rate threshold of the feedback law (deg/s)',
-               'fit_tolerance': 'fit tolerance (LM xtol = ftol)',
-               'condition': 'the paper\'s condition'}
-KNOB_SYMBOLS = {'acceptance_tolerance': 'tolerance', 'gain': 'G', 'calibration_points': 'points',
-                'control_rate': 'rate', 'rate_threshold': 'threshold', 'fit_tolerance': 'tol',
-                'condition': 'condition'}
+
+def _controller(name: str, kind=float):
+    """A knob that is a controller parameter (core/controller_parameters.py) of the scene."""
+    return lambda scene, v: scene.replace(controller=replace(scene.controller, **{name: kind(v)}))
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One knob of the sweep: what it changes, its unit, the values it runs, the package's value."""
+    name: str
+    title: str
+    symbol: str
+    unit: str
+    grid: tuple
+    quick_grid: tuple
+    reference: float
+    source: str
+    #: The values it can take (checked before a sweep runs); `acc` is the accuracy scene.
+    valid: Callable[[float, Scene], bool]
+    #: The scene with the knob at a value; None: the knob is not a scene setting (fit_tolerance).
+    vary: Callable[[Scene, float], Scene] | None = None
+
+
+def _steps(scene: Scene, v) -> Scene:
+    return scene.replace(calibration=replace(scene.calibration, steps=int(v)))
+
+
+def _acceptance(scene: Scene, v) -> Scene:
+    return scene.replace(protocol=replace(scene.protocol, acceptance_deg=float(v)))
+
+
+_THRESHOLD = default('rate_threshold_dps')
+#: Every knob, in the sweep's order: the one table the settings, the sweep, the report, the
+#: plots and the reading take their facts from.
+KNOB_TABLE: tuple[Knob, ...] = (
+    Knob('acceptance_tolerance', 'acceptance tolerance (deg)', 'tolerance', 'deg',
+         (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0), (2.0, 5.0, 10.0), 5.0, 'the paper',
+         lambda v, acc: 0 < v <= 180, _acceptance),
+    Knob('gain', 'adjustment gain G (Eq. 5)', 'G', '-', (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 0.05, 0.5),
+         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, _controller('gain')),
+    Knob('calibration_points', 'calibration points per direction (Algorithm 1)', 'points', '-',
+         (3, 4, 5, 6, 8, 10, 12, 15, 20), (3, 10, 20), default('calibration_steps'), 'the paper',
+         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, _steps),
+    Knob('control_rate', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
+         (5.0, 30.0, 60.0), default('control_rate_hz'), 'node default',
+         lambda v, acc: 0 < v <= acc.sim_rate_hz, _controller('control_rate_hz')),
+    Knob('rate_threshold', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
+         (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
+         lambda v, acc: 0 < v <= 1000, _controller('rate_threshold_dps')),
+    Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
+         (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12), (1e-2, 1e-6, 1e-10), 1e-10, 'core default',
+         lambda v, acc: 1e-15 < v < 1),
+)
+KNOB: dict[str, Knob] = {k.name: k for k in KNOB_TABLE}
+
+KNOBS = tuple(KNOB)
+DEFAULT_GRIDS = {k.name: k.grid for k in KNOB_TABLE}
+QUICK_GRIDS = {k.name: k.quick_grid for k in KNOB_TABLE}
+#: The value the package runs with, and where it comes from (the plane's conditions have none).
+REFERENCE = {**{k.name: (k.reference, k.source) for k in KNOB_TABLE}, 'condition': (math.nan, '')}
+KNOB_TITLES = {**{k.name: k.title for k in KNOB_TABLE}, 'condition': "the paper's condition"}
+KNOB_SYMBOLS = {**{k.name: k.symbol for k in KNOB_TABLE}, 'condition': 'condition'}
 METRICS = {
     'guidance_error_deg': ('guidance error (deg, accuracy protocol)', 'deg'),
     'error_at_count_deg': ('gaze error when a target counts (deg, speed protocol)', 'deg'),
@@ -131,17 +160,11 @@ def check_settings(settings: Settings, acc: Scene) -> None:
         if not (isinstance(n, int) and n >= 1):
             raise ValueError(f'{name} must be a whole number >= 1, got {n!r}')
     g = settings.grids
-    checks = {
-        'acceptance_tolerance': lambda v: 0 < v <= 180, 'gain': lambda v: 0 <= v <= 10,
-        'calibration_points': lambda v: float(v).is_integer() and 3 <= v <= 50,
-        'control_rate': lambda v: 0 < v <= acc.sim_rate_hz, 'fit_tolerance': lambda v: 1e-15 < v < 1,
-        'rate_threshold': lambda v: 0 < v <= 1000,
-    }
     for k in settings.knobs:
         values = g.get(k, ())
         if not values:
             raise ValueError(f'knob {k}: empty grid')
-        bad = [v for v in values if not (isinstance(v, (int, float)) and math.isfinite(v) and checks[k](v))]
+        bad = [v for v in values if not (isinstance(v, (int, float)) and math.isfinite(v) and KNOB[k].valid(v, acc))]
         if bad:
             extra = f' (the control rate cannot exceed the scene\'s sim_rate_hz {acc.sim_rate_hz:g})' \
                 if k == 'control_rate' else ''

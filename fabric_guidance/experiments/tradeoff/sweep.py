@@ -1,7 +1,7 @@
 """The sweep: every knob value of the settings run on the same wearers, as rows."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import math
 import time
 from typing import Callable
@@ -15,7 +15,7 @@ from ...sim.scene import Scene
 from .rows import (Row, _join, accuracy_rows, calibration_rows, fit_tolerance_rows, plane_row,
                    speed_row)
 from .runs import _Runner
-from .settings import (CONDITION_LABELS, CSV_COLUMNS, KNOB_SYMBOLS, METRICS, PLANE_CONDITIONS,
+from .settings import (CONDITION_LABELS, CSV_COLUMNS, KNOB, KNOB_SYMBOLS, METRICS, PLANE_CONDITIONS,
                        Settings, base_scenes, check_settings)
 
 
@@ -135,43 +135,30 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 v_start = time.perf_counter()
                 new: list[Row] = []
                 a_samples = s_samples = None
+                # The knob table (settings.KNOB_TABLE) says what the value changes in a scene;
+                # what each knob measures (its rows) is said here.
+                acc_v, spd_v = KNOB[knob].vary(acc, value), KNOB[knob].vary(spd, value)
                 if knob == 'acceptance_tolerance':
-                    scene = spd.replace(protocol=replace(spd.protocol, acceptance_deg=float(value)))
-                    row = speed_row(knob, value, *runner.trials(scene, 'speed'))
+                    row = speed_row(knob, value, *runner.trials(spd_v, 'speed'))
                     # The accuracy protocol has no tolerance: on the plane, the error when a
                     # target counts stands in for the guidance error.
                     row.plane = settings.plane
                     new.append(row)
                 elif knob in ('gain', 'rate_threshold'):
-                    field_name = 'gain' if knob == 'gain' else 'rate_threshold_dps'
-                    for base, kind in ((acc, 'accuracy'), (spd, 'speed')):
-                        scene = base.replace(controller=replace(base.controller,
-                                                                **{field_name: float(value)}))
-                        samples, cals = runner.trials(scene, kind)
-                        if kind == 'accuracy':
-                            a_samples = samples
-                            new.append(accuracy_rows(knob, value, samples, cals, timeout))
-                        else:
-                            s_samples = samples
-                            new.append(speed_row(knob, value, samples, cals))
+                    a_samples, cals = runner.trials(acc_v, 'accuracy')
+                    new.append(accuracy_rows(knob, value, a_samples, cals, timeout))
+                    s_samples, cals = runner.trials(spd_v, 'speed')
+                    new.append(speed_row(knob, value, s_samples, cals))
                 elif knob == 'calibration_points':
-                    scene = acc.replace(calibration=replace(acc.calibration, steps=int(value)))
-                    a_samples, cals = runner.trials(scene, 'accuracy')
+                    a_samples, cals = runner.trials(acc_v, 'accuracy')
                     new += calibration_rows(int(value), a_samples, cals, timeout)
-                    if settings.plane:
-                        s_samples, _ = runner.trials(
-                            spd.replace(calibration=replace(spd.calibration, steps=int(value))),
-                            'speed')
                 elif knob == 'control_rate':
-                    scene = acc.replace(controller=replace(acc.controller, control_rate_hz=float(value)))
-                    a_samples, cals = runner.trials(scene, 'accuracy')
+                    a_samples, cals = runner.trials(acc_v, 'accuracy')
                     row = accuracy_rows(knob, value, a_samples, cals, timeout)
-                    row.note = _join(f'G x rate = {scene.controller.gain * float(value):.3g} per s', row.note)
+                    row.note = _join(f'G x rate = {acc_v.controller.gain * float(value):.3g} per s', row.note)
                     new.append(row)
-                    if settings.plane:
-                        s_samples, _ = runner.trials(
-                            spd.replace(controller=replace(spd.controller,
-                                                           control_rate_hz=float(value))), 'speed')
+                if settings.plane and s_samples is None and knob != 'acceptance_tolerance':
+                    s_samples, _ = runner.trials(spd_v, 'speed')
                 if settings.plane and a_samples is not None and s_samples is not None:
                     cost = ''
                     if knob == 'calibration_points':
