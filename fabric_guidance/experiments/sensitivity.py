@@ -50,11 +50,12 @@ from ..sim.effects import REGISTRY
 from ..sim.engine import package_channel_map
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
-from ..sim.scene import Scene, load_scene
+from ..sim.scene import Scene
 from ..workers import WorkerPool
 from .fit_wearer import FREE
 from .report import image_path, md_table
-from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, as_protocol, calibration_key
+from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key
+from .tradeoff.settings import paired_scenes
 
 PROG = 'fabric-guidance sensitivity'
 HELP = 'vary every assumed human parameter low and high: how much each moves the headline figures'
@@ -132,18 +133,8 @@ def check_settings(s: Settings) -> None:
 def load_scenes(s: Settings) -> tuple[Scene, Scene]:
     """(speed scene, accuracy scene) on the same wearers: the accuracy scene takes the speed
     scene's seed and population (as the trade-off's plane)."""
-    spd = as_protocol(load_scene(s.speed_scene), 'speed')
-    acc = as_protocol(load_scene(s.accuracy_scene), 'accuracy')
-    acc = acc.replace(seed=spd.seed, population=spd.population)
-    spd = spd.replace(conditions=SPEED_CONDITIONS, repetitions=s.speed_repetitions)
-    acc = acc.replace(conditions=ACCURACY_CONDITIONS, repetitions=s.repetitions)
-    if s.trial_s is not None:
-        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(s.trial_s)))
-    if not 1 <= s.subjects <= spd.population.subjects:
-        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} '
-                         f'(scene {spd.name}), '
-                         f'got {s.subjects}')
-    return spd, acc
+    return paired_scenes(s.speed_scene, s.accuracy_scene, SPEED_CONDITIONS, ACCURACY_CONDITIONS,
+                         s.speed_repetitions, s.repetitions, s.trial_s, s.subjects)
 
 
 @dataclass(frozen=True)

@@ -38,8 +38,17 @@ class Knob:
     source: str
     #: The values it can take (checked before a sweep runs); `acc` is the accuracy scene.
     valid: Callable[[float, Scene], bool]
+    #: What the sweep measures at each value: SPEED (the speed protocol only), BOTH protocols,
+    #: ACCURACY (the accuracy protocol), CALIBRATION (Algorithm 1's cost and the accuracy it
+    #: buys) or FIT (the fit alone, on the accuracy scene's calibrations).
+    measures: str
     #: The scene with the knob at a value; None: the knob is not a scene setting (fit_tolerance).
     vary: Callable[[Scene, float], Scene] | None = None
+    #: A note for the accuracy row (scene at the value, value), or None.
+    note: Callable[[Scene, float], str] | None = None
+
+
+SPEED, BOTH, ACCURACY, CALIBRATION, FIT = 'speed', 'both', 'accuracy', 'calibration', 'fit'
 
 
 def _steps(scene: Scene, v) -> Scene:
@@ -56,21 +65,22 @@ _THRESHOLD = default('rate_threshold_dps')
 KNOB_TABLE: tuple[Knob, ...] = (
     Knob('acceptance_tolerance', 'acceptance tolerance (deg)', 'tolerance', 'deg',
          (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0), (2.0, 5.0, 10.0), 5.0, 'the paper',
-         lambda v, acc: 0 < v <= 180, _acceptance),
+         lambda v, acc: 0 < v <= 180, SPEED, _acceptance),
     Knob('gain', 'adjustment gain G (Eq. 5)', 'G', '-', (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 0.05, 0.5),
-         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, _controller('gain')),
+         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, BOTH, _controller('gain')),
     Knob('calibration_points', 'calibration points per direction (Algorithm 1)', 'points', '-',
          (3, 4, 5, 6, 8, 10, 12, 15, 20), (3, 10, 20), default('calibration_steps'), 'the paper',
-         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, _steps),
+         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, CALIBRATION, _steps),
     Knob('control_rate', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
          (5.0, 30.0, 60.0), default('control_rate_hz'), 'node default',
-         lambda v, acc: 0 < v <= acc.sim_rate_hz, _controller('control_rate_hz')),
+         lambda v, acc: 0 < v <= acc.sim_rate_hz, ACCURACY, _controller('control_rate_hz'),
+         lambda scene, v: f'G x rate = {scene.controller.gain * float(v):.3g} per s'),
     Knob('rate_threshold', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
          (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
-         lambda v, acc: 0 < v <= 1000, _controller('rate_threshold_dps')),
+         lambda v, acc: 0 < v <= 1000, BOTH, _controller('rate_threshold_dps')),
     Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
          (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12), (1e-2, 1e-6, 1e-10), 1e-10, 'core default',
-         lambda v, acc: 1e-15 < v < 1),
+         lambda v, acc: 1e-15 < v < 1, FIT),
 )
 KNOB: dict[str, Knob] = {k.name: k for k in KNOB_TABLE}
 
@@ -130,22 +140,33 @@ def as_protocol(scene: Scene, kind: str) -> Scene:
                          repetitions=scene.repetitions)
 
 
-def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
-    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
-    acc = as_protocol(load_scene(settings.accuracy_scene), 'accuracy')
-    spd = as_protocol(load_scene(settings.speed_scene), 'speed')
+def paired_scenes(speed_scene: str, accuracy_scene: str, speed_conditions, accuracy_conditions,
+                  speed_repetitions: int, repetitions: int, trial_s: float | None,
+                  subjects: int) -> tuple[Scene, Scene]:
+    """(speed scene, accuracy scene) of the sweep and of the sensitivity analysis: each with its
+    protocol, conditions and repetitions, on the same wearers; trial_s: the speed trials' length
+    (None: the scene's)."""
+    spd = as_protocol(load_scene(speed_scene), 'speed')
+    acc = as_protocol(load_scene(accuracy_scene), 'accuracy')
     # The plane puts one protocol's time against the other's error: both run on the same
     # wearers (the speed scene's seed and population; common random numbers), which also lets
     # the two share every calibration when the scenes list the same effects.
     acc = acc.replace(seed=spd.seed, population=spd.population)
-    acc = acc.replace(conditions=(settings.condition,), repetitions=settings.repetitions)
-    spd = spd.replace(conditions=(settings.condition,), repetitions=settings.speed_repetitions)
-    if settings.trial_s is not None:
-        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(settings.trial_s)))
-    for s in (acc, spd):
-        if not 1 <= settings.subjects <= s.population.subjects:
-            raise ValueError(f'--subjects must be within 1..{s.population.subjects} (scene {s.name}), '
-                             f'got {settings.subjects}')
+    acc = acc.replace(conditions=tuple(accuracy_conditions), repetitions=repetitions)
+    spd = spd.replace(conditions=tuple(speed_conditions), repetitions=speed_repetitions)
+    if trial_s is not None:
+        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(trial_s)))
+    if not 1 <= subjects <= spd.population.subjects:
+        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} (scene {spd.name}), '
+                         f'got {subjects}')
+    return spd, acc
+
+
+def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
+    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
+    spd, acc = paired_scenes(settings.speed_scene, settings.accuracy_scene, (settings.condition,),
+                             (settings.condition,), settings.speed_repetitions, settings.repetitions,
+                             settings.trial_s, settings.subjects)
     return acc, spd
 
 

@@ -15,8 +15,8 @@ from ...sim.scene import Scene
 from .rows import (Row, _join, accuracy_rows, calibration_rows, fit_tolerance_rows, plane_row,
                    speed_row)
 from .runs import _Runner
-from .settings import (CONDITION_LABELS, CSV_COLUMNS, KNOB, KNOB_SYMBOLS, METRICS, PLANE_CONDITIONS,
-                       Settings, base_scenes, check_settings)
+from .settings import (BOTH, CALIBRATION, CONDITION_LABELS, CSV_COLUMNS, FIT, KNOB, KNOB_SYMBOLS, METRICS,
+                       PLANE_CONDITIONS, SPEED, Settings, base_scenes, check_settings)
 
 
 def _fmt(x: float) -> str:
@@ -109,7 +109,7 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
         for knob in settings.knobs:
             k_start = time.perf_counter()
             grid = list(settings.grids[knob])
-            if knob == 'fit_tolerance':
+            if KNOB[knob].measures == FIT:
                 v_start = time.perf_counter()
                 cals = runner.calibrate(acc)
                 new = fit_tolerance_rows(grid, cals, acc, settings.fit_repeats)
@@ -135,33 +135,33 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 v_start = time.perf_counter()
                 new: list[Row] = []
                 a_samples = s_samples = None
-                # The knob table (settings.KNOB_TABLE) says what the value changes in a scene;
-                # what each knob measures (its rows) is said here.
-                acc_v, spd_v = KNOB[knob].vary(acc, value), KNOB[knob].vary(spd, value)
-                if knob == 'acceptance_tolerance':
-                    row = speed_row(knob, value, *runner.trials(spd_v, 'speed'))
+                # The knob table (settings.KNOB_TABLE) says what the value changes in a scene
+                # and what is measured at it.
+                spec = KNOB[knob]
+                if spec.measures == SPEED:     # a speed-protocol setting only
+                    row = speed_row(knob, value, *runner.trials(spec.vary(spd, value), 'speed'))
                     # The accuracy protocol has no tolerance: on the plane, the error when a
                     # target counts stands in for the guidance error.
                     row.plane = settings.plane
                     new.append(row)
-                elif knob in ('gain', 'rate_threshold'):
-                    a_samples, cals = runner.trials(acc_v, 'accuracy')
-                    new.append(accuracy_rows(knob, value, a_samples, cals, timeout))
-                    s_samples, cals = runner.trials(spd_v, 'speed')
-                    new.append(speed_row(knob, value, s_samples, cals))
-                elif knob == 'calibration_points':
-                    a_samples, cals = runner.trials(acc_v, 'accuracy')
-                    new += calibration_rows(int(value), a_samples, cals, timeout)
-                elif knob == 'control_rate':
-                    a_samples, cals = runner.trials(acc_v, 'accuracy')
-                    row = accuracy_rows(knob, value, a_samples, cals, timeout)
-                    row.note = _join(f'G x rate = {acc_v.controller.gain * float(value):.3g} per s', row.note)
-                    new.append(row)
-                if settings.plane and s_samples is None and knob != 'acceptance_tolerance':
-                    s_samples, _ = runner.trials(spd_v, 'speed')
+                else:
+                    scene = spec.vary(acc, value)
+                    a_samples, cals = runner.trials(scene, 'accuracy')
+                    if spec.measures == CALIBRATION:
+                        new += calibration_rows(int(value), a_samples, cals, timeout)
+                    else:
+                        row = accuracy_rows(knob, value, a_samples, cals, timeout)
+                        if spec.note is not None:
+                            row.note = _join(spec.note(scene, value), row.note)
+                        new.append(row)
+                    if spec.measures == BOTH or settings.plane:
+                        s_samples, s_cals = runner.trials(spec.vary(spd, value), 'speed')
+                        if spec.measures == BOTH:
+                            new.append(speed_row(knob, value, s_samples, s_cals))
+                            cals = s_cals
                 if settings.plane and a_samples is not None and s_samples is not None:
                     cost = ''
-                    if knob == 'calibration_points':
+                    if spec.measures == CALIBRATION:
                         cost = f'{_fmt(new[0].stats("time")["mean"])} s calibration'
                     new.append(plane_row(knob, value, a_samples, s_samples, cals, cost, timeout))
                 rows += new
