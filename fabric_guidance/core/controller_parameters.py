@@ -142,7 +142,7 @@ def renamed(values: Mapping[str, Any], where: str,
         if new in out:
             raise ValueError(f'{where}: both "{old}" and its new name "{new}" are set; keep "{new}"')
         text = f'{where}: parameter "{old}" is deprecated, read as "{new}"; rename it'
-        (warn or (lambda m: warnings.warn(m, DeprecationWarning, stacklevel=3)))(text)
+        (warn or (lambda m: warnings.warn(m, FutureWarning, stacklevel=3)))(text)
         out[new] = out.pop(old)
     return out
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 import math
 from typing import Callable
+import warnings
 
 from ...core.controller_parameters import default
 from ...sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
@@ -63,19 +64,19 @@ _THRESHOLD = default('rate_threshold_dps')
 #: Every knob, in the sweep's order: the one table the settings, the sweep, the report, the
 #: plots and the reading take their facts from.
 KNOB_TABLE: tuple[Knob, ...] = (
-    Knob('acceptance_tolerance', 'acceptance tolerance (deg)', 'tolerance', 'deg',
+    Knob('acceptance_deg', 'acceptance tolerance (deg)', 'tolerance', 'deg',
          (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0), (2.0, 5.0, 10.0), 5.0, 'the paper',
          lambda v, acc: 0 < v <= 180, SPEED, _acceptance),
     Knob('gain', 'adjustment gain G (Eq. 5)', 'G', '-', (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 0.05, 0.5),
          default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, BOTH, _controller('gain')),
-    Knob('calibration_points', 'calibration points per direction (Algorithm 1)', 'points', '-',
+    Knob('calibration_steps', 'calibration points per direction (Algorithm 1)', 'points', '-',
          (3, 4, 5, 6, 8, 10, 12, 15, 20), (3, 10, 20), default('calibration_steps'), 'the paper',
          lambda v, acc: float(v).is_integer() and 3 <= v <= 50, CALIBRATION, _steps),
-    Knob('control_rate', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
+    Knob('control_rate_hz', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
          (5.0, 30.0, 60.0), default('control_rate_hz'), 'node default',
          lambda v, acc: 0 < v <= acc.sim_rate_hz, ACCURACY, _controller('control_rate_hz'),
          lambda scene, v: f'G x rate = {scene.controller.gain * float(v):.3g} per s'),
-    Knob('rate_threshold', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
+    Knob('rate_threshold_dps', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
          (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
          lambda v, acc: 0 < v <= 1000, BOTH, _controller('rate_threshold_dps')),
     Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
@@ -85,6 +86,9 @@ KNOB_TABLE: tuple[Knob, ...] = (
 KNOB: dict[str, Knob] = {k.name: k for k in KNOB_TABLE}
 
 KNOBS = tuple(KNOB)
+#: Knob names before they were the parameters' own: still read, with one warning.
+OLD_KNOB_NAMES = {'acceptance_tolerance': 'acceptance_deg', 'calibration_points': 'calibration_steps',
+                  'control_rate': 'control_rate_hz', 'rate_threshold': 'rate_threshold_dps'}
 DEFAULT_GRIDS = {k.name: k.grid for k in KNOB_TABLE}
 QUICK_GRIDS = {k.name: k.quick_grid for k in KNOB_TABLE}
 #: The value the package runs with, and where it comes from (the plane's conditions have none).
@@ -122,6 +126,16 @@ class Settings:
     trial_s: float | None = None        # speed trials' length; None: the scene's (the paper: 40 s)
     quick: bool = False
     plane: bool = True                  # run conditions 1-4 and both protocols per knob value
+
+    def __post_init__(self):
+        # An old knob name (in knobs or grids) is read as its new one, with one warning each.
+        old = [k for k in dict.fromkeys(tuple(self.knobs) + tuple(self.grids)) if k in OLD_KNOB_NAMES]
+        for k in old:
+            warnings.warn(f'tradeoff: knob "{k}" is deprecated, read as "{OLD_KNOB_NAMES[k]}"; rename it',
+                          FutureWarning, stacklevel=3)
+        if old:
+            object.__setattr__(self, 'knobs', tuple(OLD_KNOB_NAMES.get(k, k) for k in self.knobs))
+            object.__setattr__(self, 'grids', {OLD_KNOB_NAMES.get(k, k): v for k, v in self.grids.items()})
 
 
 def quick_settings(**changes) -> Settings:
@@ -188,5 +202,5 @@ def check_settings(settings: Settings, acc: Scene) -> None:
         bad = [v for v in values if not (isinstance(v, (int, float)) and math.isfinite(v) and KNOB[k].valid(v, acc))]
         if bad:
             extra = f' (the control rate cannot exceed the scene\'s sim_rate_hz {acc.sim_rate_hz:g})' \
-                if k == 'control_rate' else ''
+                if k == 'control_rate_hz' else ''
             raise ValueError(f'knob {k}: values out of range: {bad}{extra}')
