@@ -121,3 +121,42 @@ def test_a_direction_whose_target_angle_turns_non_positive_restarts_from_f():
     target = (math.cos(math.radians(30)), math.sin(math.radians(30)), 0.0)
     ref = [FeedbackLaw(LAW, estimator='sign') for _ in range(4)]
     assert tuple(ctl.update(gaze, target, 0.0)) == pytest.approx(step_directions(ref, 30.0, 0.0, 0.0, 0.0, 0.0))
+
+
+NODE_DESCRIPTORS = r'''
+import json, rclpy
+from fabric_guidance.nodes.pressure_controller import PressureController
+rclpy.init()
+node = PressureController()
+out = {}
+for name in node._parameters:
+    if name in ('use_sim_time', 'start_type_description_service'):   # rclpy's own
+        continue
+    d = node.describe_parameter(name)
+    rng = d.floating_point_range or d.integer_range
+    out[name] = [node.get_parameter(name).value, d.read_only,
+                 [rng[0].from_value, rng[0].to_value] if rng else None, d.description]
+node.destroy_node()
+rclpy.shutdown()
+print(json.dumps(out))
+'''
+
+
+def test_the_node_declares_the_table():
+    """pressure_controller's parameters, values, ranges and read-only flags are the table's (a
+    node in its own process, DDS on loopback in a domain of its own)."""
+    import json
+    import os
+    from fabric_guidance.process_graph import fresh_domain_id, loopback_dds_env
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), **loopback_dds_env())
+    out = subprocess.run([sys.executable, '-c', NODE_DESCRIPTORS], capture_output=True, text=True,
+                         timeout=120, env=env, check=True).stdout
+    declared = json.loads(out.strip().splitlines()[-1])
+    assert list(declared) == [p.name for p in cp.PARAMETERS]
+    for p in cp.PARAMETERS:
+        value, read_only, rng, description = declared[p.name]
+        if p.name != 'channels':
+            assert value == p.default, p.name
+        assert read_only == p.read_only, p.name
+        assert rng == ([p.low, p.high] if p.low is not None else None), p.name
+        assert description.startswith(p.description), p.name
