@@ -18,6 +18,7 @@ import sys
 from typing import Any, Callable, Mapping
 import warnings
 
+from ..interface import markdown_main
 from .feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX, RATE_FILTER_TAU_S,
                        RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S, TARGET)
 
@@ -190,12 +191,7 @@ def markdown() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv != ['--markdown']:
-        print('usage: python -m fabric_guidance.core.controller_parameters --markdown', file=sys.stderr)
-        return 2
-    sys.stdout.write(markdown())
-    return 0
+    return markdown_main('fabric_guidance.core.controller_parameters', markdown, argv)
 
 
 __all__ = ['BY_NAME', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown', 'renamed']
