@@ -273,3 +273,18 @@ def test_an_old_knob_name_is_read_as_the_parameter_name_with_one_warning():
     # what the knob changes comes from the knob table: the scene's controller parameter
     acc, _ = base_scenes(settings)
     assert KNOB['control_rate_hz'].vary(acc, 15.0).controller.control_rate_hz == 15.0
+
+
+def test_every_knob_changes_the_scene_value_its_key_names():
+    spd = load_scene('paper-fitted-speed')
+    for knob in KNOB.values():
+        if not knob.key:
+            continue
+        section, _, name = knob.key.partition('.')
+        changed = knob.vary(spd, knob.grid[0])
+        assert getattr(getattr(changed, section), name) == knob.grid[0], knob.name
+        assert changed.replace(**{section: getattr(spd, section)}) == spd, knob.name   # nothing else
+    with pytest.raises(KeyError, match='controller has no field'):
+        spd.with_value('controller.gain_kpa', 1.0)
+    with pytest.raises(KeyError, match='lists no effect'):
+        spd.with_value('no_such_effect.tau_s', 1.0)

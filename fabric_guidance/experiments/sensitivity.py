@@ -232,29 +232,14 @@ def _scale(base: float, value: float, reference: float) -> float:
 
 
 def apply(scene: Scene, kind: str, p: Parameter, value: float) -> Scene:
-    """The scene with parameter p at `value` (scaled to this scene's own value), or unchanged
-    when p does not apply to this kind of scene."""
+    """The scene with parameter p at `value` (an effect's scaled to this scene's own value), or
+    unchanged when p does not apply to this kind of scene."""
     if kind not in p.scenes:
         return scene
     group, _, name = p.key.partition('.')
-    if group == 'population':
-        pop = scene.population
-        if name == 'arm_spread':
-            return scene.replace(population=replace(pop, arm_spread=value))
-        k = 'abc'.index(name.rsplit('.', 1)[1])
-        spread = list(pop.spread)
-        spread[k] = value
-        return scene.replace(population=replace(pop, spread=tuple(spread)))
-    if group == 'protocol':
-        return scene.replace(protocol=replace(scene.protocol, **{name: value}))
-    effects = []
-    for e in scene.effects:
-        params = e.params_dict
-        if e.name == group:
-            own = params.get(name, REGISTRY[group].parameters()[name][0])
-            params[name] = _scale(float(own), value, p.value)
-        effects.append({e.name: params})
-    return scene.with_effects(effects)
+    if group not in ('population', 'protocol'):
+        value = _scale(float(_effect_value(scene, group, name)), value, p.value)
+    return scene.with_value(p.key, value)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -185,6 +185,41 @@ class Scene:
     def replace(self, **changes) -> 'Scene':
         return replace(self, **changes)
 
+    def with_value(self, key: str, value) -> 'Scene':
+        """The same scene with one number changed, named by its path in a scene file:
+        'controller.gain', 'calibration.steps', 'protocol.acceptance_deg',
+        'population.spread.a', 'population.arm_spread' or '<effect>.<parameter>' (an effect the
+        scene lists). The knobs of the trade-off and the sensitivity analysis change scenes
+        through this. KeyError for a path the scene has not."""
+        section, _, name = key.partition('.')
+        if section in ('controller', 'calibration', 'protocol'):
+            part = getattr(self, section)
+            f = next((f for f in fields(part) if f.name == name), None)
+            if f is None:
+                raise KeyError(f'{key}: {section} has no field {name!r}')
+            if 'unit' in f.metadata:    # a number: of the field's kind, as a scene file gives it
+                value = int(value) if f.metadata.get('integer') else float(value)
+            return replace(self, **{section: replace(part, **{name: value})})
+        if section == 'population':
+            pop = self.population
+            if name == 'arm_spread':
+                return replace(self, population=replace(pop, arm_spread=value))
+            coef = name.rpartition('.')[2]
+            if not name.startswith('spread.') or coef not in 'abc' or len(coef) != 1:
+                raise KeyError(f'{key}: population has spread.a, spread.b, spread.c and arm_spread')
+            spread = list(pop.spread)
+            spread['abc'.index(coef)] = value
+            return replace(self, population=replace(pop, spread=tuple(spread)))
+        if self.effect(section) is None:
+            raise KeyError(f'{key}: the scene lists no effect {section!r}')
+        effects = []
+        for e in self.effects:
+            params = e.params_dict
+            if e.name == section:
+                params[name] = value
+            effects.append({e.name: params})
+        return self.with_effects(effects)
+
 
 # ---------------------------------------------------------------------------------------------
 # Parsing

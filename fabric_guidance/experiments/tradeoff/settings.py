@@ -21,11 +21,6 @@ CONDITION_LABELS = {1: '1 suit, adjusted', 2: '2 suit, fixed', 3: '3 arm band, a
                     4: '4 speech'}
 
 
-def _controller(name: str, kind=float):
-    """A knob that is a controller parameter (core/controller_parameters.py) of the scene."""
-    return lambda scene, v: scene.replace(controller=replace(scene.controller, **{name: kind(v)}))
-
-
 @dataclass(frozen=True)
 class Knob:
     """One knob of the sweep: what it changes, its unit, the values it runs, the package's value."""
@@ -43,21 +38,18 @@ class Knob:
     #: ACCURACY (the accuracy protocol), CALIBRATION (Algorithm 1's cost and the accuracy it
     #: buys) or FIT (the fit alone, on the accuracy scene's calibrations).
     measures: str
-    #: The scene with the knob at a value; None: the knob is not a scene setting (fit_tolerance).
-    vary: Callable[[Scene, float], Scene] | None = None
+    #: What it changes: the value's path in a scene file (Scene.with_value); '' for a knob that
+    #: is not a scene setting (fit_tolerance: the fit's own tolerance).
+    key: str = ''
     #: A note for the accuracy row (scene at the value, value), or None.
     note: Callable[[Scene, float], str] | None = None
 
+    def vary(self, scene: Scene, value: float) -> Scene:
+        """The scene with this knob at `value`."""
+        return scene.with_value(self.key, value)
+
 
 SPEED, BOTH, ACCURACY, CALIBRATION, FIT = 'speed', 'both', 'accuracy', 'calibration', 'fit'
-
-
-def _steps(scene: Scene, v) -> Scene:
-    return scene.replace(calibration=replace(scene.calibration, steps=int(v)))
-
-
-def _acceptance(scene: Scene, v) -> Scene:
-    return scene.replace(protocol=replace(scene.protocol, acceptance_deg=float(v)))
 
 
 _THRESHOLD = default('rate_threshold_dps')
@@ -66,19 +58,19 @@ _THRESHOLD = default('rate_threshold_dps')
 KNOB_TABLE: tuple[Knob, ...] = (
     Knob('acceptance_deg', 'acceptance tolerance (deg)', 'tolerance', 'deg',
          (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0), (2.0, 5.0, 10.0), 5.0, 'the paper',
-         lambda v, acc: 0 < v <= 180, SPEED, _acceptance),
+         lambda v, acc: 0 < v <= 180, SPEED, 'protocol.acceptance_deg'),
     Knob('gain', 'adjustment gain G (Eq. 5)', 'G', '-', (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 0.05, 0.5),
-         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, BOTH, _controller('gain')),
+         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, BOTH, 'controller.gain'),
     Knob('calibration_steps', 'calibration points per direction (Algorithm 1)', 'points', '-',
          (3, 4, 5, 6, 8, 10, 12, 15, 20), (3, 10, 20), default('calibration_steps'), 'the paper',
-         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, CALIBRATION, _steps),
+         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, CALIBRATION, 'calibration.steps'),
     Knob('control_rate_hz', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
          (5.0, 30.0, 60.0), default('control_rate_hz'), 'node default',
-         lambda v, acc: 0 < v <= acc.sim_rate_hz, ACCURACY, _controller('control_rate_hz'),
+         lambda v, acc: 0 < v <= acc.sim_rate_hz, ACCURACY, 'controller.control_rate_hz',
          lambda scene, v: f'G x rate = {scene.controller.gain * float(v):.3g} per s'),
     Knob('rate_threshold_dps', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
          (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
-         lambda v, acc: 0 < v <= 1000, BOTH, _controller('rate_threshold_dps')),
+         lambda v, acc: 0 < v <= 1000, BOTH, 'controller.rate_threshold_dps'),
     Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
          (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12), (1e-2, 1e-6, 1e-10), 1e-10, 'core default',
          lambda v, acc: 1e-15 < v < 1, FIT),
