@@ -118,7 +118,8 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
               "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
               "paper's rate; false: the timer alone)", read_only=True),
-    Parameter('channels', ['(from the channel map)'], 'order of pressure_command (as ros2_controllers '
+    # Its default is the channel map's channel order, known only at start-up (declare_table's values).
+    Parameter('channels', [], 'order of pressure_command (as ros2_controllers '
               'joints)', read_only=True),
 )
 
