@@ -49,8 +49,8 @@ def test_float_rounding_never_increments():
 
 
 def test_a_zero_threshold_is_refused():
-    with pytest.raises(ValueError, match='rate_threshold'):
-        FeedbackLaw(LAW, rate_threshold=0.0)
+    with pytest.raises(ValueError, match='rate_threshold_dps'):
+        FeedbackLaw(LAW, rate_threshold_dps=0.0)
     with pytest.raises(ValueError, match='estimator'):
         FeedbackLaw(LAW, estimator='derivative')
 

@@ -86,9 +86,9 @@ def build_controller(values: Mapping[str, Any], mode: str, calibration: Calibrat
     return GuidanceController(
         laws, p_max=min(values['p_max_kpa'], calibration.p_max),
         gain=controller_gain(values['gain'], values['use_wearer_gain'], calibration),
-        mode=mode, rate_deadband=values['rate_deadband_dps'],
+        mode=mode, rate_deadband_dps=values['rate_deadband_dps'],
         follow_target=values['follow_moving_target'], estimator=values['rate_estimator'],
-        rate_filter_tau_s=values['rate_filter_tau_s'], rate_threshold=values['rate_threshold_dps'],
+        rate_filter_tau_s=values['rate_filter_tau_s'], rate_threshold_dps=values['rate_threshold_dps'],
         frame=values['guidance_frame'], rest_gaze=calibration.origin,
         stall_timeout_s=stall if stall else None)
 
