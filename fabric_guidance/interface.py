@@ -205,13 +205,18 @@ def markdown() -> str:
     return '\n'.join(lines) + '\n'
 
 
-def main(argv: list[str] | None = None) -> int:
+def markdown_main(module: str, tables, argv: list[str] | None = None) -> int:
+    """`python -m <module> --markdown`: print the docs tables `tables()` generates."""
     argv = sys.argv[1:] if argv is None else argv
     if argv != ['--markdown']:
-        print('usage: python -m fabric_guidance.interface --markdown', file=sys.stderr)
+        print(f'usage: python -m {module} --markdown', file=sys.stderr)
         return 2
-    sys.stdout.write(markdown())
+    sys.stdout.write(tables())
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return markdown_main('fabric_guidance.interface', markdown, argv)
 
 
 if __name__ == '__main__':

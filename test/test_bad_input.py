@@ -253,8 +253,8 @@ def write_session_bag(folder: Path, steps: int = 4000) -> Path:
         msg = F64(layout=MAD(dim=[], data_offset=0), data=np.asarray(values, dtype=float))
         return store.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
 
-    setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, Calibration.load(SIM_CAL),
-                            ChannelMap.load(CONFIG / 'hardware/channel_map.yaml'))
+    setup = ControllerSetup(calibration=Calibration.load(SIM_CAL),
+                            channel_map=ChannelMap.load(CONFIG / "hardware/channel_map.yaml"))
     controller = setup.make_controller()
     params = setup_to_dict(setup)
     params['from_step'] = 0

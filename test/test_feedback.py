@@ -92,7 +92,7 @@ def test_non_finite_input_raises_and_keeps_state():
 
 
 def test_rate_deadband():
-    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, rate_deadband=3.0, estimator='sign')
+    fb = FeedbackLaw(LAW, p_max=100.0, gain=0.5, rate_deadband_dps=3.0, estimator='sign')
     fb.step(16.0, 0.0, 0.0)
     assert fb.step(16.0, -2.0, 1.0) == 18.0                # de/dt = 2 deg/s is inside the deadband
     assert fb.step(16.0, -6.0, 2.0) == 22.0                # 4 deg/s is not

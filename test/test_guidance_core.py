@@ -49,8 +49,8 @@ def test_float_rounding_never_increments():
 
 
 def test_a_zero_threshold_is_refused():
-    with pytest.raises(ValueError, match='rate_threshold'):
-        FeedbackLaw(LAW, rate_threshold=0.0)
+    with pytest.raises(ValueError, match='rate_threshold_dps'):
+        FeedbackLaw(LAW, rate_threshold_dps=0.0)
     with pytest.raises(ValueError, match='estimator'):
         FeedbackLaw(LAW, estimator='derivative')
 
@@ -254,7 +254,7 @@ def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_l
     from fabric_guidance.paths import config_path
     cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     cal = Calibration.from_laws('w', [LAW] * 4)
-    new = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal, cmap)
+    new = ControllerSetup(calibration=cal, channel_map=cmap)
     d = setup_to_dict(new)
     law = (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s'])
     assert law == ('rest', 'filtered', 10.0)

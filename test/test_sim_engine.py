@@ -80,7 +80,7 @@ class CheckedLoop(ClosedLoop):
             mode=self.controller.directions[0].mode,
             estimator=self.controller.directions[0].estimator,
             rate_filter_tau_s=self.controller.directions[0].rate_filter_tau_s,
-            rate_threshold=self.controller.directions[0].rate_threshold,
+            rate_threshold_dps=self.controller.directions[0].rate_threshold_dps,
             frame=self.controller.frame, rest_gaze=self.controller.rest_gaze)
         self.checked = 0
 

@@ -14,6 +14,7 @@ import yaml
 from fabric_guidance.experiments import tradeoff
 from fabric_guidance.experiments.tradeoff import (CSV_COLUMNS, KNOBS, Row, calibrate_measured, diff_se, pareto_front,
                                                   quick_settings, read_curve, run_sweep, speed_trial_detail)
+from fabric_guidance.experiments.tradeoff.settings import KNOB, base_scenes
 from fabric_guidance.paths import config_path
 from fabric_guidance.sim.population import calibrate_wearer, sample_wearer
 from fabric_guidance.sim.protocols import speed_trial
@@ -59,7 +60,7 @@ def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
         for (_, _), part in frame[frame['knob'] == knob].groupby(['accuracy_metric', 'time_metric']):
             assert sorted(part['value']) == pytest.approx(sorted(grid))
     # calibration time is Algorithm 1's 4 x (rest + steps x dwell) of the scene, as simulated
-    cal = frame[(frame['knob'] == 'calibration_points')
+    cal = frame[(frame['knob'] == 'calibration_steps')
                 & (frame['time_metric'] == 'calibration_time_s')]
     scene = load_scene('paper-accuracy')
     expect = 4 * (scene.calibration.rest_s + cal['value'] * scene.calibration.dwell_s)
@@ -102,7 +103,7 @@ def test_plane_rows_for_every_condition_and_every_knob_value(quick_run):
     for knob, grid in tradeoff.QUICK_GRIDS.items():
         part = plane[plane['knob'] == knob]
         assert sorted(part['value']) == pytest.approx(sorted(grid)), knob
-        metric = 'error_at_count_deg' if knob == 'acceptance_tolerance' else 'guidance_error_deg'
+        metric = 'error_at_count_deg' if knob == 'acceptance_deg' else 'guidance_error_deg'
         assert set(part['accuracy_metric']) == {metric}
     assert set(plane['time_metric']) == {'time_to_find_s'}
     assert (plane['wearers'] == 2).all()
@@ -158,20 +159,20 @@ def _ideal(tmp_path: Path, effects: list) -> str:
 def test_ideal_scene_more_tolerance_never_less_error_more_points_never_less_time(tmp_path, effects):
     scene = 'ideal' if effects is None else _ideal(tmp_path, effects)
     settings = quick_settings(accuracy_scene=scene, speed_scene=scene, workers=2,
-                              knobs=('acceptance_tolerance', 'calibration_points'),
-                              grids={'acceptance_tolerance': (1.0, 2.0, 3.0, 5.0, 8.0, 12.0),
-                                     'calibration_points': (3, 4, 7, 10, 20)})
+                              knobs=('acceptance_deg', 'calibration_steps'),
+                              grids={'acceptance_deg': (1.0, 2.0, 3.0, 5.0, 8.0, 12.0),
+                                     'calibration_steps': (3, 4, 7, 10, 20)})
     frame = run_sweep(settings).frame()
-    tol = frame[frame['knob'] == 'acceptance_tolerance'].sort_values('value')
+    tol = frame[frame['knob'] == 'acceptance_deg'].sort_values('value')
     err = tol['accuracy_mean'].to_numpy()
     assert np.all(np.diff(err) >= 0.0), err           # a larger tolerance never gives a smaller error
     if effects:                                        # with a body that lags, it strictly costs accuracy
         assert np.all(np.diff(err) > 0.0), err
     else:                                              # the ideal wearer lands on the target at once
         assert np.all(err < 1e-9)
-    cal = frame[(frame['knob'] == 'calibration_points')
+    cal = frame[(frame['knob'] == 'calibration_steps')
                 & (frame['time_metric'] == 'calibration_time_s')]
-    assert len(cal) == 2 * len(settings.grids['calibration_points'])
+    assert len(cal) == 2 * len(settings.grids['calibration_steps'])
     for _, part in cal.groupby('accuracy_metric'):
         part = part.sort_values('value')
         assert np.all(np.diff(part['time_mean'].to_numpy()) > 0.0)   # more points, longer calibration
@@ -240,12 +241,12 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert tradeoff.main(['--out', str(tmp_path), '--knobs', 'gain,nonsense']) == 2
     assert 'nonsense' in capsys.readouterr().err
     assert tradeoff.main(['--out', str(tmp_path), '--subjects', '99']) == 2
-    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'control_rate': (90.0,)}, knobs=('control_rate',))
+    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'control_rate_hz': (90.0,)}, knobs=('control_rate_hz',))
     with pytest.raises(ValueError, match='sim_rate_hz'):
         run_sweep(settings)
-    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'rate_threshold': (0.0,)},
-                              knobs=('rate_threshold',))
-    with pytest.raises(ValueError, match=r'knob rate_threshold: values out of range: \[0.0\]'):
+    settings = quick_settings(grids={**tradeoff.QUICK_GRIDS, 'rate_threshold_dps': (0.0,)},
+                              knobs=('rate_threshold_dps',))
+    with pytest.raises(ValueError, match=r'knob rate_threshold_dps: values out of range: \[0.0\]'):
         run_sweep(settings)
 
 
@@ -262,3 +263,36 @@ def test_add_parser_wires_a_subcommand(tmp_path):
     frame = pd.read_csv(tmp_path / 'tradeoff.csv')
     assert set(frame['knob']) == {'fit_tolerance'} and math.isfinite(frame['time_mean'].min())
     assert not frame['plane'].any() and not (tmp_path / 'plane.png').exists()
+
+
+def test_an_old_knob_name_is_read_as_the_parameter_name_with_one_warning():
+    with pytest.warns(FutureWarning, match='knob "control_rate" is deprecated, read as "control_rate_hz"'):
+        settings = quick_settings(knobs=('control_rate',), grids={'control_rate': (5.0, 30.0)})
+    assert settings.knobs == ('control_rate_hz',)
+    assert settings.grids == {'control_rate_hz': (5.0, 30.0)}
+    # what the knob changes comes from the knob table: the scene's controller parameter
+    acc, _ = base_scenes(settings)
+    assert KNOB['control_rate_hz'].vary(acc, 15.0).controller.control_rate_hz == 15.0
+
+
+def test_every_knob_changes_the_scene_value_its_key_names():
+    spd = load_scene('paper-fitted-speed')
+    for knob in KNOB.values():
+        if not knob.key:
+            continue
+        section, _, name = knob.key.partition('.')
+        changed = knob.vary(spd, knob.grid[0])
+        assert getattr(getattr(changed, section), name) == knob.grid[0], knob.name
+        assert changed.replace(**{section: getattr(spd, section)}) == spd, knob.name   # nothing else
+    with pytest.raises(KeyError, match='controller has no field'):
+        spd.with_value('controller.gain_kpa', 1.0)
+    with pytest.raises(KeyError, match='lists no effect'):
+        spd.with_value('no_such_effect.tau_s', 1.0)
+
+
+def test_docs_name_every_knob_and_what_it_changes():
+    docs = (Path(__file__).resolve().parent.parent / 'docs' / 'tradeoff.md').read_text()
+    for knob in KNOB.values():
+        assert f'| `{knob.name}`: ' in docs, knob.name
+        if knob.key:
+            assert f'`{knob.key}`' in docs, knob.key

@@ -33,8 +33,7 @@ import yaml
 
 from ..core import Calibration, ChannelMap
 from ..core.control_step import ControllerSetup, StepInput
-from ..core import feedback as law   # law.TARGET, not this module's TARGET (an input slice)
-from ..core.feedback import RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, SIGN
+from ..core.controller_parameters import BY_NAME, NOT_RECORDED, SETUP, check, renamed
 from ..core.geometry import DIRECTIONS
 from ..core.safe_input import excerpt, parse_yaml
 from ..interface import CONTROLLER_INPUT, CONTROLLER_PARAMETERS  # noqa: F401 (re-exported)
@@ -81,20 +80,14 @@ def channel_map_dict(cmap: ChannelMap) -> dict:
 
 
 def setup_to_dict(setup: ControllerSetup) -> dict:
-    """controller_parameters' content (schema PARAMETERS_SCHEMA)."""
-    return {'schema': PARAMETERS_SCHEMA, 'condition': int(setup.condition), 'gain': float(setup.gain),
-            'p_max_kpa': float(setup.p_max_kpa), 'control_rate_hz': float(setup.control_rate_hz),
-            'gaze_timeout_s': float(setup.gaze_timeout_s), 'rate_deadband_dps': float(setup.rate_deadband_dps),
-            'use_wearer_gain': bool(setup.use_wearer_gain),
-            'follow_moving_target': bool(setup.follow_moving_target),
-            'guidance_frame': str(setup.guidance_frame),
-            'rate_estimator': str(setup.rate_estimator),
-            'rate_filter_tau_s': float(setup.rate_filter_tau_s),
-            'rate_threshold_dps': float(setup.rate_threshold_dps),
-            'stall_timeout_s': (None if setup.stall_timeout_s is None
-                                else float(setup.stall_timeout_s)),
-            'calibration': setup.calibration.to_dict() if setup.calibration is not None else None,
-            'channel_map': channel_map_dict(setup.channel_map)}
+    """controller_parameters' content (schema PARAMETERS_SCHEMA): the table's setup parameters
+    (core/controller_parameters.py) in its order, the calibration and the channel map."""
+    d: dict[str, Any] = {'schema': PARAMETERS_SCHEMA}
+    for name, value in setup.values().items():
+        d[name] = value if value is None or isinstance(value, str) else BY_NAME[name].type(value)
+    d['calibration'] = setup.calibration.to_dict() if setup.calibration is not None else None
+    d['channel_map'] = channel_map_dict(setup.channel_map)
+    return d
 
 
 def setup_to_yaml(setup: ControllerSetup) -> str:
@@ -102,19 +95,25 @@ def setup_to_yaml(setup: ControllerSetup) -> str:
     return yaml.safe_dump(setup_to_dict(setup), sort_keys=False)
 
 
-def setup_from_dict(d: Mapping[str, Any]) -> ControllerSetup:
+def setup_from_dict(d: Mapping[str, Any], where: str = CONTROLLER_PARAMETERS) -> ControllerSetup:
+    """The setup of a recorded controller_parameters mapping. A key the recording lacks (a bag
+    older than the parameter) takes the value the law then ran with (the table's legacy); an old
+    name is read as its new one with a warning."""
+    d = renamed(d, where)
+    values = {}
+    for p in SETUP:
+        if p.name in d:
+            values[p.name] = check(p.name, d[p.name], f'{where}: field "{p.name}"')
+        elif p.legacy is not NOT_RECORDED:
+            values[p.name] = p.legacy
+        else:
+            raise ValueError(f'{where}: field "{p.name}" is missing')
     cal = d.get('calibration')
+    if 'channel_map' not in d:
+        raise ValueError(f'{where}: field "channel_map" is missing')
     return ControllerSetup(
-        int(d['condition']), float(d['gain']), float(d['p_max_kpa']), float(d['control_rate_hz']),
-        float(d['gaze_timeout_s']), float(d['rate_deadband_dps']), bool(d['use_wearer_gain']),
-        bool(d['follow_moving_target']),
-        Calibration.from_dict(cal, 'controller_parameters.calibration') if cal else None,
-        ChannelMap.from_dict(d['channel_map'], 'controller_parameters.channel_map'),
-        # Keys missing: a bag of the law before issue 11, replayed as it ran.
-        str(d.get('guidance_frame', law.TARGET)), str(d.get('rate_estimator', SIGN)),
-        float(d.get('rate_filter_tau_s', RATE_FILTER_TAU_S)),
-        float(d.get('rate_threshold_dps', RATE_THRESHOLD_DPS)),
-        None if d.get('stall_timeout_s') is None else float(d['stall_timeout_s']))
+        calibration=Calibration.from_dict(cal, f'{where}.calibration') if cal else None,
+        channel_map=ChannelMap.from_dict(d['channel_map'], f'{where}.channel_map'), **values)
 
 
 def setup_from_yaml(text: str) -> ControllerSetup:

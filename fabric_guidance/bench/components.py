@@ -10,6 +10,7 @@ import numpy as np
 
 from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
 from ..core import Calibration, ChannelMap, fit_power_law
+from ..core.feedback import PAPER_P_MAX
 from ..core.gaze_wire import encode_datagram, parse_datagram
 from ..core.geometry import ray_orientation
 from ..paths import config_path
@@ -34,8 +35,8 @@ def controller_step_us(n: int) -> dict:
     directions, onto the channel map, then the P_MAX clip), condition 1, gaze wandering
     around a target 30 deg left and 10 deg up so the error grows and shrinks."""
     cal = Calibration.load(config_path('calibrations/sim-wearer.yaml'))
-    setup = ControllerSetup(1, 0.05, 375.0, 30.0, 0.3, 0.0, False, False, cal,
-                            ChannelMap.load(config_path('hardware/channel_map.yaml')))
+    # The node's defaults (core/controller_parameters.py): the paper's G and P_MAX.
+    setup = ControllerSetup(calibration=cal, channel_map=ChannelMap.load(config_path('hardware/channel_map.yaml')))
     controller = setup.make_controller()
     origin = np.array([0.0, 0.0, 1.2])
     target = origin + 2.0 * np.array([math.cos(math.radians(30)), math.sin(math.radians(30)), 0.35])
@@ -79,5 +80,5 @@ def fit_ms(n: int) -> dict:
 
     def fit(k):
         theta, pressure = points[k % len(points)]
-        return fit_power_law(theta, pressure, 375.0)
+        return fit_power_law(theta, pressure, PAPER_P_MAX)
     return percentiles_of(time_calls(fit, n, max(n // 20, 10)) / 1e6)

@@ -5,18 +5,21 @@ this very code; bag/controller_io.py holds how a step is recorded.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, make_dataclass
+from typing import Any, Callable, Mapping, Optional
 
 import numpy as np
 
 from .calibration import Calibration
 from .channels import ChannelMap
 from .conditions import condition as condition_of
-from .feedback import (FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S,
-                       GuidanceController)
+from .controller_parameters import SETUP
+from .feedback import GuidanceController
 from .geometry import target_direction
+from .power_law import PowerLaw
 
-__all__ = ['ControllerSetup', 'StepInput', 'guidance_step', 'safe_command', 'why_not_guide']
+__all__ = ['ControllerSetup', 'StepInput', 'build_controller', 'controller_gain', 'guidance_step', 'safe_command',
+           'why_not_guide']
 
 
 @dataclass
@@ -36,52 +39,58 @@ class StepInput:
     command: int
 
 
-@dataclass
-class ControllerSetup:
-    """Everything the control step depends on besides its inputs: the node's parameters, the
-    calibration and the channel map (recorded as YAML by bag/controller_io.py)."""
-    condition: int
-    gain: float
-    p_max_kpa: float
-    control_rate_hz: float
-    gaze_timeout_s: float
-    rate_deadband_dps: float
-    use_wearer_gain: bool
-    follow_moving_target: bool
-    calibration: Calibration | None
-    channel_map: ChannelMap
-    #: Origin of Eq. 5's angles: 'rest' (the calibration's rest gaze) or 'target' (the gaze when
-    #: a target begins). A bag recorded before issue 11 has no key: 'target', as it ran then.
-    guidance_frame: str = REST
-    #: "The error grows": 'filtered' (rate filter + threshold) or 'sign' (the paper's literal
-    #: test). A bag recorded before issue 11 has no key: 'sign'.
-    rate_estimator: str = FILTERED
-    rate_filter_tau_s: float = RATE_FILTER_TAU_S
-    rate_threshold_dps: float = RATE_THRESHOLD_DPS
-    #: Vent after this long without progress toward the target, s; None: never (a bag
-    #: recorded before issue 11).
-    stall_timeout_s: float | None = STALL_TIMEOUT_S
-
+class _SetupMethods:
     @property
     def layout(self) -> str:
         return condition_of(self.condition).layout or 'suit'
 
+    def values(self) -> dict[str, Any]:
+        """The table's setup parameters (core/controller_parameters.py) by name."""
+        return {p.name: getattr(self, p.name) for p in SETUP}
+
     def make_controller(self) -> GuidanceController | None:
-        """The node's controller (nodes/pressure_controller.py uses this very function)."""
+        """The node's controller (nodes/pressure_controller.py and the offline replay use this)."""
         cond = condition_of(self.condition)
         if self.calibration is None or not cond.haptic:
             return None
-        gain = self.gain
-        if self.use_wearer_gain and self.calibration.adjustment_gain is not None:
-            gain = self.calibration.adjustment_gain
-        return GuidanceController(self.calibration.laws, p_max=min(self.p_max_kpa, self.calibration.p_max),
-                                  gain=gain, mode=cond.mode, rate_deadband=self.rate_deadband_dps,
-                                  follow_target=self.follow_moving_target,
-                                  estimator=self.rate_estimator,
-                                  rate_filter_tau_s=self.rate_filter_tau_s,
-                                  rate_threshold=self.rate_threshold_dps,
-                                  frame=self.guidance_frame, rest_gaze=self.calibration.origin,
-                                  stall_timeout_s=self.stall_timeout_s)
+        return build_controller(self.values(), cond.mode, self.calibration)
+
+
+#: Everything the control step depends on besides its inputs: the table's setup parameters
+#: (core/controller_parameters.py, keyword arguments with the table's defaults), the
+#: calibration and the channel map (recorded as YAML by bag/controller_io.py).
+ControllerSetup = make_dataclass(
+    'ControllerSetup',
+    [('calibration', Optional[Calibration]), ('channel_map', ChannelMap)]
+    + [(p.name, p.type, field(default=None if p.zero_is_none and not p.default else p.default))
+       for p in SETUP],
+    bases=(_SetupMethods,), kw_only=True)
+ControllerSetup.__module__ = __name__
+
+
+def controller_gain(gain: float, use_wearer_gain: bool, calibration: Calibration | None) -> float:
+    """G of Eq. 5: the wearer's own (the calibration's adjustment_gain) when asked and present."""
+    if use_wearer_gain and calibration is not None and calibration.adjustment_gain is not None:
+        return calibration.adjustment_gain
+    return gain
+
+
+def build_controller(values: Mapping[str, Any], mode: str, calibration: Calibration,
+                     law_type: Callable[[PowerLaw], PowerLaw] | None = None) -> GuidanceController:
+    """The one builder of the guidance controller, from the table's setup parameters by name
+    (`values`: ControllerSetup.values(), or a scene's controller section with the rest), the
+    condition's mode and the calibration. law_type: how each fitted law is evaluated (the
+    simulator's scalar FastPowerLaw.of); None: the calibration's laws as they are."""
+    laws = calibration.laws if law_type is None else [law_type(law) for law in calibration.laws]
+    stall = values['stall_timeout_s']
+    return GuidanceController(
+        laws, p_max=min(values['p_max_kpa'], calibration.p_max),
+        gain=controller_gain(values['gain'], values['use_wearer_gain'], calibration),
+        mode=mode, rate_deadband_dps=values['rate_deadband_dps'],
+        follow_target=values['follow_moving_target'], estimator=values['rate_estimator'],
+        rate_filter_tau_s=values['rate_filter_tau_s'], rate_threshold_dps=values['rate_threshold_dps'],
+        frame=values['guidance_frame'], rest_gaze=calibration.origin,
+        stall_timeout_s=stall if stall else None)
 
 
 def why_not_guide(setup: ControllerSetup, controller, inp: StepInput) -> str:

@@ -23,7 +23,7 @@ de/dt with a first-order filter of time constant rate_filter_tau_s and counts gr
 the filtered rate exceeds rate_threshold_dps > 0, a threshold derived from the tracker's noise
 (noise_rate_threshold): tracker noise alone rarely crosses it, and no float rounding can
 (a rate of 1e-13 deg/s is not above 14 deg/s). Estimator SIGN is the paper's literal test:
-the raw rate of successive samples above rate_deadband (0: any growth, however small).
+the raw rate of successive samples above rate_deadband_dps (0: any growth, however small).
 
 Frame (docs/guidance.md): with frame REST (the default) both angles of Eq. 5 are measured from
 the rest gaze that the wearer's calibration recorded (Algorithm 1's g0), the origin f_k was
@@ -171,7 +171,7 @@ class FeedbackLaw:
     mode: str = ADJUSTED
     #: SIGN: the raw de/dt must exceed this (deg/s) to count as "the error grows"; 0 is the
     #: paper's literal law.
-    rate_deadband: float = 0.0
+    rate_deadband_dps: float = 0.0
     #: Shift the pressure with f(theta_t) when the target moves (beyond the paper).
     follow_target: bool = False
     #: How "the error grows" is decided: FILTERED (default) or the paper's literal SIGN.
@@ -179,7 +179,7 @@ class FeedbackLaw:
     #: FILTERED: time constant of the rate filter, s.
     rate_filter_tau_s: float = RATE_FILTER_TAU_S
     #: FILTERED: the filtered de/dt must exceed this (deg/s, > 0).
-    rate_threshold: float = RATE_THRESHOLD_DPS
+    rate_threshold_dps: float = RATE_THRESHOLD_DPS
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -188,17 +188,17 @@ class FeedbackLaw:
             raise ValueError(f'p_max must be finite and > 0 kPa, got {self.p_max}')
         if not (math.isfinite(self.gain) and self.gain >= 0):
             raise ValueError(f'gain must be finite and >= 0, got {self.gain}')
-        if not (math.isfinite(self.rate_deadband) and self.rate_deadband >= 0):
-            raise ValueError(f'rate_deadband must be finite and >= 0 deg/s, got {self.rate_deadband}')
+        if not (math.isfinite(self.rate_deadband_dps) and self.rate_deadband_dps >= 0):
+            raise ValueError(f'rate_deadband_dps must be finite and >= 0 deg/s, got {self.rate_deadband_dps}')
         if self.estimator not in ESTIMATORS:
             raise ValueError(f'estimator must be one of {ESTIMATORS}, got {self.estimator!r}')
         if not (math.isfinite(self.rate_filter_tau_s) and self.rate_filter_tau_s > 0):
             raise ValueError(f'rate_filter_tau_s must be finite and > 0 s, '
                              f'got {self.rate_filter_tau_s}')
         # > 0 strictly: a zero threshold would let a rounding-sized rate count as growth.
-        if not (math.isfinite(self.rate_threshold) and self.rate_threshold > 0):
-            raise ValueError(f'rate_threshold must be finite and > 0 deg/s, '
-                             f'got {self.rate_threshold}')
+        if not (math.isfinite(self.rate_threshold_dps) and self.rate_threshold_dps > 0):
+            raise ValueError(f'rate_threshold_dps must be finite and > 0 deg/s, '
+                             f'got {self.rate_threshold_dps}')
         self.reset()
 
     def reset(self) -> None:
@@ -248,14 +248,26 @@ class FeedbackLaw:
         raw = (error - self._last_error) / dt
         self._last_error, self._last_time = error, t
         if self.estimator == SIGN:
-            grows = raw > self.rate_deadband
+            grows = raw > self.rate_deadband_dps
         else:
             self.rate += (1.0 - math.exp(-dt / self.rate_filter_tau_s)) * (raw - self.rate)
-            grows = self.rate > self.rate_threshold
+            grows = self.rate > self.rate_threshold_dps
         if self.mode == ADJUSTED and grows:
             increment = self.gain * (self.law.pressure(theta_target) - self.law.pressure(theta))
             self.pressure = self._clamp(self.pressure + increment)
         return self.pressure
+
+
+def step_directions(directions: Sequence[FeedbackLaw], h_target: float, v_target: float, h: float,
+                    v: float, t: float) -> tuple[float, float, float, float]:
+    """Eq. 5 in each direction (left, right, down, up) from the signed horizontal and vertical
+    angles of the target and of the gaze (geometry.split_directions: h, -h, -v, v). Every
+    direction is stepped, also one whose theta_t <= 0: its step() resets it and commands 0
+    (Eq. 5's third case), so when theta_t turns positive again it starts afresh from
+    f(theta_t). The one place the node's controller and the simulator split Eq. 5."""
+    left, right, down, up = directions
+    return (left.step(h_target, h, t), right.step(-h_target, -h, t), down.step(-v_target, -v, t),
+            up.step(v_target, v, t))
 
 
 class GuidanceController:
@@ -267,9 +279,9 @@ class GuidanceController:
     """
 
     def __init__(self, laws: Sequence[PowerLaw], p_max: float = PAPER_P_MAX, gain: float | Sequence[float] = PAPER_GAIN,
-                 mode: str = ADJUSTED, rate_deadband: float = 0.0, follow_target: bool = False,
+                 mode: str = ADJUSTED, rate_deadband_dps: float = 0.0, follow_target: bool = False,
                  estimator: str = FILTERED, rate_filter_tau_s: float = RATE_FILTER_TAU_S,
-                 rate_threshold: float = RATE_THRESHOLD_DPS, frame: str = REST,
+                 rate_threshold_dps: float = RATE_THRESHOLD_DPS, frame: str = REST,
                  rest_gaze: Sequence[float] = FRONT, stall_timeout_s: float | None = None):
         if len(laws) != len(DIRECTIONS):
             raise ValueError(f'need one power law per direction {DIRECTIONS}, got {len(laws)}')
@@ -279,8 +291,8 @@ class GuidanceController:
         if frame not in FRAMES:
             raise ValueError(f'frame must be one of {FRAMES}, got {frame!r}')
         angles_between(rest_gaze, rest_gaze)  # validates the vector
-        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband, follow_target,
-                                       estimator, rate_filter_tau_s, rate_threshold)
+        self.directions = [FeedbackLaw(law, p_max, g, mode, rate_deadband_dps, follow_target,
+                                       estimator, rate_filter_tau_s, rate_threshold_dps)
                            for law, g in zip(laws, gains)]
         self.p_max = p_max
         self.frame = frame
@@ -328,11 +340,8 @@ class GuidanceController:
         at = angles_between(self.initial_gaze, target)
         a = angles_between(self.initial_gaze, gaze)
         _finite(t, 'time')
-        # split_directions written out: (left, right, down, up) = (h, -h, -v, v).
-        ht, vt, h, v = at.horizontal, at.vertical, a.horizontal, a.vertical
-        left, right, down, up = self.directions
-        out = np.array([left.step(ht, h, t), right.step(-ht, -h, t), down.step(-vt, -v, t),
-                        up.step(vt, v, t)])
+        out = np.array(step_directions(self.directions, at.horizontal, at.vertical, a.horizontal,
+                                       a.vertical, t))
         if self.stall.timeout_s is not None:
             # The full gaze-to-target angle (atan2 form), in scalar math: this runs every step.
             ax, ay, az = (float(c) for c in gaze)

@@ -8,12 +8,13 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..core.feedback import PAPER_GAIN
 from .arms import analyze_arms, pair_p, verdict
 from .report import analysis_markdown, image_path, md_table
 from .stats import analyze_blocks, format_p
 
 #: Names of the compared arms (the columns of the analyses and the plots' labels).
-GAIN_ARMS = {'paper': 'G = 0.05 (paper)', 'own': 'own G (tuned)', 'oracle': 'best G (oracle)'}
+GAIN_ARMS = {'paper': f'G = {PAPER_GAIN:g} (paper)', 'own': 'own G (tuned)', 'oracle': 'best G (oracle)'}
 
 
 def analyze_gain(results, out: dict) -> None:

@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, field, fields, replace
 import math
-import multiprocessing
 import os
 from pathlib import Path
 import sys
@@ -51,10 +50,12 @@ from ..sim.effects import REGISTRY
 from ..sim.engine import package_channel_map
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
-from ..sim.scene import Scene, load_scene
+from ..sim.scene import Scene
+from ..workers import WorkerPool
 from .fit_wearer import FREE
 from .report import image_path, md_table
-from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, as_protocol, calibration_key
+from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key
+from .tradeoff.settings import paired_scenes
 
 PROG = 'fabric-guidance sensitivity'
 HELP = 'vary every assumed human parameter low and high: how much each moves the headline figures'
@@ -132,18 +133,8 @@ def check_settings(s: Settings) -> None:
 def load_scenes(s: Settings) -> tuple[Scene, Scene]:
     """(speed scene, accuracy scene) on the same wearers: the accuracy scene takes the speed
     scene's seed and population (as the trade-off's plane)."""
-    spd = as_protocol(load_scene(s.speed_scene), 'speed')
-    acc = as_protocol(load_scene(s.accuracy_scene), 'accuracy')
-    acc = acc.replace(seed=spd.seed, population=spd.population)
-    spd = spd.replace(conditions=SPEED_CONDITIONS, repetitions=s.speed_repetitions)
-    acc = acc.replace(conditions=ACCURACY_CONDITIONS, repetitions=s.repetitions)
-    if s.trial_s is not None:
-        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(s.trial_s)))
-    if not 1 <= s.subjects <= spd.population.subjects:
-        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} '
-                         f'(scene {spd.name}), '
-                         f'got {s.subjects}')
-    return spd, acc
+    return paired_scenes(s.speed_scene, s.accuracy_scene, SPEED_CONDITIONS, ACCURACY_CONDITIONS,
+                         s.speed_repetitions, s.repetitions, s.trial_s, s.subjects)
 
 
 @dataclass(frozen=True)
@@ -241,29 +232,14 @@ def _scale(base: float, value: float, reference: float) -> float:
 
 
 def apply(scene: Scene, kind: str, p: Parameter, value: float) -> Scene:
-    """The scene with parameter p at `value` (scaled to this scene's own value), or unchanged
-    when p does not apply to this kind of scene."""
+    """The scene with parameter p at `value` (an effect's scaled to this scene's own value), or
+    unchanged when p does not apply to this kind of scene."""
     if kind not in p.scenes:
         return scene
     group, _, name = p.key.partition('.')
-    if group == 'population':
-        pop = scene.population
-        if name == 'arm_spread':
-            return scene.replace(population=replace(pop, arm_spread=value))
-        k = 'abc'.index(name.rsplit('.', 1)[1])
-        spread = list(pop.spread)
-        spread[k] = value
-        return scene.replace(population=replace(pop, spread=tuple(spread)))
-    if group == 'protocol':
-        return scene.replace(protocol=replace(scene.protocol, **{name: value}))
-    effects = []
-    for e in scene.effects:
-        params = e.params_dict
-        if e.name == group:
-            own = params.get(name, REGISTRY[group].parameters()[name][0])
-            params[name] = _scale(float(own), value, p.value)
-        effects.append({e.name: params})
-    return scene.with_effects(effects)
+    if group not in ('population', 'protocol'):
+        value = _scale(float(_effect_value(scene, group, name)), value, p.value)
+    return scene.with_value(p.key, value)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -311,23 +287,6 @@ def headlines(per_wearer: dict[int, dict]) -> dict[str, float]:
     return {'c1_targets': m('targets_1'), 'c1_minus_c2': m('targets_1') - m('targets_2'),
             'c4_targets': m('targets_4'), 'c1_error_deg': m('error_1'),
             'c4_error_deg': m('error_4')}
-
-
-class _Pool:
-    def __init__(self, workers: int, jobs_per_map: int):
-        self.pool = None
-        if workers > 1 and jobs_per_map > 1:
-            methods = multiprocessing.get_all_start_methods()
-            ctx = multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
-            self.pool = ctx.Pool(min(workers, jobs_per_map))
-
-    def map(self, fn, jobs):
-        return [fn(j) for j in jobs] if self.pool is None else self.pool.map(fn, jobs, chunksize=1)
-
-    def close(self):
-        if self.pool is not None:
-            self.pool.close()
-            self.pool.join()
 
 
 @dataclass
@@ -433,7 +392,7 @@ def run_sensitivity(settings: Settings,
                 plan.append((p.key, side, v, spd.seed, apply(spd, 'speed', p, v),
                              apply(acc, 'accuracy', p, v)))
     start = time.perf_counter()
-    pool = _Pool(settings.workers, settings.subjects)
+    pool = WorkerPool(settings.workers, settings.subjects)
     baselines, runs = [], []
     try:
         for i, (key, side, v, seed, s_scene, a_scene) in enumerate(plan, start=1):

@@ -7,6 +7,7 @@ from typing import Any, Sequence
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
+from ..core.controller_parameters import Parameter
 from ..core.safe_input import InputFileError, excerpt, load_yaml
 
 
@@ -24,6 +25,14 @@ def declare(node: Node, name: str, default: Any, description: str, unit: str = '
         elif isinstance(default, float):
             desc.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
     return node.declare_parameter(name, default, desc).value
+
+
+def declare_table(node: Node, table: Sequence[Parameter], **values: Any) -> dict[str, Any]:
+    """Declare every parameter of a table (core/controller_parameters.py) with its descriptor;
+    their values by name. values: a default that is only known at run time (by name)."""
+    return {p.name: declare(node, p.name, values.get(p.name, p.default), p.description,
+                            '' if p.unit == '-' else p.unit, p.low, p.high, p.read_only)
+            for p in table}
 
 
 def declare_config_file(node: Node, name: str, config_name: str, what: str,

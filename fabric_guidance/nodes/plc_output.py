@@ -32,6 +32,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core.channels import ChannelMap
+from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare, declare_config_file
@@ -81,7 +82,7 @@ class PlcOutput(Node):
         register_map_file = declare_config_file(self, 'register_map_file', 'hardware/plc_register_map.yaml',
                                                 'register map')
         channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map')
-        p_max_param = declare(self, 'p_max_kpa', 375.0,
+        p_max_param = declare(self, 'p_max_kpa', PAPER_P_MAX,
                               'commands are clamped to this (and to the register map p_max_kpa) before writing',
                               'kPa', 0.0, 1000.0, read_only=True)
         write_rate_hz = declare(self, 'write_rate_hz', 50.0, 'commands and heartbeat written per second',

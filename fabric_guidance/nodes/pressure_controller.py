@@ -46,7 +46,8 @@ from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError
                     angles_between, condition, phrase, ray_direction, target_direction)
 from ..core.calibration import DONE, FAILED, Acceptance
 from ..core.channels import ChannelMapError
-from ..core.feedback import FILTERED, RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST, STALL_TIMEOUT_S
+from ..core.controller_parameters import PARAMETERS, SETUP
+from ..core.feedback import REST
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import encode_input, setup_to_dict
@@ -56,7 +57,7 @@ from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CO
                          VENT)
 from ..paths import resolve
 from .diagnostics import publish_diagnostics, status
-from .parameters import declare, declare_config_file
+from .parameters import declare_table
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
@@ -64,84 +65,34 @@ from .spin import run
 class PressureController(Node):
     def __init__(self):
         super().__init__('pressure_controller')
-        self.condition = condition(declare(self, 'condition', 1, 'guidance condition: 1 surface adjusted, '
-                                           '2 surface fixed, 3 arm adjusted, 4 speech', low=1, high=4))
-        self.gain = declare(self, 'gain', 0.05, 'adjustment gain G of Eq. 5', low=0.0, high=10.0)
-        self.p_max = declare(self, 'p_max_kpa', 375.0, 'no command above this leaves the node', 'kPa',
-                             low=0.0, high=1000.0)
-        rate = declare(self, 'control_rate_hz', 30.0, 'Eq. 5 steps per second', 'Hz', low=1.0, high=1000.0)
-        self.gaze_timeout = declare(self, 'gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long',
-                                    's', low=0.01, high=10.0)
-        self.deadband = declare(self, 'rate_deadband_dps', 0.0,
-                                'rate_estimator sign: de/dt must exceed this to count as growing '
-                                '(0: the paper)', 'deg/s', low=0.0, high=1000.0)
-        # Issue 11 (docs/guidance.md): the frame of Eq. 5's angles, the rate estimate, the stall.
-        frame = declare(self, 'guidance_frame', REST,
-                        "origin of Eq. 5's angles: rest (the calibration's rest gaze) or target "
-                        '(the gaze when a target begins)')
-        estimator = declare(self, 'rate_estimator', FILTERED,
-                            '"the error grows": filtered (low-passed de/dt above '
-                            "rate_threshold_dps) or sign (the paper's literal test)")
-        tau = declare(self, 'rate_filter_tau_s', RATE_FILTER_TAU_S,
-                      'time constant of the de/dt filter', 's', low=0.001, high=10.0)
-        threshold = declare(self, 'rate_threshold_dps', RATE_THRESHOLD_DPS,
-                            'filtered de/dt must exceed this (default: 3 sd of 1.5 deg tracker '
-                            'noise at 30 Hz)', 'deg/s', low=0.001, high=1000.0)
-        stall = declare(self, 'stall_timeout_s', STALL_TIMEOUT_S,
-                        'vent when the gaze made no progress toward the target for this long; '
-                        '0 = never', 's', low=0.0, high=3600.0)
-        cal_file = declare(self, 'calibration_file', '', "the wearer's calibration file (YAML); '' = none: "
-                           'no guidance until calibrated')
-        cal_dir = declare(self, 'calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
-                          "'' = ~/.fabric_guidance/calibrations")
-        self.wearer = check_wearer(declare(self, 'wearer', 'wearer', 'name of the wearer (the calibration file '
-                                           'name)'), 'parameter "wearer"')
-        self.cal_steps = declare(self, 'calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)',
-                                 low=3, high=50)
-        self.cal_dwell = declare(self, 'calibration_dwell_s', 3.0, 'time at each pressure step', 's',
-                                 low=0.05, high=60.0)
-        self.cal_rest = declare(self, 'calibration_rest_s', 3.0, 'vented rest before each direction', 's',
-                                low=0.05, high=60.0)
-        self.cal_window = declare(self, 'calibration_window_s', 0.5, 'the recorded angle is the median over '
-                                  'the last part of a dwell', 's', low=0.01, high=60.0)
-        # Issue 11: a calibration that misses one of these is refused (the previous one is kept).
-        self.acceptance = Acceptance(
-            declare(self, 'calibration_min_r2', 0.8,
-                    'refuse a direction whose fit explains less', '-', low=-1e9, high=1.0),
-            declare(self, 'calibration_min_span_deg', 5.0,
-                    'refuse a direction whose angles span less', 'deg', low=0.0, high=180.0),
-            declare(self, 'calibration_max_reversal_deg', 2.0,
-                    'refuse a direction whose angle falls more than this below an earlier one',
-                    'deg', low=0.0, high=180.0),
-            declare(self, 'calibration_max_rmse_kpa', 37.5,
-                    'refuse a direction whose fit RMSE is larger', 'kPa', low=0.0, high=1000.0))
-        channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map',
-                                               read_only=False)
-        self.speak = declare(self, 'speak', True, 'condition 4: also speak the phrase with espeak-ng if installed')
-        self.use_wearer_gain = declare(self, 'use_wearer_gain', False, "use the adjustment gain of the wearer's "
-                                       'calibration file when it has one (beyond the paper)')
-        self.follow_target = declare(self, 'follow_moving_target', False, 'shift the pressure with f(theta_t) '
-                                     'when the target moves (beyond the paper)')
-        self.step_on_gaze = declare(self, 'step_on_gaze', True, 'run a control step on every valid gaze sample; '
-                                    'the control_rate_hz timer fills in when none came for a period',
-                                    read_only=True)
+        # Every parameter from the one table (core/controller_parameters.py); `channels` last,
+        # once the channel map it mirrors is loaded.
+        v = declare_table(self, PARAMETERS[:-1])
+        self.condition = condition(v['condition'])
+        self.gain, self.p_max, self.gaze_timeout = v['gain'], v['p_max_kpa'], v['gaze_timeout_s']
+        self.wearer = check_wearer(v['wearer'], 'parameter "wearer"')
+        self.cal_steps, self.cal_dwell = v['calibration_steps'], v['calibration_dwell_s']
+        self.cal_rest, self.cal_window = v['calibration_rest_s'], v['calibration_window_s']
+        self.acceptance = Acceptance(v['calibration_min_r2'], v['calibration_min_span_deg'],
+                                     v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa'])
+        self.speak, self.step_on_gaze = v['speak'], v['step_on_gaze']
+        cal_file, cal_dir = v['calibration_file'], v['calibration_dir']
+        channel_map_file = resolve(v['channel_map_file'], 'hardware/channel_map.yaml')
 
-        self.channel_map = ChannelMap.load(resolve(channel_map_file, 'hardware/channel_map.yaml'))
+        self.channel_map = ChannelMap.load(channel_map_file)
         self.layout = self.condition.layout or 'suit'
         if self.layout not in self.channel_map.layouts:
             # Checked here: the first guidance step would otherwise fail after start-up.
-            raise ChannelMapError(f'channel map {resolve(channel_map_file, "hardware/channel_map.yaml")}: field '
+            raise ChannelMapError(f'channel map {channel_map_file}: field '
                                   f'"layouts" has no layout "{self.layout}" for condition '
                                   f'{self.condition.number}; it has {list(self.channel_map.layouts)}')
-        declare(self, 'channels', list(self.channel_map.channels),
-                'order of pressure_command (as ros2_controllers joints)', read_only=True)
+        declare_table(self, PARAMETERS[-1:], channels=list(self.channel_map.channels))
         self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'
         self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
-        self.setup = ControllerSetup(self.condition.number, float(self.gain), float(self.p_max), float(rate),
-                                     float(self.gaze_timeout), float(self.deadband), bool(self.use_wearer_gain),
-                                     bool(self.follow_target), self.calibration, self.channel_map,
-                                     str(frame), str(estimator), float(tau), float(threshold),
-                                     float(stall) if stall > 0 else None)
+        setup = {p.name: v[p.name] for p in SETUP}
+        setup['stall_timeout_s'] = setup['stall_timeout_s'] or None   # ROS has no null: 0 = never
+        self.setup = ControllerSetup(calibration=self.calibration, channel_map=self.channel_map, **setup)
+        rate = self.setup.control_rate_hz
         self.warn_origin(self.calibration)
         self.controller = self._make_controller()
 

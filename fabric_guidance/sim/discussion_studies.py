@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-import multiprocessing
 import time
 from typing import Callable, Iterable
 
+from ..workers import WorkerPool
 from .engine import package_channel_map
 from .moving_targets import LAWS, SCENARIOS, moving_trial
 from .per_wearer_gain import GAIN_GRID, choose_gain, gain_means, run_gain_grid, tune_gain
@@ -109,11 +109,6 @@ def _job(args):
     return run_wearer(scene, subject, settings)
 
 
-def _context():
-    methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
-
-
 @dataclass
 class StudyResults:
     """Both studies' trials per wearer, with the frames the analyses read."""
@@ -192,18 +187,11 @@ def run_studies(scene: Scene, subjects: Iterable[int] | int | None = None,
     start = time.perf_counter()
     jobs = [(scene, i, settings) for i in indices]
     results: dict[int, WearerResult] = {}
-    if workers == 1 or len(jobs) == 1:
-        for done, job in enumerate(jobs, start=1):
-            res = _job(job)
+    with WorkerPool(workers, len(jobs)) as pool:
+        for done, res in enumerate(pool.as_done(_job, jobs), start=1):
             results[res.subject] = res
             if progress is not None:
                 progress(done, len(jobs), res.subject)
-    else:
-        with _context().Pool(min(workers, len(jobs))) as pool:
-            for done, res in enumerate(pool.imap_unordered(_job, jobs), start=1):
-                results[res.subject] = res
-                if progress is not None:
-                    progress(done, len(jobs), res.subject)
     return StudyResults(scene, settings, [results[i] for i in indices],
                         time.perf_counter() - start)
 

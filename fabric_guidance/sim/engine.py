@@ -30,6 +30,7 @@ haversine form of the angle.
 """
 from __future__ import annotations
 
+from dataclasses import asdict
 from functools import lru_cache
 import math
 from typing import Sequence
@@ -37,7 +38,8 @@ from typing import Sequence
 from ..core.calibration import ACCEPT_ALL, APPLY, Calibration, CalibrationProcedure, DONE, FAILED
 from ..core.channels import ChannelMap
 from ..core.conditions import condition as condition_of
-from ..core.feedback import REST, GuidanceController
+from ..core.control_step import build_controller
+from ..core.feedback import REST, GuidanceController, step_directions
 from ..core.geometry import DIRECTIONS, wrap_deg
 from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
@@ -82,17 +84,14 @@ class FastPowerLaw(PowerLaw):
         return PowerLaw.pressure(self, theta)
 
 
-def scene_controller(ctl, mode: str, calibration: Calibration, gain: float | None = None,
+def scene_controller(ctl, mode: str, calibration: Calibration, *, use_wearer_gain: bool = False,
                      follow_target: bool = False) -> GuidanceController:
-    """The controller the node builds (core.control_step.ControllerSetup.make_controller) from a
-    scene's controller section: same law, estimator and frame; fast scalar power laws."""
-    return GuidanceController(
-        [FastPowerLaw.of(law) for law in calibration.laws],
-        p_max=min(ctl.p_max_kpa, calibration.p_max), gain=ctl.gain if gain is None else gain,
-        mode=mode, rate_deadband=ctl.rate_deadband_dps, follow_target=follow_target,
-        estimator=ctl.rate_estimator, rate_filter_tau_s=ctl.rate_filter_tau_s,
-        rate_threshold=ctl.rate_threshold_dps, frame=ctl.guidance_frame,
-        rest_gaze=calibration.origin)
+    """The controller the node builds (core.control_step.build_controller, the one builder) from
+    a scene's controller section, with fast scalar power laws. The simulator steps Eq. 5 itself
+    (no GuidanceController.update), so it has no no-progress vent: stall_timeout_s never."""
+    values = {**asdict(ctl), 'stall_timeout_s': None, 'use_wearer_gain': use_wearer_gain,
+              'follow_moving_target': follow_target}
+    return build_controller(values, mode, calibration, FastPowerLaw.of)
 
 
 def yaw_pitch(direction) -> tuple[float, float]:
@@ -163,7 +162,7 @@ class ClosedLoop:
         self.front_visible = False
         self.mode = 'front'                   # wearer: 'follow' the guidance, or 'front'
         self._g0: tuple[float, float] | None = None
-        self._theta_t = (0.0, 0.0, 0.0, 0.0)
+        self._theta_t = (0.0, 0.0)            # target's signed (h, v) from g0, deg
         self.speech_due = False
         self.spoken: list[str] = []
         # Gaze stream: the controller's last sample (seq, t_emitted, yaw, pitch).
@@ -272,17 +271,8 @@ class ClosedLoop:
         ctrl = self.controller
         y0, p0 = self._g0
         if began:
-            h = wrap_deg(self.target[0] - y0)
-            v = self.target[1] - p0
-            self._theta_t = (h, -h, -v, v)
-        h = wrap_deg(gy - y0)
-        v = gp - p0
-        d0, d1, d2, d3 = ctrl.directions
-        t0, t1, t2, t3 = self._theta_t
-        # A direction whose target angle is <= 0 stays vented for the whole target (its step()
-        # would only reset it again): skipping the call changes nothing.
-        self._set_command((d0.step(t0, h, t) if t0 > 0.0 else 0.0, d1.step(t1, -h, t) if t1 > 0.0 else 0.0,
-                           d2.step(t2, -v, t) if t2 > 0.0 else 0.0, d3.step(t3, v, t) if t3 > 0.0 else 0.0))
+            self._theta_t = (wrap_deg(self.target[0] - y0), self.target[1] - p0)
+        self._set_command(step_directions(ctrl.directions, *self._theta_t, wrap_deg(gy - y0), gp - p0, t))
 
     def _say(self, t: float) -> None:
         self.speech_due = False

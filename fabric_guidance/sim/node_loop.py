@@ -11,6 +11,8 @@ from __future__ import annotations
 from typing import Sequence
 
 from ..core.calibration import Calibration
+from ..core.control_step import controller_gain
+from ..core.feedback import step_directions
 from ..core.geometry import wrap_deg
 from .engine import ClosedLoop, scene_controller
 
@@ -33,14 +35,12 @@ class NodeLoop(ClosedLoop):
         super().__init__(scene, wearer, run, condition, calibration, channel_map)
         self.follow_target = bool(follow_target)
         self.live_target = self.follow_target if live_target is None else bool(live_target)
-        ctl = scene.controller
-        self.gain = ctl.gain
-        if use_wearer_gain and calibration is not None and calibration.adjustment_gain is not None:
-            self.gain = calibration.adjustment_gain
+        self.gain = controller_gain(scene.controller.gain, use_wearer_gain, calibration)
         if self.controller is not None:
             # As ClosedLoop builds it (and as the node does), with the gain and the option.
-            self.controller = scene_controller(ctl, self.cond.mode, calibration, self.gain,
-                                               self.follow_target)
+            self.controller = scene_controller(scene.controller, self.cond.mode, calibration,
+                                               use_wearer_gain=use_wearer_gain,
+                                               follow_target=self.follow_target)
 
     def move_target(self, yaw: float, pitch: float) -> None:
         """The active target is now at (yaw, pitch): no vent, no new guidance (the node's
@@ -60,14 +60,9 @@ class NodeLoop(ClosedLoop):
         y0, p0 = self._g0
         # GuidanceController.update's angles, from g0, with the target of this moment; every
         # direction is stepped (a direction whose theta_t is <= 0 resets, as in update()).
-        ht = wrap_deg(self.target[0] - y0)
-        vt = self.target[1] - p0
-        self._theta_t = (ht, -ht, -vt, vt)
-        h = wrap_deg(gy - y0)
-        v = gp - p0
-        d0, d1, d2, d3 = self.controller.directions
-        self._set_command((d0.step(ht, h, t), d1.step(-ht, -h, t), d2.step(-vt, -v, t),
-                           d3.step(vt, v, t)))
+        self._theta_t = (wrap_deg(self.target[0] - y0), self.target[1] - p0)
+        self._set_command(step_directions(self.controller.directions, *self._theta_t, wrap_deg(gy - y0),
+                                          gp - p0, t))
 
 
 __all__ = ['NodeLoop']

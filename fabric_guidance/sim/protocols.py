@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict, dataclass
 import math
-import multiprocessing
 import os
 from pathlib import Path
 import sys
@@ -43,6 +42,7 @@ import numpy as np
 
 from ..core.conditions import condition as condition_of
 from ..core.geometry import wrap_deg
+from ..workers import WorkerPool
 from .effects import generator
 from .engine import WARMUP_S, ClosedLoop, package_channel_map, trial_run
 from .population import CalibrationOutcome, WearerSpec, calibrate_wearer, sample_wearer, subject_indices
@@ -288,11 +288,6 @@ def _run_subject_job(args):
     return subject, run_subject(scene, subject)
 
 
-def _context():
-    methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
-
-
 def run_protocol(scene: Scene, subjects: Iterable[int] | int | None = None, workers: int = 2,
                  progress: Callable[[int, int, int], None] | None = None) -> ProtocolResults:
     """Run the scene's protocol: every wearer (or `subjects`: the first n, or these indices)
@@ -309,18 +304,11 @@ def run_protocol(scene: Scene, subjects: Iterable[int] | int | None = None, work
     start = time.perf_counter()
     results: dict[int, tuple[CalibrationOutcome, list[TrialRecord]]] = {}
     jobs = [(scene, i) for i in indices]
-    if workers == 1 or len(indices) == 1:
-        for done, job in enumerate(jobs, start=1):
-            subject, result = _run_subject_job(job)
+    with WorkerPool(workers, len(jobs)) as pool:
+        for done, (subject, result) in enumerate(pool.as_done(_run_subject_job, jobs), start=1):
             results[subject] = result
             if progress is not None:
                 progress(done, len(jobs), subject)
-    else:
-        with _context().Pool(min(workers, len(jobs))) as pool:
-            for done, (subject, result) in enumerate(pool.imap_unordered(_run_subject_job, jobs), start=1):
-                results[subject] = result
-                if progress is not None:
-                    progress(done, len(jobs), subject)
     records, exclusions, outcomes = [], [], []
     sim_s = 0.0
     for i in indices:

@@ -29,7 +29,7 @@ dataclasses; every error is a SceneError naming the file and the field at fault.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, make_dataclass, replace
 import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -37,8 +37,7 @@ from typing import Any, Mapping, Sequence
 
 from ..core.safe_input import excerpt, load_yaml
 from ..core.conditions import CONDITIONS
-from ..core.feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX,
-                             RATE_FILTER_TAU_S, RATE_THRESHOLD_DPS, REST)
+from ..core.controller_parameters import SCENE as SCENE_PARAMETERS, default, renamed
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
 from ..paths import config_path
@@ -109,17 +108,20 @@ class PopulationSpec:
         return self.laws[DIRECTIONS.index(direction)]
 
 
-@dataclass(frozen=True)
-class ControllerSpec:
-    gain: float = _num(PAPER_GAIN, '-', lo=0.0, hi=10.0)                       # the paper: 0.05
-    control_rate_hz: float = _num(30.0, 'Hz', lo=0.0, lo_open=True)     # the node's default
-    p_max_kpa: float = _num(PAPER_P_MAX, 'kPa', lo=0.0, lo_open=True)   # the paper: 375 kPa
-    gaze_timeout_s: float = _num(0.3, 's', lo=0.0, lo_open=True)        # the node's default
-    rate_deadband_dps: float = _num(0.0, 'deg/s', lo=0.0)               # sign estimator only
-    guidance_frame: str = _choice(REST, FRAMES)            # rest: the calibration's rest gaze
-    rate_estimator: str = _choice(FILTERED, ESTIMATORS)    # sign: the paper's literal test
-    rate_filter_tau_s: float = _num(RATE_FILTER_TAU_S, 's', lo=0.0, lo_open=True)
-    rate_threshold_dps: float = _num(RATE_THRESHOLD_DPS, 'deg/s', lo=0.0, lo_open=True)
+def _table_field(p):
+    """A scene field of a controller parameter (core/controller_parameters.py): its default,
+    unit, range and choices."""
+    if p.choices:
+        return p.name, str, _choice(p.default, p.choices)
+    return p.name, p.type, _num(p.default, p.unit, lo=p.low, hi=p.high, lo_open=p.low_open,
+                                integer=p.type is int)
+
+
+#: A scene's controller section: the controller parameters the simulator honours (the table's
+#: scene entries, core/controller_parameters.py), with their defaults and ranges.
+ControllerSpec = make_dataclass('ControllerSpec', [_table_field(p) for p in SCENE_PARAMETERS],
+                                frozen=True)
+ControllerSpec.__module__ = __name__
 
 
 @dataclass(frozen=True)
@@ -128,10 +130,11 @@ class CalibrationSpec:
     controller the wearer's true suit law (an oracle, for tests and for separating calibration
     error from guidance error)."""
 
-    steps: int = _num(10, '-', lo=3, hi=50, integer=True)               # the paper: 10
-    dwell_s: float = _num(3.0, 's', lo=0.0, lo_open=True)               # the node's default
-    rest_s: float = _num(3.0, 's', lo=0.0, lo_open=True)                # the node's default
-    window_s: float = _num(0.5, 's', lo=0.0, lo_open=True)              # the node's default
+    # The node's defaults (core/controller_parameters.py calibration_*); the paper: 10 steps.
+    steps: int = _num(default('calibration_steps'), '-', lo=3, hi=50, integer=True)
+    dwell_s: float = _num(default('calibration_dwell_s'), 's', lo=0.0, lo_open=True)
+    rest_s: float = _num(default('calibration_rest_s'), 's', lo=0.0, lo_open=True)
+    window_s: float = _num(default('calibration_window_s'), 's', lo=0.0, lo_open=True)
     min_r2: float | None = _num(None, '-', lo=-1e9, hi=1.0, optional=True)
     exact: bool = False
 
@@ -181,6 +184,41 @@ class Scene:
 
     def replace(self, **changes) -> 'Scene':
         return replace(self, **changes)
+
+    def with_value(self, key: str, value) -> 'Scene':
+        """The same scene with one number changed, named by its path in a scene file:
+        'controller.gain', 'calibration.steps', 'protocol.acceptance_deg',
+        'population.spread.a', 'population.arm_spread' or '<effect>.<parameter>' (an effect the
+        scene lists). The knobs of the trade-off and the sensitivity analysis change scenes
+        through this. KeyError for a path the scene has not."""
+        section, _, name = key.partition('.')
+        if section in ('controller', 'calibration', 'protocol'):
+            part = getattr(self, section)
+            f = next((f for f in fields(part) if f.name == name), None)
+            if f is None:
+                raise KeyError(f'{key}: {section} has no field {name!r}')
+            if 'unit' in f.metadata:    # a number: of the field's kind, as a scene file gives it
+                value = int(value) if f.metadata.get('integer') else float(value)
+            return replace(self, **{section: replace(part, **{name: value})})
+        if section == 'population':
+            pop = self.population
+            if name == 'arm_spread':
+                return replace(self, population=replace(pop, arm_spread=value))
+            coef = name.rpartition('.')[2]
+            if not name.startswith('spread.') or coef not in 'abc' or len(coef) != 1:
+                raise KeyError(f'{key}: population has spread.a, spread.b, spread.c and arm_spread')
+            spread = list(pop.spread)
+            spread['abc'.index(coef)] = value
+            return replace(self, population=replace(pop, spread=tuple(spread)))
+        if self.effect(section) is None:
+            raise KeyError(f'{key}: the scene lists no effect {section!r}')
+        effects = []
+        for e in self.effects:
+            params = e.params_dict
+            if e.name == section:
+                params[name] = value
+            effects.append({e.name: params})
+        return self.with_effects(effects)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -351,7 +389,13 @@ def scene_from_dict(data, source: str = '<scene>') -> Scene:
     reps = _number(data.get('repetitions', protocol.default_repetitions), source, 'repetitions',
                    {'unit': 'trials', 'lo': 1, 'hi': 10000, 'integer': True})
     population = _parse_population(data.get('population'), source)
-    controller = _section(ControllerSpec, data.get('controller'), source, 'controller')
+    controller_data = data.get('controller')
+    if isinstance(controller_data, Mapping):
+        try:   # a renamed key: read under its new name, with one warning naming the file
+            controller_data = renamed(controller_data, f'{source}: controller')
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+    controller = _section(ControllerSpec, controller_data, source, 'controller')
     calibration = _section(CalibrationSpec, data.get('calibration'), source, 'calibration')
     if calibration.window_s > min(calibration.dwell_s, calibration.rest_s):
         _fail(source, 'calibration.window_s', 'must not exceed calibration.dwell_s or calibration.rest_s')

@@ -5,17 +5,17 @@ Sweeps every knob of the package that buys accuracy with time, on the scene simu
 with the realistic effects of config/scenes/paper-accuracy.yaml and paper-speed.yaml), and
 writes for each knob value the accuracy and the time it costs, with their spread:
 
-  acceptance_tolerance  speed protocol: the true gaze error when a target counts (deg) against
+  acceptance_deg        speed protocol: the true gaze error when a target counts (deg) against
                         the time to find a target (s, from its appearance to the count).
   gain                  Eq. 5's G. Accuracy protocol: guidance error (deg) against the time to
                         the key press (s); speed protocol: error when a target counts against
                         the time to find it.
-  calibration_points    Algorithm 1's pressure steps per direction. The calibration time
+  calibration_steps     Algorithm 1's pressure steps per direction. The calibration time
                         (simulated seconds Algorithm 1 ran: about 4 x (rest + steps x dwell))
                         against the accuracy protocol's guidance error, and against the fitted
                         law's angle error versus the wearer's true law
                         (sim.population.law_angle_error_deg, per direction).
-  control_rate          how often Eq. 5 runs (Hz). Accuracy protocol: guidance error against the
+  control_rate_hz       how often Eq. 5 runs (Hz). Accuracy protocol: guidance error against the
                         time to the key press. Eq. 5 adds G*(f(theta_t) - f(theta)) once per
                         control step, so the rate scales the law's effective gain per second
                         (G x rate); the grid stops at the scene's 60 Hz gaze rate, which the

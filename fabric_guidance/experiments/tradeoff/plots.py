@@ -174,14 +174,14 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     markers = {1: 'o', 2: 's', 3: '^', 4: 'D'}
     handles, labels = [], []
     for knob in knobs:
-        style = ':' if knob == 'acceptance_tolerance' else '-'
+        style = ':' if knob == 'acceptance_deg' else '-'
         rows = curves[knob]
         ref, _ = REFERENCE[knob]
         label = (f'{KNOB_TITLES[knob]}: {rows[0].value:g} to {rows[-1].value:g} '
                  f'(package {ref:.3g})')
-        if knob == 'acceptance_tolerance':
+        if knob == 'acceptance_deg':
             label += ';\n   y = error when a target counts (speed protocol)'
-        elif knob in ('calibration_points', 'fit_tolerance'):
+        elif knob in ('calibration_steps', 'fit_tolerance'):
             label += ';\n   own cost (calibration time / fit wall time) in the labels'
         handles.append(Line2D([], [], color=colours[knob], ls=style, marker='.', lw=1.6))
         labels.append(label)
@@ -197,7 +197,7 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     for ax in (whole, zoom):
         for knob in knobs:
             x, y, xe, ye = stats(curves[knob])
-            style = ':' if knob == 'acceptance_tolerance' else '-'
+            style = ':' if knob == 'acceptance_deg' else '-'
             ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor=colours[knob], elinewidth=1.0,
                         capsize=2,
                         alpha=0.7, zorder=3)
@@ -221,7 +221,7 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     if ys.size and ys.min() > 0 and ys.max() / ys.min() > 30:
         whole.set_yscale('log')
     # the zoom: every knob but the tolerance, and the sweep's condition, with their whiskers
-    near = [r for k in knobs if k != 'acceptance_tolerance' for r in curves[k]] + \
+    near = [r for k in knobs if k != 'acceptance_deg' for r in curves[k]] + \
         [r for r in cond_rows if int(r.value) == cond]
     if near:
         x, y, xe, ye = stats(near)
@@ -254,26 +254,26 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
             out.append(Bbox([[cx - 9, cy - 9], [cx + 9, cy + 9]]))
         return out
 
-    tol = curves.get('acceptance_tolerance', [])
+    tol = curves.get('acceptance_deg', [])
     if tol:
         x, y, _, _ = stats(tol)
         idx = sorted({0, len(tol) - 1} | {i for i, r in enumerate(tol)
                                           if math.isclose(float(r.value),
-                                                          REFERENCE['acceptance_tolerance'][0])})
+                                                          REFERENCE['acceptance_deg'][0])})
         items = [(x[i], y[i], f'tolerance {tol[i].value:g}'
                   + (' (package)' if i not in (0, len(tol) - 1) else ''),
-                  colours['acceptance_tolerance'])
+                  colours['acceptance_deg'])
                  for i in idx]
         _place_labels(whole, renderer, items, obstacles(whole, cond_rows))
     items = []
     for knob in knobs:
-        if knob == 'acceptance_tolerance':
+        if knob == 'acceptance_deg':
             continue
         rows = curves[knob]
         x, y, _, _ = stats(rows)
         for i in sorted({0, len(rows) - 1}):
             text = f'{KNOB_SYMBOLS[knob]} {rows[i].value:g}'
-            if knob in ('calibration_points', 'fit_tolerance'):
+            if knob in ('calibration_steps', 'fit_tolerance'):
                 text += f' ({rows[i].note.split("; ")[0]})'
             items.append((x[i], y[i], text, colours[knob]))
     _place_labels(zoom, renderer, items, obstacles(zoom,

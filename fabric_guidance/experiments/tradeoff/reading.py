@@ -190,7 +190,7 @@ def gain_rate_reading(result: SweepResult) -> str:
             f'gain per second, G x rate ({g0:g} x {r0:g} Hz = {g0 * r0:g}/s in the scene).')
     curves = result.curves()
     gains = curves.get(('gain', 'guidance_error_deg', 'time_to_key_press_s'), [])
-    rates = curves.get(('control_rate', 'guidance_error_deg', 'time_to_key_press_s'), [])
+    rates = curves.get(('control_rate_hz', 'guidance_error_deg', 'time_to_key_press_s'), [])
     pairs = [(g, r) for g in gains for r in rates
              if math.isclose(g.value * r0, g0 * r.value, rel_tol=1e-9)
              and not (math.isclose(g.value, g0) and math.isclose(r.value, r0))

@@ -111,8 +111,8 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
               'Generated from the numbers (rules in `fabric_guidance.experiments.tradeoff.read_curve`).', '']
     for (knob, am, tm), text in readings.items():
         lines.append(f'- **{knob}** ({am} against {tm}): {text}')
-    if 'control_rate' in s.knobs:
-        lines.append(f'- **control_rate and G**: {gain_rate_reading(result)}')
+    if 'control_rate_hz' in s.knobs:
+        lines.append(f'- **control_rate_hz and G**: {gain_rate_reading(result)}')
     lines += ['', '## Plots', '']
     for knob in s.knobs:
         lines += [f'![{knob}]({image_path(paths[knob], out)})', '']

@@ -148,12 +148,12 @@ def _wearer_time(cals: dict, keys: Sequence[str] = ('subject',)) -> pd.Series:
 
 
 def calibration_rows(value, samples: list[dict], cals: dict, timeout_s: float | None = None) -> list[Row]:
-    guidance = accuracy_rows('calibration_points', value, samples, cals, timeout_s)
+    guidance = accuracy_rows('calibration_steps', value, samples, cals, timeout_s)
     guidance.time_metric = 'calibration_time_s'
     guidance.time = _wearer_time(cals)
     law = [dict(subject=o.subject, direction=d, error=o.angle_error_deg[d])
            for o, _ in cals.values() if o.ok for d in DIRECTIONS]
-    law_row = Row('calibration_points', value, 'law_angle_error_deg', 'calibration_time_s',
+    law_row = Row('calibration_steps', value, 'law_angle_error_deg', 'calibration_time_s',
                   _series(law, 'error', ('subject', 'direction')), _wearer_time(cals), _exclusion_note(cals),
                   _exclusion_caveat(cals))
     return [guidance, law_row]

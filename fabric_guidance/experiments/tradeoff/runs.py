@@ -3,13 +3,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 import math
-import multiprocessing
 
 from ...core.geometry import DIRECTIONS
 from ...sim.engine import CALIBRATION_RUN, ClosedLoop, package_channel_map, trial_run
 from ...sim.population import CalibrationOutcome, law_angle_error_deg, law_error_kpa, sample_wearer
 from ...sim.protocols import accuracy_trial, speed_loop, target_stream
 from ...sim.scene import AccuracyProtocol, Scene
+from ...workers import WorkerPool
 
 
 def calibration_key(scene: Scene) -> Scene:
@@ -86,22 +86,14 @@ class _Runner:
 
     def __init__(self, workers: int, subjects: int):
         self.subjects = list(range(subjects))
-        self.pool = None
-        if workers > 1 and subjects > 1:
-            methods = multiprocessing.get_all_start_methods()
-            ctx = multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
-            self.pool = ctx.Pool(min(workers, subjects))
+        self.pool = WorkerPool(workers, subjects)
         self.calibrations: dict[Scene, dict[int, tuple[CalibrationOutcome, float]]] = {}
 
     def map(self, fn, jobs):
-        if self.pool is None:
-            return [fn(j) for j in jobs]
-        return self.pool.map(fn, jobs, chunksize=1)
+        return self.pool.map(fn, jobs)
 
     def close(self):
-        if self.pool is not None:
-            self.pool.close()
-            self.pool.join()
+        self.pool.close()
 
     def calibrate(self, scene: Scene) -> dict[int, tuple[CalibrationOutcome, float]]:
         key = calibration_key(scene)

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 import math
+from typing import Callable
+import warnings
 
-from ...core.feedback import RATE_THRESHOLD_DPS
+from ...core.controller_parameters import default
 from ...sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
 
 
@@ -13,45 +15,78 @@ from ...sim.scene import AccuracyProtocol, Scene, SpeedProtocol, load_scene
 DEFAULT_SPEED_SCENE = 'paper-fitted-speed'
 DEFAULT_ACCURACY_SCENE = 'paper-fitted-accuracy'
 
-KNOBS = ('acceptance_tolerance', 'gain', 'calibration_points', 'control_rate', 'rate_threshold',
-         'fit_tolerance')
 #: The paper's conditions drawn on the plane, at the package defaults.
 PLANE_CONDITIONS = (1, 2, 3, 4)
 CONDITION_LABELS = {1: '1 suit, adjusted', 2: '2 suit, fixed', 3: '3 arm band, adjusted',
                     4: '4 speech'}
 
-DEFAULT_GRIDS = {
-    'acceptance_tolerance': (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0),
-    'gain': (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5),
-    'calibration_points': (3, 4, 5, 6, 8, 10, 12, 15, 20),
-    'control_rate': (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
-    'rate_threshold': (3.0, 7.0, RATE_THRESHOLD_DPS, 30.0, 60.0, 120.0),
-    'fit_tolerance': (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12),
-}
-QUICK_GRIDS = {
-    'acceptance_tolerance': (2.0, 5.0, 10.0),
-    'gain': (0.0, 0.05, 0.5),
-    'calibration_points': (3, 10, 20),
-    'control_rate': (5.0, 30.0, 60.0),
-    'rate_threshold': (3.0, RATE_THRESHOLD_DPS, 60.0),
-    'fit_tolerance': (1e-2, 1e-6, 1e-10),
-}
-#: The value the package runs with, and where it comes from.
-REFERENCE = {'acceptance_tolerance': (5.0, 'the paper'), 'gain': (0.05, 'the paper'),
-             'calibration_points': (10, 'the paper'), 'control_rate': (30.0, 'node default'),
-             'rate_threshold': (RATE_THRESHOLD_DPS, 'core default'),
-             'fit_tolerance': (1e-10, 'core default'),
-             # not a knob: the plane's conditions have no package value to mark
-             'condition': (math.nan, '')}
-KNOB_TITLES = {'acceptance_tolerance': 'acceptance tolerance (deg)', 'gain': 'adjustment gain G (Eq. 5)',
-               'calibration_points': 'calibration points per direction (Algorithm 1)',
-               'control_rate': 'control rate (Hz)',
-               'rate_threshold': 'rate threshold of the feedback law (deg/s)',
-               'fit_tolerance': 'fit tolerance (LM xtol = ftol)',
-               'condition': 'the paper\'s condition'}
-KNOB_SYMBOLS = {'acceptance_tolerance': 'tolerance', 'gain': 'G', 'calibration_points': 'points',
-                'control_rate': 'rate', 'rate_threshold': 'threshold', 'fit_tolerance': 'tol',
-                'condition': 'condition'}
+
+@dataclass(frozen=True)
+class Knob:
+    """One knob of the sweep: what it changes, its unit, the values it runs, the package's value."""
+    name: str
+    title: str
+    symbol: str
+    unit: str
+    grid: tuple
+    quick_grid: tuple
+    reference: float
+    source: str
+    #: The values it can take (checked before a sweep runs); `acc` is the accuracy scene.
+    valid: Callable[[float, Scene], bool]
+    #: What the sweep measures at each value: SPEED (the speed protocol only), BOTH protocols,
+    #: ACCURACY (the accuracy protocol), CALIBRATION (Algorithm 1's cost and the accuracy it
+    #: buys) or FIT (the fit alone, on the accuracy scene's calibrations).
+    measures: str
+    #: What it changes: the value's path in a scene file (Scene.with_value); '' for a knob that
+    #: is not a scene setting (fit_tolerance: the fit's own tolerance).
+    key: str = ''
+    #: A note for the accuracy row (scene at the value, value), or None.
+    note: Callable[[Scene, float], str] | None = None
+
+    def vary(self, scene: Scene, value: float) -> Scene:
+        """The scene with this knob at `value`."""
+        return scene.with_value(self.key, value)
+
+
+SPEED, BOTH, ACCURACY, CALIBRATION, FIT = 'speed', 'both', 'accuracy', 'calibration', 'fit'
+
+
+_THRESHOLD = default('rate_threshold_dps')
+#: Every knob, in the sweep's order: the one table the settings, the sweep, the report, the
+#: plots and the reading take their facts from.
+KNOB_TABLE: tuple[Knob, ...] = (
+    Knob('acceptance_deg', 'acceptance tolerance (deg)', 'tolerance', 'deg',
+         (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0), (2.0, 5.0, 10.0), 5.0, 'the paper',
+         lambda v, acc: 0 < v <= 180, SPEED, 'protocol.acceptance_deg'),
+    Knob('gain', 'adjustment gain G (Eq. 5)', 'G', '-', (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 0.05, 0.5),
+         default('gain'), 'the paper', lambda v, acc: 0 <= v <= 10, BOTH, 'controller.gain'),
+    Knob('calibration_steps', 'calibration points per direction (Algorithm 1)', 'points', '-',
+         (3, 4, 5, 6, 8, 10, 12, 15, 20), (3, 10, 20), default('calibration_steps'), 'the paper',
+         lambda v, acc: float(v).is_integer() and 3 <= v <= 50, CALIBRATION, 'calibration.steps'),
+    Knob('control_rate_hz', 'control rate (Hz)', 'rate', 'Hz', (5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0),
+         (5.0, 30.0, 60.0), default('control_rate_hz'), 'node default',
+         lambda v, acc: 0 < v <= acc.sim_rate_hz, ACCURACY, 'controller.control_rate_hz',
+         lambda scene, v: f'G x rate = {scene.controller.gain * float(v):.3g} per s'),
+    Knob('rate_threshold_dps', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
+         (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
+         lambda v, acc: 0 < v <= 1000, BOTH, 'controller.rate_threshold_dps'),
+    Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
+         (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12), (1e-2, 1e-6, 1e-10), 1e-10, 'core default',
+         lambda v, acc: 1e-15 < v < 1, FIT),
+)
+KNOB: dict[str, Knob] = {k.name: k for k in KNOB_TABLE}
+
+KNOBS = tuple(KNOB)
+#: Knob names before they were the parameters' own: still read, with one warning.
+OLD_KNOB_NAMES = {'acceptance_tolerance': 'acceptance_deg', 'calibration_points': 'calibration_steps',
+                  'control_rate': 'control_rate_hz', 'rate_threshold': 'rate_threshold_dps'}
+DEFAULT_GRIDS = {k.name: k.grid for k in KNOB_TABLE}
+QUICK_GRIDS = {k.name: k.quick_grid for k in KNOB_TABLE}
+#: The value the package runs with, and where it comes from (the plane's conditions have none).
+REFERENCE = {**{k.name: (k.reference, k.source) for k in KNOB_TABLE}, 'condition': (math.nan, '')}
+KNOB_TITLES = {**{k.name: k.title for k in KNOB_TABLE}, 'condition': "the paper's condition"}
+KNOB_SYMBOLS = {**{k.name: k.symbol for k in KNOB_TABLE}, 'condition': 'condition'}
 METRICS = {
     'guidance_error_deg': ('guidance error (deg, accuracy protocol)', 'deg'),
     'error_at_count_deg': ('gaze error when a target counts (deg, speed protocol)', 'deg'),
@@ -84,6 +119,16 @@ class Settings:
     quick: bool = False
     plane: bool = True                  # run conditions 1-4 and both protocols per knob value
 
+    def __post_init__(self):
+        # An old knob name (in knobs or grids) is read as its new one, with one warning each.
+        old = [k for k in dict.fromkeys(tuple(self.knobs) + tuple(self.grids)) if k in OLD_KNOB_NAMES]
+        for k in old:
+            warnings.warn(f'tradeoff: knob "{k}" is deprecated, read as "{OLD_KNOB_NAMES[k]}"; rename it',
+                          FutureWarning, stacklevel=3)
+        if old:
+            object.__setattr__(self, 'knobs', tuple(OLD_KNOB_NAMES.get(k, k) for k in self.knobs))
+            object.__setattr__(self, 'grids', {OLD_KNOB_NAMES.get(k, k): v for k, v in self.grids.items()})
+
 
 def quick_settings(**changes) -> Settings:
     """A tiny sweep (2 wearers, 3 values per knob, short trials) for tests and a first look."""
@@ -101,22 +146,33 @@ def as_protocol(scene: Scene, kind: str) -> Scene:
                          repetitions=scene.repetitions)
 
 
-def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
-    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
-    acc = as_protocol(load_scene(settings.accuracy_scene), 'accuracy')
-    spd = as_protocol(load_scene(settings.speed_scene), 'speed')
+def paired_scenes(speed_scene: str, accuracy_scene: str, speed_conditions, accuracy_conditions,
+                  speed_repetitions: int, repetitions: int, trial_s: float | None,
+                  subjects: int) -> tuple[Scene, Scene]:
+    """(speed scene, accuracy scene) of the sweep and of the sensitivity analysis: each with its
+    protocol, conditions and repetitions, on the same wearers; trial_s: the speed trials' length
+    (None: the scene's)."""
+    spd = as_protocol(load_scene(speed_scene), 'speed')
+    acc = as_protocol(load_scene(accuracy_scene), 'accuracy')
     # The plane puts one protocol's time against the other's error: both run on the same
     # wearers (the speed scene's seed and population; common random numbers), which also lets
     # the two share every calibration when the scenes list the same effects.
     acc = acc.replace(seed=spd.seed, population=spd.population)
-    acc = acc.replace(conditions=(settings.condition,), repetitions=settings.repetitions)
-    spd = spd.replace(conditions=(settings.condition,), repetitions=settings.speed_repetitions)
-    if settings.trial_s is not None:
-        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(settings.trial_s)))
-    for s in (acc, spd):
-        if not 1 <= settings.subjects <= s.population.subjects:
-            raise ValueError(f'--subjects must be within 1..{s.population.subjects} (scene {s.name}), '
-                             f'got {settings.subjects}')
+    acc = acc.replace(conditions=tuple(accuracy_conditions), repetitions=repetitions)
+    spd = spd.replace(conditions=tuple(speed_conditions), repetitions=speed_repetitions)
+    if trial_s is not None:
+        spd = spd.replace(protocol=replace(spd.protocol, trial_s=float(trial_s)))
+    if not 1 <= subjects <= spd.population.subjects:
+        raise ValueError(f'--subjects must be within 1..{spd.population.subjects} (scene {spd.name}), '
+                         f'got {subjects}')
+    return spd, acc
+
+
+def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
+    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
+    spd, acc = paired_scenes(settings.speed_scene, settings.accuracy_scene, (settings.condition,),
+                             (settings.condition,), settings.speed_repetitions, settings.repetitions,
+                             settings.trial_s, settings.subjects)
     return acc, spd
 
 
@@ -131,18 +187,12 @@ def check_settings(settings: Settings, acc: Scene) -> None:
         if not (isinstance(n, int) and n >= 1):
             raise ValueError(f'{name} must be a whole number >= 1, got {n!r}')
     g = settings.grids
-    checks = {
-        'acceptance_tolerance': lambda v: 0 < v <= 180, 'gain': lambda v: 0 <= v <= 10,
-        'calibration_points': lambda v: float(v).is_integer() and 3 <= v <= 50,
-        'control_rate': lambda v: 0 < v <= acc.sim_rate_hz, 'fit_tolerance': lambda v: 1e-15 < v < 1,
-        'rate_threshold': lambda v: 0 < v <= 1000,
-    }
     for k in settings.knobs:
         values = g.get(k, ())
         if not values:
             raise ValueError(f'knob {k}: empty grid')
-        bad = [v for v in values if not (isinstance(v, (int, float)) and math.isfinite(v) and checks[k](v))]
+        bad = [v for v in values if not (isinstance(v, (int, float)) and math.isfinite(v) and KNOB[k].valid(v, acc))]
         if bad:
             extra = f' (the control rate cannot exceed the scene\'s sim_rate_hz {acc.sim_rate_hz:g})' \
-                if k == 'control_rate' else ''
+                if k == 'control_rate_hz' else ''
             raise ValueError(f'knob {k}: values out of range: {bad}{extra}')

@@ -1,7 +1,7 @@
 """The sweep: every knob value of the settings run on the same wearers, as rows."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import math
 import time
 from typing import Callable
@@ -15,8 +15,8 @@ from ...sim.scene import Scene
 from .rows import (Row, _join, accuracy_rows, calibration_rows, fit_tolerance_rows, plane_row,
                    speed_row)
 from .runs import _Runner
-from .settings import (CONDITION_LABELS, CSV_COLUMNS, KNOB_SYMBOLS, METRICS, PLANE_CONDITIONS,
-                       Settings, base_scenes, check_settings)
+from .settings import (BOTH, CALIBRATION, CONDITION_LABELS, CSV_COLUMNS, FIT, KNOB, KNOB_SYMBOLS, METRICS,
+                       PLANE_CONDITIONS, SPEED, Settings, base_scenes, check_settings)
 
 
 def _fmt(x: float) -> str:
@@ -109,7 +109,7 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
         for knob in settings.knobs:
             k_start = time.perf_counter()
             grid = list(settings.grids[knob])
-            if knob == 'fit_tolerance':
+            if KNOB[knob].measures == FIT:
                 v_start = time.perf_counter()
                 cals = runner.calibrate(acc)
                 new = fit_tolerance_rows(grid, cals, acc, settings.fit_repeats)
@@ -135,46 +135,33 @@ def run_sweep(settings: Settings, progress: Callable[[str], None] | None = None)
                 v_start = time.perf_counter()
                 new: list[Row] = []
                 a_samples = s_samples = None
-                if knob == 'acceptance_tolerance':
-                    scene = spd.replace(protocol=replace(spd.protocol, acceptance_deg=float(value)))
-                    row = speed_row(knob, value, *runner.trials(scene, 'speed'))
+                # The knob table (settings.KNOB_TABLE) says what the value changes in a scene
+                # and what is measured at it.
+                spec = KNOB[knob]
+                if spec.measures == SPEED:     # a speed-protocol setting only
+                    row = speed_row(knob, value, *runner.trials(spec.vary(spd, value), 'speed'))
                     # The accuracy protocol has no tolerance: on the plane, the error when a
                     # target counts stands in for the guidance error.
                     row.plane = settings.plane
                     new.append(row)
-                elif knob in ('gain', 'rate_threshold'):
-                    field_name = 'gain' if knob == 'gain' else 'rate_threshold_dps'
-                    for base, kind in ((acc, 'accuracy'), (spd, 'speed')):
-                        scene = base.replace(controller=replace(base.controller,
-                                                                **{field_name: float(value)}))
-                        samples, cals = runner.trials(scene, kind)
-                        if kind == 'accuracy':
-                            a_samples = samples
-                            new.append(accuracy_rows(knob, value, samples, cals, timeout))
-                        else:
-                            s_samples = samples
-                            new.append(speed_row(knob, value, samples, cals))
-                elif knob == 'calibration_points':
-                    scene = acc.replace(calibration=replace(acc.calibration, steps=int(value)))
+                else:
+                    scene = spec.vary(acc, value)
                     a_samples, cals = runner.trials(scene, 'accuracy')
-                    new += calibration_rows(int(value), a_samples, cals, timeout)
-                    if settings.plane:
-                        s_samples, _ = runner.trials(
-                            spd.replace(calibration=replace(spd.calibration, steps=int(value))),
-                            'speed')
-                elif knob == 'control_rate':
-                    scene = acc.replace(controller=replace(acc.controller, control_rate_hz=float(value)))
-                    a_samples, cals = runner.trials(scene, 'accuracy')
-                    row = accuracy_rows(knob, value, a_samples, cals, timeout)
-                    row.note = _join(f'G x rate = {scene.controller.gain * float(value):.3g} per s', row.note)
-                    new.append(row)
-                    if settings.plane:
-                        s_samples, _ = runner.trials(
-                            spd.replace(controller=replace(spd.controller,
-                                                           control_rate_hz=float(value))), 'speed')
+                    if spec.measures == CALIBRATION:
+                        new += calibration_rows(int(value), a_samples, cals, timeout)
+                    else:
+                        row = accuracy_rows(knob, value, a_samples, cals, timeout)
+                        if spec.note is not None:
+                            row.note = _join(spec.note(scene, value), row.note)
+                        new.append(row)
+                    if spec.measures == BOTH or settings.plane:
+                        s_samples, s_cals = runner.trials(spec.vary(spd, value), 'speed')
+                        if spec.measures == BOTH:
+                            new.append(speed_row(knob, value, s_samples, s_cals))
+                            cals = s_cals
                 if settings.plane and a_samples is not None and s_samples is not None:
                     cost = ''
-                    if knob == 'calibration_points':
+                    if spec.measures == CALIBRATION:
                         cost = f'{_fmt(new[0].stats("time")["mean"])} s calibration'
                     new.append(plane_row(knob, value, a_samples, s_samples, cals, cost, timeout))
                 rows += new

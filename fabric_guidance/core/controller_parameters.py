@@ -1,0 +1,201 @@
+"""pressure_controller's parameters in one table: name, type, unit, default, range, description.
+
+Everything else about a controller parameter comes from here: the node's declarations and
+their descriptors (nodes/pressure_controller.py), the fields of the control step's setup
+(core/control_step.py ControllerSetup) and of a scene's controller section (sim/scene.py
+ControllerSpec), the recorded YAML of a bag (bag/controller_io.py), and docs/interfaces.md's
+pressure_controller table (`python -m fabric_guidance.core.controller_parameters --markdown`;
+test_controller_parameters compares). Adding a knob is one entry here plus its use.
+
+Names carry their unit as ROS parameters do (`p_max_kpa`, `rate_threshold_dps`). A name that
+was renamed stays readable under its old name (Parameter.old_names) with one warning.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+import sys
+from typing import Any, Callable, Mapping
+import warnings
+
+from ..interface import markdown_main
+from .feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX, RATE_FILTER_TAU_S,
+                       RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S, TARGET)
+
+#: A parameter recorded before it existed: the value the law then ran with (see legacy).
+NOT_RECORDED = object()
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One controller parameter."""
+    name: str
+    default: Any
+    description: str
+    unit: str = ''
+    low: float | None = None
+    high: float | None = None
+    #: The core refuses the low end itself (a P_MAX of 0 kPa), though a ROS range is closed.
+    low_open: bool = False
+    choices: tuple = ()
+    read_only: bool = False
+    #: Part of the control step's setup (ControllerSetup) and of the recorded YAML.
+    setup: bool = False
+    #: Also a key of a scene's controller section (sim/scene.py).
+    scene: bool = False
+    #: A recorded YAML without this key ran with this value (a bag older than the parameter).
+    legacy: Any = NOT_RECORDED
+    #: Setup value of a ROS value: stall_timeout_s 0 (ROS has no null) means never (None).
+    zero_is_none: bool = False
+    old_names: tuple[str, ...] = ()
+
+    @property
+    def type(self) -> type:
+        return type(self.default)
+
+    @property
+    def docs_default(self) -> str:
+        d = self.default
+        if isinstance(d, bool):
+            return str(d).lower()
+        if isinstance(d, float):
+            return f'{d:.3g}'
+        if isinstance(d, str):
+            return d if d else "''"
+        return str(d)
+
+
+#: Every pressure_controller parameter, in the node's declaration order.
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter('condition', 1, 'guidance condition: 1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
+              '4 speech', low=1, high=4, setup=True),
+    Parameter('gain', PAPER_GAIN, 'adjustment gain G of Eq. 5 (the paper: 0.05)', '-', 0.0, 10.0,
+              setup=True, scene=True),
+    Parameter('p_max_kpa', PAPER_P_MAX, 'no command above this leaves the node (the paper: 375 kPa)', 'kPa',
+              0.0, 1000.0, low_open=True, setup=True, scene=True),
+    Parameter('control_rate_hz', 30.0, 'Eq. 5 steps per second without gaze steps; with step_on_gaze the '
+              'least: the timer steps whenever no step ran for a period (it vents on a stale gaze)', 'Hz',
+              1.0, 1000.0, setup=True, scene=True),
+    Parameter('gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long', 's', 0.01, 10.0,
+              setup=True, scene=True),
+    Parameter('rate_deadband_dps', 0.0, 'rate_estimator sign only: de/dt must exceed this to count as '
+              'growing (0: the paper)', 'deg/s', 0.0, 1000.0, setup=True, scene=True),
+    Parameter('guidance_frame', REST, "origin of Eq. 5's angles: rest (the calibration's rest gaze) or "
+              'target (the gaze when a target begins); docs/guidance.md', choices=FRAMES, setup=True,
+              scene=True, legacy=TARGET),
+    Parameter('rate_estimator', FILTERED, '"the error grows": filtered (low-passed de/dt above '
+              "rate_threshold_dps) or sign (the paper's literal test)", choices=ESTIMATORS, setup=True,
+              scene=True, legacy=SIGN),
+    Parameter('rate_filter_tau_s', RATE_FILTER_TAU_S, 'time constant of the de/dt filter', 's', 0.001, 10.0,
+              setup=True, scene=True, legacy=RATE_FILTER_TAU_S),
+    Parameter('rate_threshold_dps', RATE_THRESHOLD_DPS, 'filtered de/dt must exceed this (default: 3 sd '
+              'of 1.5 deg tracker noise at 30 Hz)', 'deg/s', 0.001, 1000.0, setup=True, scene=True,
+              legacy=RATE_THRESHOLD_DPS),
+    Parameter('stall_timeout_s', STALL_TIMEOUT_S, 'vent when the gaze made no progress toward the target '
+              'for this long; 0 = never', 's', 0.0, 3600.0, setup=True, legacy=None, zero_is_none=True),
+    Parameter('calibration_file', '', "the wearer's calibration file (YAML); '' = none: no guidance until "
+              'calibrated'),
+    Parameter('calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
+              "'' = ~/.fabric_guidance/calibrations"),
+    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path)"),
+    Parameter('calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)', '-', 3, 50),
+    Parameter('calibration_dwell_s', 3.0, 'time at each pressure step', 's', 0.05, 60.0),
+    Parameter('calibration_rest_s', 3.0, 'vented rest before each direction', 's', 0.05, 60.0),
+    Parameter('calibration_window_s', 0.5, 'the recorded angle is the median over the last part of a '
+              'dwell', 's', 0.01, 60.0),
+    Parameter('calibration_min_r2', 0.8, 'refuse a direction whose fit explains less', '-', -1e9, 1.0),
+    Parameter('calibration_min_span_deg', 5.0, 'refuse a direction whose angles span less', 'deg', 0.0, 180.0),
+    Parameter('calibration_max_reversal_deg', 2.0, 'refuse a direction whose angle falls more than this '
+              'below an earlier one', 'deg', 0.0, 180.0),
+    Parameter('calibration_max_rmse_kpa', PAPER_P_MAX / 10.0, 'refuse a direction whose fit RMSE is larger',
+              'kPa', 0.0, 1000.0),
+    Parameter('channel_map_file', '', "channel map (YAML); '' = the package's config/hardware/channel_map.yaml"),
+    Parameter('speak', True, 'condition 4: also speak the phrase with espeak-ng if installed'),
+    Parameter('use_wearer_gain', False, "beyond the paper: G from the wearer's calibration file "
+              '(adjustment_gain) when it has one', setup=True, legacy=False),
+    Parameter('follow_moving_target', False, 'beyond the paper: shift the pressure with f(theta_t) as a '
+              '(live) target moves', setup=True, legacy=False),
+    Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
+              "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
+              "paper's rate; false: the timer alone)", read_only=True),
+    # Its default is the channel map's channel order, known only at start-up (declare_table's values).
+    Parameter('channels', [], 'order of pressure_command (as ros2_controllers '
+              'joints)', read_only=True),
+)
+
+BY_NAME: dict[str, Parameter] = {p.name: p for p in PARAMETERS}
+SETUP: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.setup)
+SCENE: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.scene)
+_OLD = {old: p.name for p in PARAMETERS for old in p.old_names}
+
+
+def default(name: str) -> Any:
+    return BY_NAME[name].default
+
+
+def renamed(values: Mapping[str, Any], where: str,
+            warn: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """values with every old parameter name replaced by its new one; one warning per old name
+    (naming `where`, the file or topic it came from). Both names at once: ValueError."""
+    out = dict(values)
+    for old, new in _OLD.items():
+        if old not in out:
+            continue
+        if new in out:
+            raise ValueError(f'{where}: both "{old}" and its new name "{new}" are set; keep "{new}"')
+        text = f'{where}: parameter "{old}" is deprecated, read as "{new}"; rename it'
+        (warn or (lambda m: warnings.warn(m, FutureWarning, stacklevel=3)))(text)
+        out[new] = out.pop(old)
+    return out
+
+
+def check(name: str, value: Any, where: str) -> Any:
+    """value as the parameter's type, within its range and choices; ValueError naming `where`."""
+    p = BY_NAME[name]
+    if value is None and p.zero_is_none:
+        return None
+    if p.choices:
+        if value not in p.choices:
+            raise ValueError(f'{where}: must be one of {list(p.choices)}, got {value!r}')
+        return value
+    if isinstance(p.default, (bool, str, list)):
+        if not isinstance(value, p.type):
+            raise ValueError(f'{where}: must be of type {p.type.__name__}, got {value!r}')
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f'{where}: must be a number ({p.unit}), got {value!r}')
+    if isinstance(p.default, int) and not float(value).is_integer():
+        raise ValueError(f'{where}: must be a whole number, got {value!r}')
+    if not math.isfinite(value):
+        raise ValueError(f'{where}: must be finite, got {value!r}')
+    if p.low is not None and (value <= p.low if p.low_open else value < p.low):
+        raise ValueError(f'{where}: must be {">" if p.low_open else ">="} {p.low:g} {p.unit}, got {value!r}')
+    if p.high is not None and value > p.high:
+        raise ValueError(f'{where}: must be <= {p.high:g} {p.unit}, got {value!r}')
+    return p.type(value)
+
+
+def markdown() -> str:
+    """pressure_controller's rows of docs/interfaces.md's parameter table."""
+    lines = []
+    for i, p in enumerate(PARAMETERS):
+        node = 'pressure_controller' if i == 0 else ''
+        name = f'`{p.name}`' + (' (read-only)' if p.read_only else '')
+        what = p.description
+        if p.choices:
+            what += f' (one of: {", ".join(p.choices)})'
+        elif p.low is not None:
+            what += f' (range {"(" if p.low_open else "["}{p.low:g}, {p.high:g}])'
+        default_text = 'from the channel map' if p.name == 'channels' else p.docs_default
+        lines.append(f'| {node} | {name} | {default_text} | {p.unit if p.unit != "-" else ""} | {what} |')
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv: list[str] | None = None) -> int:
+    return markdown_main('fabric_guidance.core.controller_parameters', markdown, argv)
+
+
+__all__ = ['BY_NAME', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown', 'renamed']
+
+if __name__ == '__main__':
+    sys.exit(main())
