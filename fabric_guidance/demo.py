@@ -15,6 +15,7 @@ module starts the graph, watches it (SessionWatch) and reports.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
@@ -30,6 +31,7 @@ import yaml
 from .bag.recorder_status import hears, recorded_counts
 from .core import ChannelMap, condition as condition_of, ray_direction, target_direction
 from .core.geometry import DIRECTIONS
+from .core.feedback import PAPER_P_MAX
 from .core.task import angular_error_deg
 from .paths import config_path
 from .plc import PlcClient, RegisterMap
@@ -205,10 +207,11 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     if plan is not None:
         sc, ctl = plan.scene, plan.scene.controller
         overrides['mock_plc'].update(regulator_tau_s=plan.regulator_tau_s)
+        # Every controller setting of the scene, by the parameter table's names (the scene's
+        # section holds exactly the table's scene parameters).
         overrides['pressure_controller'].update(
-            calibration_file=str(plan.calibration_file.resolve()), wearer=plan.wearer.name, gain=ctl.gain,
-            control_rate_hz=ctl.control_rate_hz, p_max_kpa=ctl.p_max_kpa, gaze_timeout_s=ctl.gaze_timeout_s,
-            rate_deadband_dps=ctl.rate_deadband_dps,
+            calibration_file=str(plan.calibration_file.resolve()), wearer=plan.wearer.name,
+            **dataclasses.asdict(ctl),
             # Eq. 5 at the scene's control rate, as the headless engine runs it (G acts once per
             # step), not once per gaze sample.
             step_on_gaze=False)
@@ -348,12 +351,13 @@ def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: Sc
     total = max(len(watch.sequence), len(watch.records))
     presented = f' ({len(watch.records)} presented)' if len(watch.records) < total else ''
     say(f'{found} of {total} targets found{presented}; highest command {watch.max_command:.1f} kPa '
-        f'(limit 375 kPa); after shutdown the PLC registers read {registers_after.max():.1f} kPa at most.')
+        f'(limit {PAPER_P_MAX:.0f} kPa); after shutdown the PLC registers read {registers_after.max():.1f} kPa at most.')
     if plan is not None:
         with watch.lock:
             written, bridge = list(watch.max_written), dict(watch.bridge)
         if written:
-            say(f'mock PLC: largest value ever written {max(written):.1f} kPa (limit 375 kPa).')
+            say(f'mock PLC: largest value ever written {max(written):.1f} kPa '
+                f'(limit {PAPER_P_MAX:.0f} kPa).')
         if bridge:
             why = [name for name in ('datagram_loss', 'datagram_latency') if name in plan.scene.effect_names]
             because = (f' ({" and ".join(why)}; latency, like the engine, passes on only the newest of the samples '
