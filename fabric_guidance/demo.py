@@ -351,7 +351,8 @@ def report(watch: SessionWatch, cond, registers_after: np.ndarray, say, plan: Sc
     total = max(len(watch.sequence), len(watch.records))
     presented = f' ({len(watch.records)} presented)' if len(watch.records) < total else ''
     say(f'{found} of {total} targets found{presented}; highest command {watch.max_command:.1f} kPa '
-        f'(limit {PAPER_P_MAX:.0f} kPa); after shutdown the PLC registers read {registers_after.max():.1f} kPa at most.')
+        f'(limit {PAPER_P_MAX:.0f} kPa); after shutdown the PLC registers read {registers_after.max():.1f} kPa '
+        'at most.')
     if plan is not None:
         with watch.lock:
             written, bridge = list(watch.max_written), dict(watch.bridge)
