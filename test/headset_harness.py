@@ -68,6 +68,11 @@ class Harness:
     def messages(self, kind: str | None = None) -> list[dict]:
         return [e['msg'] for e in self.log() if 'msg' in e and (kind is None or e['msg']['kind'] == kind)]
 
+    def stop(self) -> None:
+        """SIGTERM, and wait: its log is complete afterwards."""
+        self.proc.terminate()
+        self.proc.communicate(timeout=10)
+
     def close(self) -> None:
         if self.proc.poll() is None:
             self.proc.kill()

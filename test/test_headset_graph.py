@@ -2,6 +2,7 @@
 its gaze through gaze_bridge under a German locale, seq wrap, an app restart and a lost eye;
 the clock estimate under injected delay and jitter; and the display messages of real
 target_selector, micromanipulator_sim and pressure_controller runs received by its decoder."""
+import contextlib
 import json
 import math
 import socket
@@ -223,48 +224,49 @@ def test_an_asymmetric_path_shifts_the_estimate_by_half_the_difference(tmp_path,
 
 # --- the display downlink -------------------------------------------------------------------
 
-def display_graph(tmp_path, listen, nodes, **display_params):
-    graph = Graph(tmp_path / 'display_logs')
-    for node, files, params in nodes:
-        graph.start(node, files, **params)
-    graph.start('headset_display', FILES, headset_address='127.0.0.1', display_port=listen, **display_params)
-    return graph
-
-
-def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path):
+@contextlib.contextmanager
+def display_session(tmp_path, nodes, *harness_args, **display_params):
+    """The harness listening, the nodes and headset_display sending to it; yields (graph,
+    harness); the harness has stopped (its log complete) when the block ends."""
     listen = free_port(socket.SOCK_DGRAM)
-    harness = Harness(tmp_path / 'harness.log', '--uplink', '127.0.0.1:9', '--listen', f'127.0.0.1:{listen}',
-                      '--frames', '0', '--duration', '40')
-    graph = display_graph(tmp_path, listen, [('target_selector', FILES, dict(autostart=False))],
-                          dummies=50, dummy_seed=3)
+    harness = Harness(tmp_path / 'harness.log', '--listen', f'127.0.0.1:{listen}', '--duration', '60',
+                      *harness_args)
+    graph = Graph(tmp_path / 'display_logs')
     try:
-        with Probe(graph.domain_id) as probe:
-            gaze_pub = probe.node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
-            probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
-            wait_until(lambda: any(m['event'] == 'next' for m in harness.messages('event')), 20.0,
-                       what='a next event at the headset')
-            active = [m for m in harness.messages('targets') if m['active']][-1]
-            # Look at the active target (from the fixed positions of guidance.yaml) until found.
-            params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']
-            names = params['ros__parameters']['target_names']
-            positions = params['ros__parameters']['target_positions']
-            target = np.array(positions[3 * names.index(active['active']):][:3])
-
-            def look():
-                msg = PoseStamped()
-                msg.header.frame_id = interface.IMMERSIVE_FRAME
-                d = target / np.linalg.norm(target)
-                yaw, pitch = math.atan2(d[1], d[0]), math.asin(d[2])
-                q = transforms3d.euler.euler2quat(yaw, -pitch, 0.0, 'rzyx')   # w, x, y, z
-                msg.pose.orientation.w, msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z = q
-                gaze_pub.publish(msg)
-                return any(m['event'] == 'found' for m in harness.messages('event'))
-            wait_until(look, 20.0, interval=0.05, what='a found event at the headset')
-        harness.proc.terminate()
-        harness.proc.communicate(timeout=10)
+        for node, files, params in nodes:
+            graph.start(node, files, **params)
+        graph.start('headset_display', FILES, headset_address='127.0.0.1', display_port=listen, **display_params)
+        yield graph, harness
+        harness.stop()
     finally:
         graph.stop_all()
         harness.close()
+
+
+def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path):
+    with display_session(tmp_path, [('target_selector', FILES, dict(autostart=False))], '--frames', '0',
+                         dummies=50, dummy_seed=3) as (graph, harness), Probe(graph.domain_id) as probe:
+        gaze_pub = probe.node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
+        probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
+        wait_until(lambda: any(m['event'] == 'next' for m in harness.messages('event')), 20.0,
+                   what='a next event at the headset')
+        active = [m for m in harness.messages('targets') if m['active']][-1]
+        # Look at the active target (from the fixed positions of guidance.yaml) until found.
+        params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']
+        names = params['ros__parameters']['target_names']
+        positions = params['ros__parameters']['target_positions']
+        target = np.array(positions[3 * names.index(active['active']):][:3])
+
+        def look():
+            msg = PoseStamped()
+            msg.header.frame_id = interface.IMMERSIVE_FRAME
+            d = target / np.linalg.norm(target)
+            yaw, pitch = math.atan2(d[1], d[0]), math.asin(d[2])
+            q = transforms3d.euler.euler2quat(yaw, -pitch, 0.0, 'rzyx')   # w, x, y, z
+            msg.pose.orientation.w, msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z = q
+            gaze_pub.publish(msg)
+            return any(m['event'] == 'found' for m in harness.messages('event'))
+        wait_until(look, 20.0, interval=0.05, what='a found event at the headset')
     targets = [m for m in harness.messages('targets') if m['active']][-1]
     # Every fixed target at its Unity position: (x, y, z)_Unity = (-y, z, x)_ROS.
     for t in targets['targets']:
@@ -289,22 +291,14 @@ def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path
 
 
 def test_the_micromanipulator_objects_reach_the_headset_as_live_objects(tmp_path):
-    listen = free_port(socket.SOCK_DGRAM)
-    harness = Harness(tmp_path / 'harness.log', '--uplink', '127.0.0.1:9', '--listen', f'127.0.0.1:{listen}',
-                      '--frames', '0', '--duration', '40')
     micro_files = ('params/guidance.yaml', 'params/micromanipulation.yaml')
-    graph = display_graph(tmp_path, listen, [('micromanipulator_sim', micro_files, {}),
-                                             ('target_selector', micro_files, {})])
-    try:
-        def live(m):
-            return [t for t in m['targets'] if t['role'] == 'live']
+
+    def live(m):
+        return [t for t in m['targets'] if t['role'] == 'live']
+    with display_session(tmp_path, [('micromanipulator_sim', micro_files, {}), ('target_selector', micro_files, {})],
+                         '--frames', '0') as (_, harness):
         wait_until(lambda: any(len(live(m)) == 3 for m in harness.messages('targets')), 30.0,
                    what='three live objects at the headset')
-        harness.proc.terminate()
-        harness.proc.communicate(timeout=10)
-    finally:
-        graph.stop_all()
-        harness.close()
     params = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
     selector, stack = params['target_selector']['ros__parameters'], params['micromanipulator_sim']['ros__parameters']
     scale, offset = selector['live_scale'], np.array(selector['live_offset'])
@@ -320,31 +314,21 @@ def test_the_micromanipulator_objects_reach_the_headset_as_live_objects(tmp_path
 def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path):
     """The harness is the headset both ways: its still gaze goes through gaze_bridge to
     pressure_controller, whose Algorithm 1 steps come back to it as prompts."""
-    listen = free_port(socket.SOCK_DGRAM)
     gaze_port = free_port(socket.SOCK_DGRAM)
-    harness = Harness(tmp_path / 'harness.log', '--uplink', f'127.0.0.1:{gaze_port}', '--listen',
-                      f'127.0.0.1:{listen}', '--rate', '30', '--duration', '60')
-    graph = display_graph(tmp_path, listen, [
+    with display_session(tmp_path, [
         ('gaze_bridge', FILES, dict(port=gaze_port)),
         ('pressure_controller', FILES, dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
                                             calibration_dir=str(tmp_path / 'cal'), calibration_steps=3,
                                             calibration_dwell_s=0.4, calibration_rest_s=0.3,
-                                            calibration_window_s=0.1, wearer='still'))])
-    try:
-        with Probe(graph.domain_id) as probe:
-            wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
-                       interval=0.5, what='start_calibration accepted')
-
-            def prompts():
-                return [m for m in harness.messages('prompt')]
-            wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in prompts()), 30.0,
-                       what='the third step of the left direction at the headset')
-        harness.proc.terminate()
-        harness.proc.communicate(timeout=10)
-    finally:
-        graph.stop_all()
-        harness.close()
-    texts = [m['text'] for m in prompts()]
+                                            calibration_window_s=0.1, wearer='still'))],
+            '--uplink', f'127.0.0.1:{gaze_port}', '--rate', '30') as (graph, harness), \
+            Probe(graph.domain_id) as probe:
+        wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
+                   interval=0.5, what='start_calibration accepted')
+        wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in harness.messages('prompt')),
+                   30.0, what='the third step of the left direction at the headset')
+    prompts = harness.messages('prompt')
+    texts = [m['text'] for m in prompts]
     assert 'Face front and rest' in texts
-    steps = [m for m in prompts() if m['text'].startswith('Hold still: left')]
+    steps = [m for m in prompts if m['text'].startswith('Hold still: left')]
     assert {(m['step'], m['steps']) for m in steps} >= {(1, 3), (2, 3), (3, 3)}
