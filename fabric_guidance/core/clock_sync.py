@@ -98,16 +98,13 @@ def echo_from_object(msg: dict) -> ClockEcho:
 def parse_uplink(data: bytes, max_size: int) -> GazeSample | ClockEcho:
     """Any uplink datagram: a gaze sample (no kind, or kind gaze) or a clock_echo.
 
-    Raises WireFormatError and nothing else; an unknown kind is reason 'kind'. A gaze sample
-    may be up to max_size bytes (gaze_bridge's parameter), an echo up to MAX_DATAGRAM_BYTES.
+    Raises WireFormatError and nothing else; an unknown kind is reason 'kind'. Every uplink
+    datagram counts against max_size (gaze_bridge's max_datagram_bytes; an echo is ~120 bytes),
+    checked first as for a gaze sample.
     """
-    msg = decode_object(data, max(max_size, MAX_DATAGRAM_BYTES))
+    msg = decode_object(data, max_size)
     if message_kind(msg, 'gaze') == ECHO_KIND:
-        if len(data) > MAX_DATAGRAM_BYTES:
-            raise WireFormatError('oversize', f'clock_echo of {len(data)} bytes exceeds {MAX_DATAGRAM_BYTES}')
         return echo_from_object(msg)
-    if len(data) > max_size:
-        raise WireFormatError('oversize', f'datagram of {len(data)} bytes exceeds {max_size}')
     return sample_from_object(msg)
 
 

@@ -82,6 +82,9 @@ class HeadsetDisplay(Node):
             raise ValueError(f"parameter 'headset_address': {address!r} is not an IP address") from None
         self.destination = (str(ip), port)
         self._sock = socket.socket(socket.AF_INET6 if ip.version == 6 else socket.AF_INET, socket.SOCK_DGRAM)
+        if ip.is_loopback:
+            # Sending alone would bind the socket to every interface: reachable from the network.
+            self._sock.bind((str(ip), 0))
 
         self.active = ''
         self.targets: list[dict] = []          # {'id', 'position' (Unity), 'role'}, target_markers' order
