@@ -1,6 +1,7 @@
 """Recording a guided session: `fabric-guidance demo --record DIR` (run_demo(record_dir=...))
 writes a rosbag2 bag in MCAP that an independent reader (mcap + mcap_ros2) decodes completely,
 with the QoS profiles in its metadata; the offline replay reproduces its commands exactly."""
+import dataclasses
 import functools
 from pathlib import Path
 import subprocess
@@ -88,6 +89,8 @@ def test_offline_replay_reproduces_the_demo_exactly():
     bag = recorded_demo_bag()
     result = offline.replay(offline.load(bag))
     assert result.compared > 100 and result.unmatched == 0 and result.step_gaps == 0
+    # The recorder may stop between the last step's input and its command; no more than that.
+    assert result.after_last_command <= 1
     assert result.exact, result.worst
     print(f'offline replay: {result.compared} steps, {result.bag_duration_s:.2f} s of session in '
           f'{result.read_s + result.run_s:.3f} s: {result.speedup:.0f}x real time '
@@ -97,3 +100,15 @@ def test_offline_replay_reproduces_the_demo_exactly():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
     assert 'reproduced exactly' in out.stdout and 'x real time' in out.stdout
+
+
+def test_steps_past_the_last_recorded_command_are_told_apart_from_lost_commands():
+    rec = offline.load(recorded_demo_bag())
+    whole = offline.replay(rec)
+    cut = offline.replay(dataclasses.replace(rec, commands=rec.commands[:-3]))
+    # (the last command may be the vent sent at shutdown, which belongs to no step)
+    assert cut.after_last_command >= whole.after_last_command + 2 and cut.unmatched == whole.unmatched
+    assert cut.compared + cut.after_last_command == whole.compared + whole.after_last_command and cut.exact
+    # A command lost mid-session shifts every later one: those steps no longer reproduce.
+    holed = offline.replay(dataclasses.replace(rec, commands=rec.commands[:50] + rec.commands[51:]))
+    assert holed.mismatched > 0 and not holed.exact

@@ -52,6 +52,7 @@ class ReplayResult:
     mismatched: int = 0                   # compared steps whose command differs
     calibrating: int = 0                  # Algorithm 1 steps (not compared)
     unmatched: int = 0                    # steps whose command is not in the bag
+    after_last_command: int = 0           # final steps whose command came after the recording stopped
     unsynced: int = 0                     # steps before the controller's state is known (see replay)
     step_gaps: int = 0                    # control steps missing from the bag
     max_diff: np.ndarray = field(default_factory=lambda: np.zeros(0))   # kPa per channel
@@ -218,7 +219,12 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
             continue
         synced = True                                # a vented step is known; so is every one after it
         position = inp.command - rec.offset
-        if not 0 <= position < len(rec.commands) or len(rec.commands[position]) != len(command):
+        if position >= len(rec.commands):
+            # The recorder stopped between this step's input and its command (both are published
+            # at the end of the step): the end of the recording, not a lost message.
+            result.after_last_command += 1
+            continue
+        if position < 0 or len(rec.commands[position]) != len(command):
             result.unmatched += 1
             continue
         result.compared += 1
@@ -240,9 +246,10 @@ def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> No
     changed = ', '.join(f'{k}={v}' for k, v in (overrides or {}).items()) or 'none (the recorded parameters)'
     say(f'offline replay: {result.steps} control steps rerun, {result.compared} compared with the recorded '
         f'pressure_command; parameters changed: {changed}')
-    if result.calibrating or result.unmatched or result.step_gaps or result.unsynced:
+    if result.calibrating or result.unmatched or result.step_gaps or result.unsynced or result.after_last_command:
         say(f'  not compared: {result.calibrating} calibration steps, {result.unmatched} steps whose command is not '
-            f'in the bag, {result.unsynced} steps before the controller\'s state is known (the bag starts '
+            f'in the bag, {result.after_last_command} after the last recorded command, {result.unsynced} steps '
+            'before the controller\'s state is known (the bag starts '
             f'mid-guidance; compared from the first vent); {result.step_gaps} control steps missing from the bag')
     say(f'  {"channel":<8} {"max |diff| kPa":>14}')
     for name, d in zip(result.channels, result.max_diff):
