@@ -5,6 +5,8 @@
   dict, wins or loses by the order rcl happens to merge its entries in), removed at shutdown.
 - `after_mock_plc_listens`: start actions once mock_plc accepts connections, so that
   plc_output's first connection succeeds instead of logging an ERROR.
+- `lifecycle_bring_up`: launch_ros's lifecycle events that configure a managed node once its
+  process runs and activate it once it is configured (the launch argument autostart).
 """
 from __future__ import annotations
 
@@ -53,6 +55,29 @@ class NodeOverrides:
             return RegisterEventHandler(OnShutdown(on_shutdown=lambda event, context: None))
         return RegisterEventHandler(OnShutdown(
             on_shutdown=lambda event, context: shutil.rmtree(directory, ignore_errors=True)))
+
+
+def lifecycle_bring_up(node_action) -> list:
+    """Configure `node_action` (a launch_ros LifecycleNode) when its process has started and
+    activate it the first time it is configured. Later transitions are the operator's: a
+    configure after a cleanup does not activate by itself."""
+    from launch.actions import EmitEvent
+    from launch.event_handlers import OnProcessStart
+    from launch.events import matches_action
+    from launch_ros.event_handlers import OnStateTransition
+    from launch_ros.events.lifecycle import ChangeState
+    from lifecycle_msgs.msg import Transition
+
+    def change(transition_id):
+        return EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(node_action),
+                                           transition_id=transition_id))
+    return [
+        RegisterEventHandler(OnStateTransition(target_lifecycle_node=node_action, start_state='configuring',
+                                               goal_state='inactive', handle_once=True,
+                                               entities=[change(Transition.TRANSITION_ACTIVATE)])),
+        RegisterEventHandler(OnProcessStart(target_action=node_action,
+                                            on_start=[change(Transition.TRANSITION_CONFIGURE)])),
+    ]
 
 
 def after_mock_plc_listens(mock_plc, actions):

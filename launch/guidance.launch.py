@@ -7,6 +7,10 @@
 headset_address goes to gaze_bridge (clock pings) and headset_display (display messages), the
 two nodes that send to the HoloLens (docs/headset.md).
 
+pressure_controller and plc_output are lifecycle nodes: with autostart:=true (the default) this
+launch configures and activates them; autostart:=false leaves them unconfigured for the
+operator (`ros2 lifecycle set /plc_output configure`, then activate; docs/lifecycle.md).
+
 Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
 if given (its values win); an argument given here overrides both, an argument left empty keeps
 the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
@@ -18,10 +22,10 @@ from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode, Node
 import yaml
 
-from fabric_guidance.launch_support import NodeOverrides
+from fabric_guidance.launch_support import NodeOverrides, lifecycle_bring_up
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -41,6 +45,8 @@ ARGUMENTS = {
                      "the headset app's downlink UDP port"),
 }
 NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
+#: Lifecycle nodes (nodes/managed.py): brought up by this launch's lifecycle events, not by themselves.
+MANAGED = ('pressure_controller', 'plc_output')
 
 
 def argument_value(name: str, kind, text: str):
@@ -69,10 +75,19 @@ def _nodes(context, *args, **kwargs):
         if text:
             for node in (nodes,) if isinstance(nodes, str) else nodes:
                 overrides[node][parameter] = argument_value(arg, kind, text)
+    autostart = LaunchConfiguration('autostart').perform(context).lower() == 'true'
     generated = NodeOverrides(context)
-    nodes = [Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                  parameters=[*files, generated.file(name, overrides[name])]) for name in NODES]
-    return [*nodes, generated.cleanup_action()]
+    actions = []
+    for name in NODES:
+        if name in MANAGED:
+            overrides[name]['autostart'] = False     # the launch drives the transitions
+            node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace='',
+                                 output='screen', parameters=[*files, generated.file(name, overrides[name])])
+            actions += [node, *(lifecycle_bring_up(node) if autostart else [])]
+        else:
+            actions.append(Node(package='fabric_guidance', executable=name, name=name, output='screen',
+                                parameters=[*files, generated.file(name, overrides[name])]))
+    return [*actions, generated.cleanup_action()]
 
 
 def generate_launch_description():
@@ -86,6 +101,9 @@ def generate_launch_description():
                                           '(its values win; empty: none)'),
         DeclareLaunchArgument('use_sim_time', default_value='false',
                               description='use /clock (rosbag replay)'),
+        DeclareLaunchArgument('autostart', default_value='true',
+                              description='configure and activate pressure_controller and plc_output '
+                                          '(false: leave them unconfigured for the operator)'),
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],

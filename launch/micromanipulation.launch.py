@@ -31,7 +31,7 @@ from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
-                'allowed_senders', 'headset_address', 'display_port', 'use_sim_time')
+                'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart')
 
 
 def _graph(context, *args, **kwargs):

@@ -40,6 +40,7 @@ def _graph(context, *args, **kwargs):
             # The simulated headset is wearer_sim, on this machine.
             'headset_address': '127.0.0.1',
             'display_port': display_port,
+            'autostart': LaunchConfiguration('autostart'),
         }.items())
     ports = NodeOverrides(context)
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
@@ -72,5 +73,8 @@ def generate_launch_description():
                               description='UDP port of the gaze bridge'),
         DeclareLaunchArgument('display_port', default_value='5006',
                               description="UDP port of the simulated headset's display (wearer_sim)"),
+        DeclareLaunchArgument('autostart', default_value='true',
+                              description='configure and activate the lifecycle nodes (false: leave them '
+                                          'to the operator)'),
         OpaqueFunction(function=_graph),
     ])

@@ -128,9 +128,10 @@ import json, rclpy
 from fabric_guidance.nodes.pressure_controller import PressureController
 rclpy.init()
 node = PressureController()
+node.trigger_configure()   # a lifecycle node: `channels` is declared with the channel map it mirrors
 out = {}
 for name in node._parameters:
-    if name in ('use_sim_time', 'start_type_description_service'):   # rclpy's own
+    if name in ('use_sim_time', 'start_type_description_service', 'autostart'):   # rclpy's; the lifecycle's
         continue
     d = node.describe_parameter(name)
     rng = d.floating_point_range or d.integer_range

@@ -231,10 +231,85 @@ def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_ar
         # Up and vented: plc_output on the given port, writing zeros; no command above 0.
         wait_until(lambda: plc.client_count >= 1, 20.0, what='plc_output connected to plc_port')
         wait_until(lambda: len(commands) >= 10, 20.0, what='pressure commands')
+        # autostart (the default): the launch's lifecycle events configured and activated both.
+        for node in MANAGED:
+            wait_until(lambda: _state(probe, node) == 'active', 20.0, what=f'{node} active')
         assert all(max(m.data) == 0.0 for m in commands)
         assert not plc.commands_kpa().any()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s, pytest.raises(OSError):
         s.bind(('127.0.0.1', lab_arguments['gaze_port']))  # the bridge listens there
+
+
+# ------------------------------------------------------------- the lifecycle nodes, by hand
+MANAGED = ('pressure_controller', 'plc_output')
+
+
+def _state(probe, node):
+    from lifecycle_msgs.srv import GetState
+    return probe.call(GetState, f'/{node}/get_state', GetState.Request(), attempts=3).current_state.label
+
+
+def _transition(probe, node, transition_id):
+    """Ask for a transition as `ros2 lifecycle set` does; the seconds to the answer."""
+    import time
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    t0 = time.monotonic()
+    response = probe.call(ChangeState, f'/{node}/change_state',
+                          ChangeState.Request(transition=Transition(id=transition_id)))
+    assert response.success, f'{node}: transition {transition_id} refused'
+    return time.monotonic() - t0
+
+
+@launch_pytest.fixture
+def operator_graph(lab_arguments):
+    watch, domain_id = Watch(), fresh_domain_id()
+    return _graph(watch, domain_id, _include('guidance.launch.py', autostart='false', **lab_arguments)), \
+        watch, domain_id
+
+
+@pytest.mark.launch(fixture=operator_graph)
+def test_lab_launch_with_autostart_false_leaves_the_lifecycle_nodes_to_the_operator(operator_graph, plc):
+    import time
+    import numpy as np
+    from lifecycle_msgs.msg import Transition
+    _, watch, domain_id = operator_graph
+    n = len(plc.commands_kpa())
+    command = [10.0 + 20.0 * i for i in range(n)]
+    with Probe(domain_id) as probe:
+        commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
+        for node in MANAGED:
+            assert _state(probe, node) == 'unconfigured', node
+        time.sleep(1.0)     # watched for a second: nothing commands, nothing connects
+        assert not commands and plc.client_count == 0
+        times = {}
+        for node in MANAGED:
+            times[f'{node} configure'] = _transition(probe, node, Transition.TRANSITION_CONFIGURE)
+        wait_until(lambda: plc.client_count >= 1, 20.0, what='plc_output connected once configured')
+        for node in MANAGED:
+            times[f'{node} activate'] = _transition(probe, node, Transition.TRANSITION_ACTIVATE)
+        wait_until(lambda: len(commands) >= 10, 20.0, what='pressure commands once active')
+        assert all(max(m.data) == 0.0 for m in commands)   # no gaze: vented
+        # The operator's own command through the active plc_output, then deactivate: the vent.
+        times['pressure_controller deactivate'] = _transition(probe, 'pressure_controller',
+                                                              Transition.TRANSITION_DEACTIVATE)
+        pub = probe.node.create_publisher(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
+        timer = probe.node.create_timer(0.05, lambda: pub.publish(Float64MultiArray(data=command)))
+        wait_until(lambda: np.allclose(plc.commands_kpa(), command, atol=0.1), 20.0,
+                   what='the operator command in the PLC registers')
+        t0 = time.monotonic()
+        times['plc_output deactivate'] = _transition(probe, 'plc_output', Transition.TRANSITION_DEACTIVATE)
+        wait_until(lambda: not plc.commands_kpa().any(), 2.0, interval=0.005,
+                   what='registers vented on deactivate')
+        times['plc_output deactivate -> registers vented'] = time.monotonic() - t0
+        time.sleep(0.5)
+        assert not plc.commands_kpa().any(), 'inactive: the commands still published are not written'
+        assert _state(probe, 'plc_output') == 'inactive' and plc.client_count >= 1   # the link held
+        timer.cancel()
+        for node in MANAGED:
+            times[f'{node} shutdown'] = _transition(probe, node, Transition.TRANSITION_INACTIVE_SHUTDOWN)
+            assert _state(probe, node) == 'finalized'
+        print('\n[lifecycle under launch] ' + ', '.join(f'{k} {1e3 * v:.0f} ms' for k, v in times.items()))
 
 
 # ------------------------------------------------------------------ micromanipulation.launch.py

@@ -104,7 +104,7 @@ vent_report = VENTS.report_at_module_end(
 class Rig:
     """A mock_plc and a plc_output process, a probe playing the controller, a read-only client."""
 
-    def __init__(self, log_dir, mock=None, output=None, port=None):
+    def __init__(self, log_dir, mock=None, output=None, port=None, wait=True):
         self.port = port or free_port()   # the mock's; plc_output's may be overridden (a proxy)
         self.graph = Graph(log_dir)
         self.mock_overrides = {'port': self.port, **(mock or {})}
@@ -123,7 +123,8 @@ class Rig:
         self._data = None
         self.first_publish_s = self.last_publish_s = None
         node.create_timer(1.0 / COMMAND_RATE_HZ, self._publish)
-        self.wait_ready()
+        if wait:   # (an unconfigured lifecycle node has no link yet: its test waits on its own)
+            self.wait_ready()
 
     # ---- the controller's side
     def _publish(self):

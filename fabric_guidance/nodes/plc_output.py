@@ -7,6 +7,10 @@ watchdog watches, reads the measured pressures back and publishes them. A lost l
 with an exponential backoff, and the latest fresh command is written again once it is back.
 On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
 
+A lifecycle node (docs/lifecycle.md): configure reads the maps and connects; only while active
+are commands written; inactive writes zeros with the heartbeat (the link held, the suit vented);
+cleanup, shutdown and error processing vent every PLC, confirm it and close the links.
+
 Several PLCs (a register map with `endpoints`): each serves some channels and has its own
 link. Commands are written only while every link is up; a fault on any link vents all the
 others at once, and each link is retried on its own backoff with a vent, a heartbeat and a
@@ -18,7 +22,9 @@ With write_on_command (the default) each command is also written the moment it a
 does not wait for the next cycle; the cycle keeps the heartbeat, the re-send and the read-back.
 
 Subscribes: pressure_command (std_msgs/Float64MultiArray, kPa, channel order)
-Publishes:  measured_pressure (std_msgs/Float64MultiArray, kPa, channel order), /diagnostics
+Publishes:  measured_pressure (std_msgs/Float64MultiArray, kPa, channel order; while configured),
+            /diagnostics (with the lifecycle state)
+Services:   the lifecycle services (~/change_state, ~/get_state, ...)
 """
 from __future__ import annotations
 
@@ -28,13 +34,13 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core.channels import ChannelMap
 from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.managed import ManagedNode
 from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.nodes.spin import run
@@ -65,7 +71,10 @@ class _Link:
         return self.state == UP
 
 
-class PlcOutput(Node):
+class PlcOutput(ManagedNode):
+    """The PLC driver as a lifecycle node (nodes/managed.py): configure reads the maps and
+    connects; active writes commands; inactive writes zeros and the heartbeat (the link is held,
+    the suit vented); cleanup, shutdown and error vent every PLC and close the links."""
 
     def __init__(self):
         super().__init__('plc_output')
@@ -79,19 +88,20 @@ class PlcOutput(Node):
                                 "the PLC's Modbus TCP port; a register map with endpoints names "
                                 'its own',
                                 '', 1, 65535, read_only=True)
-        register_map_file = declare_config_file(self, 'register_map_file', 'hardware/plc_register_map.yaml',
-                                                'register map')
-        channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml', 'channel map')
-        p_max_param = declare(self, 'p_max_kpa', PAPER_P_MAX,
-                              'commands are clamped to this (and to the register map p_max_kpa) before writing',
-                              'kPa', 0.0, 1000.0, read_only=True)
-        write_rate_hz = declare(self, 'write_rate_hz', 50.0, 'commands and heartbeat written per second',
-                                'Hz', 1.0, 1000.0, read_only=True)
+        self.register_map_file = declare_config_file(self, 'register_map_file', 'hardware/plc_register_map.yaml',
+                                                     'register map')
+        self.channel_map_file = declare_config_file(self, 'channel_map_file', 'hardware/channel_map.yaml',
+                                                    'channel map')
+        self.p_max_param = declare(self, 'p_max_kpa', PAPER_P_MAX,
+                                   'commands are clamped to this (and to the register map p_max_kpa) before writing',
+                                   'kPa', 0.0, 1000.0, read_only=True)
+        self.write_rate_hz = declare(self, 'write_rate_hz', 50.0, 'commands and heartbeat written per second',
+                                     'Hz', 1.0, 1000.0, read_only=True)
         self.command_timeout_s = declare(self, 'command_timeout_s', 0.5,
                                          'vent when no valid command arrived for this long', 's', 0.01, 60.0,
                                          read_only=True)
-        modbus_timeout_s = declare(self, 'modbus_timeout_s', 0.2, 'timeout of one Modbus request or connection',
-                                   's', 0.01, 10.0, read_only=True)
+        self.modbus_timeout_s = declare(self, 'modbus_timeout_s', 0.2, 'timeout of one Modbus request or connection',
+                                        's', 0.01, 10.0, read_only=True)
         self.reconnect_min_s = declare(self, 'reconnect_min_s', 0.2,
                                        'wait after a lost link, doubling up to reconnect_max_s', 's', 0.01, 600.0,
                                        read_only=True)
@@ -104,46 +114,62 @@ class PlcOutput(Node):
         if self.reconnect_min_s > self.reconnect_max_s:
             raise ValueError(f'parameter "reconnect_min_s" ({self.reconnect_min_s} s) must not exceed '
                              f'"reconnect_max_s" ({self.reconnect_max_s} s)')
+        self._links: list[_Link] = []
+        self.n = 0
+        self.plc_address = ''
+        self.p_max_kpa = 0.0
+        self._write_timer = self._command_sub = None
+        self._heartbeat = 0
+        self._writes = self._invalid_commands = self._ignored_commands = 0
+        self._forget_command()
+        self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        # Steady clock: writing, heartbeat and venting never wait for a simulated /clock.
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        # Diagnostics in every state, the lifecycle state among them.
+        self._diagnostics_timer = self.create_timer(diagnostics_period_s, self._on_diagnostics_timer,
+                                                    clock=self._steady)
 
-        channel_path = resolve(channel_map_file, 'hardware/channel_map.yaml')
-        channel_map = ChannelMap.load(channel_path)
-        self.layout = PlcLayout.load(resolve(register_map_file, 'hardware/plc_register_map.yaml'),
-                                     expected_channels=channel_map.channels)
-        # The channel order, read-only like ros2_controllers' `joints`: it comes from the channel map.
-        channels = declare(self, 'channels', list(channel_map.channels),
-                           'channel order of pressure_command and measured_pressure (from channel_map_file)',
-                           read_only=True)
-        if list(channels) != list(channel_map.channels):
-            raise ValueError(f'parameter "channels" {list(channels)} does not match the channel order of '
-                             f'{channel_path}: {list(channel_map.channels)}')
-        self.p_max_kpa = min(p_max_param, self.layout.p_max_kpa)
-        self.n = len(self.layout)
-        self._links = []
-        for e in self.layout.endpoints:
-            host, port = (self.plc_host, self.plc_port) if e.host is None else (e.host, e.port)
-            self._links.append(_Link(e, PlcClient(e.map, host, port, timeout_s=modbus_timeout_s),
-                                     self.reconnect_min_s))
-        self.plc_address = ', '.join(link.client.address for link in self._links)
-
+    def _forget_command(self) -> None:
         self._zeros = np.zeros(self.n)
         self._command = self._zeros        # latest valid command, already clamped [kPa]
         self._command_s: float | None = None  # time.monotonic() of its arrival
         self._invalid = False              # the latest message was invalid: vent until a valid one
         self._vent_reason = ''
-        self._heartbeat = 0
-        self._writes = self._invalid_commands = 0
 
-        self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
-        self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command, COMMAND_QOS)
-        # Steady clock: writing, heartbeat and venting never wait for a simulated /clock.
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._timers = [self.create_timer(1.0 / write_rate_hz, self._on_write_timer, clock=steady),
-                        self.create_timer(diagnostics_period_s, self._on_diagnostics_timer, clock=steady)]
+    # --------------------------------------------------------------- lifecycle
+    def configure(self) -> None:
+        channel_path = resolve(self.channel_map_file, 'hardware/channel_map.yaml')
+        channel_map = ChannelMap.load(channel_path)
+        self.layout = PlcLayout.load(resolve(self.register_map_file, 'hardware/plc_register_map.yaml'),
+                                     expected_channels=channel_map.channels)
+        # The channel order, read-only like ros2_controllers' `joints`: it comes from the channel
+        # map (declared at the first configure; a later configure must find the same order).
+        if self.has_parameter('channels'):
+            channels = self.get_parameter('channels').value
+        else:
+            channels = declare(self, 'channels', list(channel_map.channels),
+                               'channel order of pressure_command and measured_pressure (from channel_map_file)',
+                               read_only=True)
+        if list(channels) != list(channel_map.channels):
+            raise ValueError(f'parameter "channels" {list(channels)} does not match the channel order of '
+                             f'{channel_path}: {list(channel_map.channels)}')
+        self.p_max_kpa = min(self.p_max_param, self.layout.p_max_kpa)
+        self.n = len(self.layout)
+        self._links = []
+        for e in self.layout.endpoints:
+            host, port = (self.plc_host, self.plc_port) if e.host is None else (e.host, e.port)
+            self._links.append(_Link(e, PlcClient(e.map, host, port, timeout_s=self.modbus_timeout_s),
+                                     self.reconnect_min_s))
+        self.plc_address = ', '.join(link.client.address for link in self._links)
+        self._forget_command()
+        self._command_sub = self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command,
+                                                     COMMAND_QOS)
+        self._write_timer = self.create_timer(1.0 / self.write_rate_hz, self._on_write_timer, clock=self._steady)
         self.get_logger().info(
             f'writing {self.n} channels {list(channel_map.channels)} to the PLC at {self.plc_address} '
-            f'at {write_rate_hz:g} Hz, p_max {self.p_max_kpa:g} kPa (parameter {p_max_param:g}, register map '
-            f'{self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s, '
+            f'at {self.write_rate_hz:g} Hz, p_max {self.p_max_kpa:g} kPa (parameter {self.p_max_param:g}, '
+            f'register map {self.layout.p_max_kpa:g}), command timeout {self.command_timeout_s:g} s, '
             f'pymodbus {PYMODBUS_VERSION}')
         if len(self._links) > 1 or self.layout.endpoints[0].host is not None:
             listed = '; '.join(f'{link.name} at {link.client.address} unit id '
@@ -151,9 +177,36 @@ class PlcOutput(Node):
                                for link in self._links)
             self.get_logger().info(f'PLC endpoints from the register map (plc_host and plc_port '
                                    f'unused): {listed}')
+        # Connect now (vent, heartbeat, read); a PLC that is not there yet is retried on the
+        # backoff by the write cycle, as a link lost later is.
+        for link in self._links:
+            self._retry(link)
+
+    def activate(self) -> None:
+        # Only commands that arrive from now on are written: nothing heard while inactive.
+        self._forget_command()
+
+    def deactivate(self) -> None:
+        self._forget_command()
+        if self._all_up():
+            self._write_now()            # zeros: the node is no longer active
+
+    def release(self) -> None:
+        if self._write_timer is not None:
+            self.destroy_timer(self._write_timer)
+            self._write_timer = None
+        if self._command_sub is not None:
+            self.destroy_subscription(self._command_sub)
+            self._command_sub = None
+        for link in self._links:
+            self._vent_on_shutdown(link)
+        self._links = []
 
     # ---------------------------------------------------------------- commands
     def _on_command(self, msg: Float64MultiArray) -> None:
+        if not self.active:
+            self._ignored_commands += 1
+            return
         p = np.asarray(msg.data, dtype=float)
         if p.shape != (self.n,) or not np.all(np.isfinite(p)):
             why = (f'{p.size} values, need {self.n}' if p.shape != (self.n,)
@@ -189,6 +242,8 @@ class PlcOutput(Node):
 
     def _target(self, now_s: float) -> tuple[np.ndarray, str]:
         """What to write now, and why it is zeros ('' when it is the command)."""
+        if not self.active:
+            return self._zeros, f'{self.state_label} (lifecycle)'
         if self._invalid:
             return self._zeros, 'invalid command'
         if self._command_s is None:
@@ -296,6 +351,8 @@ class PlcOutput(Node):
             level, message = DiagnosticStatus.WARN, f'venting: {reason}'
         else:
             level, message = DiagnosticStatus.OK, 'writing commands'
+        if self.configure_error:
+            level, message = DiagnosticStatus.ERROR, f'unconfigured: {self.configure_error}'
         age = 'never' if self._command_s is None else f'{time.monotonic() - self._command_s:.3f}'
         rtts = [link.last_round_trip_s for link in self._links
                 if link.last_round_trip_s is not None]
@@ -304,7 +361,8 @@ class PlcOutput(Node):
                   'link failures': sum(link.failures for link in self._links),
                   'reconnects': sum(link.reconnects for link in self._links),
                   'invalid commands': self._invalid_commands, 'command age s': age,
-                  'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}'}
+                  'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}',
+                  'commands ignored while not active': self._ignored_commands, **self.lifecycle_values()}
         statuses = [status(self, 'PLC output', level, message, values)]
         for link in self._links:
             link_level = DiagnosticStatus.OK if link.up else DiagnosticStatus.ERROR
@@ -331,8 +389,10 @@ class PlcOutput(Node):
     # ---------------------------------------------------------------- shutdown
     def safe_shutdown(self) -> None:
         """Vent every channel of every PLC and confirm it by reading the command registers back."""
-        for timer in self._timers:
-            timer.cancel()
+        self.active = False
+        self._diagnostics_timer.cancel()
+        if self._write_timer is not None:
+            self._write_timer.cancel()
         for link in self._links:
             self._vent_on_shutdown(link)
 

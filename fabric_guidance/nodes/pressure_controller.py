@@ -38,7 +38,6 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
@@ -57,17 +56,23 @@ from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CO
                          VENT)
 from ..paths import resolve
 from .diagnostics import publish_diagnostics, status
+from .managed import ManagedNode
 from .parameters import declare_table
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
 
-class PressureController(Node):
+class PressureController(ManagedNode):
+    """Eq. 5 as a lifecycle node (nodes/managed.py): configure loads the channel map and the
+    calibration; only while active does it step and guide; deactivate, cleanup, shutdown and
+    error processing publish a vent. Topics and services exist in every state (the latched
+    target is known at activation; `vent` always answers)."""
+
     def __init__(self):
         super().__init__('pressure_controller')
-        # Every parameter from the one table (core/controller_parameters.py); `channels` last,
-        # once the channel map it mirrors is loaded.
-        v = declare_table(self, PARAMETERS[:-1])
+        # Every parameter from the one table (core/controller_parameters.py); `channels` at the
+        # first configure, once the channel map it mirrors is loaded.
+        self.v = v = declare_table(self, PARAMETERS[:-1])
         self.condition = condition(v['condition'])
         self.gain, self.p_max, self.gaze_timeout = v['gain'], v['p_max_kpa'], v['gaze_timeout_s']
         self.wearer = check_wearer(v['wearer'], 'parameter "wearer"')
@@ -76,25 +81,12 @@ class PressureController(Node):
         self.acceptance = Acceptance(v['calibration_min_r2'], v['calibration_min_span_deg'],
                                      v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa'])
         self.speak, self.step_on_gaze = v['speak'], v['step_on_gaze']
-        cal_file, cal_dir = v['calibration_file'], v['calibration_dir']
-        channel_map_file = resolve(v['channel_map_file'], 'hardware/channel_map.yaml')
-
-        self.channel_map = ChannelMap.load(channel_map_file)
+        self.cal_dir = (Path(v['calibration_dir']).expanduser() if v['calibration_dir']
+                        else Path.home() / '.fabric_guidance' / 'calibrations')
         self.layout = self.condition.layout or 'suit'
-        if self.layout not in self.channel_map.layouts:
-            # Checked here: the first guidance step would otherwise fail after start-up.
-            raise ChannelMapError(f'channel map {channel_map_file}: field '
-                                  f'"layouts" has no layout "{self.layout}" for condition '
-                                  f'{self.condition.number}; it has {list(self.channel_map.layouts)}')
-        declare_table(self, PARAMETERS[-1:], channels=list(self.channel_map.channels))
-        self.cal_dir = Path(cal_dir).expanduser() if cal_dir else Path.home() / '.fabric_guidance' / 'calibrations'
-        self.calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
-        setup = {p.name: v[p.name] for p in SETUP}
-        setup['stall_timeout_s'] = setup['stall_timeout_s'] or None   # ROS has no null: 0 = never
-        self.setup = ControllerSetup(calibration=self.calibration, channel_map=self.channel_map, **setup)
-        rate = self.setup.control_rate_hz
-        self.warn_origin(self.calibration)
-        self.controller = self._make_controller()
+        self.channel_map = self.calibration = self.setup = self.controller = None
+        self.zeros = np.zeros(0)
+        self.control_timer = None
 
         self.enabled = True
         self.gaze_origin = self.gaze_direction = None
@@ -116,7 +108,6 @@ class PressureController(Node):
         self.command_msg, self.input_msg = Float64MultiArray(), Float64MultiArray()
         self.input_pub = self.create_publisher(Float64MultiArray, CONTROLLER_INPUT, COMMAND_QOS)
         self.parameters_pub = self.create_publisher(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
-        self.publish_parameters(0)
         self.speech_pub = self.create_publisher(String, SPEECH, EVENT_QOS)
         self.status_pub = self.create_publisher(String, CALIBRATION_STATUS, EVENT_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -126,14 +117,67 @@ class PressureController(Node):
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
         self.create_service(SetBool, ENABLE, self.on_enable)
         self.create_service(Trigger, VENT, self.on_vent)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.period_s = 1.0 / rate
-        self.create_timer(self.period_s, self.on_timer, clock=steady)
-        self.create_timer(1.0, self.publish_diagnostics, clock=steady)
-        self.zeros = np.zeros(len(self.channel_map.channels))
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0, self.publish_diagnostics, clock=self.steady)
+
+    # ---- lifecycle
+    def configure(self) -> None:
+        v = self.v
+        channel_map_file = resolve(v['channel_map_file'], 'hardware/channel_map.yaml')
+        channel_map = ChannelMap.load(channel_map_file)
+        if self.layout not in channel_map.layouts:
+            # Checked here: the first guidance step would otherwise fail after start-up.
+            raise ChannelMapError(f'channel map {channel_map_file}: field '
+                                  f'"layouts" has no layout "{self.layout}" for condition '
+                                  f'{self.condition.number}; it has {list(channel_map.layouts)}')
+        if self.has_parameter('channels'):
+            channels = self.get_parameter('channels').value
+            if list(channels) != list(channel_map.channels):
+                raise ChannelMapError(f'channel map {channel_map_file}: channels {list(channel_map.channels)} '
+                                      f'differ from the parameter "channels" {list(channels)} of the first '
+                                      'configure; restart the node to change the channel order')
+        else:
+            declare_table(self, PARAMETERS[-1:], channels=list(channel_map.channels))
+        cal_file = v['calibration_file']
+        calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
+        setup = {p.name: v[p.name] for p in SETUP}
+        setup['stall_timeout_s'] = setup['stall_timeout_s'] or None   # ROS has no null: 0 = never
+        self.channel_map, self.calibration = channel_map, calibration
+        self.setup = ControllerSetup(calibration=calibration, channel_map=channel_map, **setup)
+        self.zeros = np.zeros(len(channel_map.channels))
+        self.warn_origin(calibration)
+        self.controller = self._make_controller()
+        self.publish_parameters(self.step_count)
+        self.period_s = 1.0 / self.setup.control_rate_hz
+        self.control_timer = self.create_timer(self.period_s, self.on_timer, clock=self.steady)
         self.get_logger().info(
             f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
             f'calibration: {cal_file or "none"}')
+
+    def activate(self) -> None:
+        self.enabled = True
+        self.vent_controller()     # Eq. 5 starts afresh from the gaze at activation
+
+    def deactivate(self) -> None:
+        self.vent_all('deactivated')
+
+    def release(self) -> None:
+        self.vent_all('released')
+        if self.control_timer is not None:
+            self.destroy_timer(self.control_timer)
+            self.control_timer = None
+        self.controller = self.setup = self.calibration = None
+
+    def vent_all(self, why: str) -> None:
+        """Vent now: the controller's state, a running calibration, and a zero command out."""
+        self.vent_controller()
+        if self.procedure is not None:   # no step will follow to end it: end it here
+            self.procedure = None
+            self.last_status = f'failed: {why}; the previous calibration is kept'
+            self.status_pub.publish(String(data=self.last_status))
+            self.get_logger().error(f'calibration {self.last_status}')
+        if self.zeros.size:
+            self.publish(self.zeros)
 
     def warn_origin(self, cal: Calibration | None) -> None:
         if cal is not None and cal.origin_warning and self.setup.guidance_frame == REST:
@@ -171,12 +215,12 @@ class PressureController(Node):
             return
         self.gaze_origin, self.gaze_direction = origin, direction
         self.gaze_received = self.now_s()
-        if self.step_on_gaze:
+        if self.step_on_gaze and self.active:
             self.step()
 
     def on_timer(self) -> None:
         # The minimum rate: skipped while gaze steps come at least this often.
-        if self.now_s() - self.last_step_s >= 0.9 * self.period_s:
+        if self.active and self.now_s() - self.last_step_s >= 0.9 * self.period_s:
             self.step()
 
     def on_active_target(self, msg: String) -> None:
@@ -202,6 +246,9 @@ class PressureController(Node):
 
     # ---- services
     def on_start_calibration(self, request, response):
+        if not self.active:
+            response.success, response.message = False, f'cannot calibrate: the node is {self.state_label}'
+            return response
         if self.procedure is not None:
             response.success, response.message = False, 'a calibration is already running'
             return response
@@ -224,6 +271,10 @@ class PressureController(Node):
         return response
 
     def on_enable(self, request, response):
+        if request.data and not self.active:
+            response.success = False
+            response.message = f'cannot enable: the node is {self.state_label} (activate it first)'
+            return response
         self.enabled = bool(request.data)
         # Disabling vents; enabling starts afresh (and forgets a no-progress stop).
         self.vent_controller()
@@ -235,7 +286,8 @@ class PressureController(Node):
         self.vent_controller()
         if self.procedure is not None:
             self.procedure.fail('vented by request')
-        self.publish(self.zeros)
+        if self.zeros.size:
+            self.publish(self.zeros)
         response.success, response.message = True, 'vented; call enable to guide again'
         return response
 
@@ -354,20 +406,27 @@ class PressureController(Node):
         return txt, png
 
     def publish_diagnostics(self) -> None:
-        if self.procedure is not None:
+        if self.configure_error:
+            level, message = DiagnosticStatus.ERROR, f'unconfigured: {self.configure_error}'
+        elif not self.active:
+            level, message = DiagnosticStatus.WARN, f'{self.state_label}: not guiding (vented)'
+        elif self.procedure is not None:
             level, message = DiagnosticStatus.OK, f'calibrating: {self.last_status}'
         elif self.vent_reason:
             level, message = DiagnosticStatus.WARN, f'vented: {self.vent_reason}'
         else:
             level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
-        values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs}
+        values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
+                  **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
 
     def safe_shutdown(self) -> None:
-        self.publish(self.zeros)
-        self.get_logger().info('vented on shutdown')
+        self.active = False
+        if self.zeros.size:
+            self.publish(self.zeros)
+            self.get_logger().info('vented on shutdown')
 
 
 def main(args=None) -> int:

@@ -17,6 +17,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from .managed import ConfigureError, ManagedNode
 from .parameters import check_params_files
 
 
@@ -60,6 +61,8 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
     code = 0
     try:
         node = make_node()
+        if isinstance(node, ManagedNode):
+            node.start_up()     # autostart: configure and activate (ConfigureError: cannot start)
         # Everything built so far (modules, the node) lives as long as the process: keep it out
         # of the collector's full passes, which would otherwise walk it all (milliseconds, in the
         # middle of a control step) every so many allocations.
@@ -71,6 +74,9 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
             executor.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:
         pass
+    except ConfigureError as exc:   # the node's error line is logged; this is the process's
+        print(f'[fabric_guidance] cannot start: {exc}', flush=True)
+        code = 1
     except Exception as exc:  # a start-up error (bad parameter or file) ends with its message
         if node is None:
             print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
