@@ -75,7 +75,12 @@ def _nodes(context, *args, **kwargs):
         if text:
             for node in (nodes,) if isinstance(nodes, str) else nodes:
                 overrides[node][parameter] = argument_value(arg, kind, text)
-    autostart = LaunchConfiguration('autostart').perform(context).lower() == 'true'
+    # '' as well as 'true': a including launch file that declares the argument empty (passing
+    # through, as micromanipulation.launch.py does) forwards '' into this scope.
+    text = LaunchConfiguration('autostart').perform(context).strip().lower()
+    if text not in ('', 'true', 'false'):
+        raise ValueError(f'launch argument autostart:={text!r} is not true or false')
+    autostart = text != 'false'
     generated = NodeOverrides(context)
     actions = []
     for name in NODES:
