@@ -16,7 +16,6 @@ import math
 from typing import Sequence
 
 import numpy as np
-from scipy import optimize, stats
 
 #: Largest exponent accepted; 180**20 * a stays far from float overflow for any sane a.
 B_MAX = 20.0
@@ -162,6 +161,7 @@ def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: floa
             '(the wearer did not move with the pressure steps)')
     if np.max(t) > THETA_MAX:
         raise CalibrationFitError(f'angle {np.max(t):g} deg exceeds {THETA_MAX:g} deg')
+    from scipy import stats   # here, not at import: only a fit needs scipy (docs/benchmarks.md, RSS)
     rho = stats.spearmanr(p, t).statistic
     if not rho > 0:
         raise CalibrationFitError(
@@ -226,6 +226,7 @@ def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: floa
 
     x0 = np.array([math.log(guess.a), math.log(guess.b), guess.c])
     with np.errstate(over='ignore', invalid='ignore'):
+        from scipy import optimize   # (as above)
         result = optimize.least_squares(residuals, x0, jac=jacobian, method='lm', xtol=xtol, ftol=ftol,
                                         max_nfev=2000)
     alpha, beta, c = result.x
