@@ -14,10 +14,14 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from fabric_guidance.bag import offline
-from fabric_guidance.bag.controller_io import INPUT_SIZE, setup_from_yaml
+from fabric_guidance.bag.controller_io import FIELDS, INPUT_SIZE, setup_from_yaml
 from fabric_guidance.bag.topics import TOPICS
+from fabric_guidance.core.channels import ChannelMap, label_names
+from fabric_guidance.paths import config_path
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
+
+CHANNELS = ChannelMap.load(config_path('hardware/channel_map.yaml')).channels
 
 #: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
 EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/pressure_command',
@@ -52,8 +56,12 @@ def test_demo_record_decodes_with_an_independent_reader():
             assert channel.message_encoding == 'cdr'
             if channel.topic == '/pressure_command':
                 assert len(decoded.data) == 18 and max(decoded.data) <= 375.0
+                assert label_names(decoded.layout.dim[0].label) == CHANNELS
+            elif channel.topic == '/measured_pressure':
+                assert label_names(decoded.layout.dim[0].label) == CHANNELS
             elif channel.topic == '/controller_input':
                 assert len(decoded.data) == INPUT_SIZE
+                assert label_names(decoded.layout.dim[0].label) == FIELDS
             elif channel.topic == '/controller_parameters':
                 assert setup_from_yaml(decoded.data).condition == 1
             elif channel.topic == '/gaze':

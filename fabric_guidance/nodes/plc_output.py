@@ -34,6 +34,7 @@ from std_msgs.msg import Float64MultiArray
 from fabric_guidance.core.channels import ChannelMap
 from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
@@ -134,6 +135,7 @@ class PlcOutput(Node):
         self._writes = self._invalid_commands = 0
 
         self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
+        self._measured_layout = named_layout(channel_map.channels)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command, COMMAND_QOS)
         # Steady clock: writing, heartbeat and venting never wait for a simulated /clock.
@@ -231,7 +233,8 @@ class PlcOutput(Node):
         self._heartbeat += 1
         if complete:
             self._writes += 1
-            self._measured_pub.publish(Float64MultiArray(data=[float(v) for v in measured]))
+            self._measured_pub.publish(Float64MultiArray(layout=self._measured_layout,
+                                                         data=[float(v) for v in measured]))
 
     def _retry(self, link: _Link) -> None:
         """Reconnect and prove the link with a vent, a heartbeat and a read (never the command)."""
