@@ -121,7 +121,7 @@ TOPICS: tuple[Topic, ...] = (
           'a target the wearer just found'),
     Topic(TARGET_MARKERS, 'visualization_msgs/msg/MarkerArray', LATCHED, 'target_selector',
           'RViz, headset_display', 'targets as 0.1 m spheres (active red, others magenta), the name in '
-          '`text`; namespace `targets` (fixed) or `live_targets`', recorded=False),
+          '`text`; namespace `targets` (fixed) or `live_targets`'),
     Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
           'micromanipulator stack, or micromanipulator_sim', 'target_selector',
           'live targets in the microscope frame [m], scaled by `live_scale` and shifted by '
