@@ -24,6 +24,7 @@ setup(
         (os.path.join('share', package_name, 'config', 'hardware'), glob('config/hardware/*.yaml')),
         (os.path.join('share', package_name, 'config', 'calibrations'), glob('config/calibrations/*.yaml')),
         (os.path.join('share', package_name, 'config', 'scenes'), glob('config/scenes/*.yaml')),
+        (os.path.join('share', package_name, 'config', 'rviz'), glob('config/rviz/*.rviz')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
