@@ -183,3 +183,14 @@ def test_the_generator_follows_another_channel_map(tmp_path):
     layout = json.loads(views.foxglove_json(path))
     labels = [p['label'] for p in layout['configById'][views.COMMAND_PANEL]['paths']]
     assert labels == data['channels'] and labels != list(CHANNELS)
+
+
+def test_a_bag_holds_every_topic_the_views_read(rviz, foxglove):
+    """Opened on a recorded bag, neither view misses a topic (target_markers included)."""
+    names = {d['Topic']['Value'] for d in _displays(rviz['Visualization Manager']['Displays']) if 'Topic' in d}
+    for config in foxglove['configById'].values():
+        names |= set(config.get('topics', {}))
+        names |= {re.match(r'(/[^.\[{]+)', value).group(1) for key, value in _items(config)
+                  if key in ('value', 'topicPath', 'topicToRender')}
+    assert '/target_markers' in names and '/pressure_command' in names
+    assert [n for n in sorted(names) if not _topic_of(n).recorded] == []
