@@ -121,16 +121,17 @@ TOPICS: tuple[Topic, ...] = (
           'a target the wearer just found'),
     Topic(TARGET_MARKERS, 'visualization_msgs/msg/MarkerArray', LATCHED, 'target_selector',
           'RViz, headset_display', 'targets as 0.1 m spheres (active red, others magenta), the name in '
-          '`text`; namespace `targets` (fixed) or `live_targets`', recorded=False),
+          '`text`; namespace `targets` (fixed) or `live_targets`'),
     Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
           'micromanipulator stack, or micromanipulator_sim', 'target_selector',
           'live targets in the microscope frame [m], scaled by `live_scale` and shifted by '
           '`live_offset`', recorded=False, qos_note='matches reliable publishers too'),
     Topic(PRESSURE_COMMAND, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
           'plc_output', 'kPa per channel, in the order of the `channels` parameter: F1-F4, '
-          'B1-B4, L1-L2, R1-R2, arm_i-arm_vi'),
+          'B1-B4, L1-L2, R1-R2, arm_i-arm_vi; `layout.dim[0].label` names them in that order, '
+          'comma-separated ([array labels](#array-labels))'),
     Topic(MEASURED_PRESSURE, 'std_msgs/msg/Float64MultiArray', COMMAND, 'plc_output',
-          'wearer_sim', "regulators' measured kPa, same order"),
+          'wearer_sim', "regulators' measured kPa, same order and label"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
           'wearer_sim (with a scene, condition 4), headset_display', "condition 4's phrase, once per target"),
     Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'headset_display',
@@ -147,8 +148,8 @@ TOPICS: tuple[Topic, ...] = (
           'per topic'),
     Topic(CONTROLLER_INPUT, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
           'bag_recorder', 'every control step: the exact inputs it used (layout in '
-          '[recording_and_replay.md](recording_and_replay.md)); published only while '
-          'something subscribes'),
+          '[recording_and_replay.md](recording_and_replay.md), its field names in '
+          '`layout.dim[0].label`); published only while something subscribes'),
     Topic(CONTROLLER_PARAMETERS, 'std_msgs/msg/String', LATCHED, 'pressure_controller',
           'bag_recorder', 'parameters, calibration and channel map, for offline replay',
           type_note='(YAML)'),
@@ -159,7 +160,8 @@ TOPICS: tuple[Topic, ...] = (
           '`found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`, `phrase <text>`, '
           '`targets <n>, active <name>`', recorded=False),
     Topic(MAX_WRITTEN, 'std_msgs/msg/Float64MultiArray', COMMAND, 'mock_plc', 'tests',
-          'largest value ever written per channel [kPa]', recorded=False),
+          "largest value ever written per channel [kPa], in the register map's order, labelled "
+          'as `pressure_command`', recorded=False),
 )
 
 SERVICES: tuple[Service, ...] = (

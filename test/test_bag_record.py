@@ -14,14 +14,20 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from fabric_guidance.bag import offline
-from fabric_guidance.bag.controller_io import INPUT_SIZE, setup_from_yaml
+from fabric_guidance.bag.controller_io import FIELDS, INPUT_SIZE, setup_from_yaml
 from fabric_guidance.bag.topics import TOPICS
+from fabric_guidance.core.channels import ChannelMap, label_names
+from fabric_guidance.paths import config_path
+from rosgraph import CONFIG
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
+CHANNELS = ChannelMap.load(config_path('hardware/channel_map.yaml')).channels
+
 #: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
-EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/pressure_command',
-            '/measured_pressure', '/diagnostics', '/controller_input', '/controller_parameters'}
+EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/target_markers',
+            '/pressure_command', '/measured_pressure', '/diagnostics', '/controller_input',
+            '/controller_parameters'}
 
 
 @functools.lru_cache(maxsize=None)
@@ -52,8 +58,12 @@ def test_demo_record_decodes_with_an_independent_reader():
             assert channel.message_encoding == 'cdr'
             if channel.topic == '/pressure_command':
                 assert len(decoded.data) == 18 and max(decoded.data) <= 375.0
+                assert label_names(decoded.layout.dim[0].label) == CHANNELS
+            elif channel.topic == '/measured_pressure':
+                assert label_names(decoded.layout.dim[0].label) == CHANNELS
             elif channel.topic == '/controller_input':
                 assert len(decoded.data) == INPUT_SIZE
+                assert label_names(decoded.layout.dim[0].label) == FIELDS
             elif channel.topic == '/controller_parameters':
                 assert setup_from_yaml(decoded.data).condition == 1
             elif channel.topic == '/gaze':
@@ -65,6 +75,40 @@ def test_demo_record_decodes_with_an_independent_reader():
     for topic in EXPECTED:
         assert schemas[topic] == (TOPICS.get(topic, TOPICS.get(topic.lstrip('/')))[0], 'ros2msg')
     assert counts['/pressure_command'] > 100 and counts['/controller_parameters'] == 1
+
+
+def test_the_targets_decode_from_the_definitions_the_bag_carries():
+    """target_markers as a reader without ROS sees it (mcap_ros2 on the schema in the bag): the
+    demo's four targets of guidance.yaml, spheres in the immersive frame named in `text`, the
+    active one red, each activated in turn."""
+    params = yaml.safe_load((CONFIG / 'params' / 'guidance.yaml').read_text())['target_selector']['ros__parameters']
+    names, positions = params['target_names'], params['target_positions']
+    [mcap] = recorded_demo_bag().glob('*.mcap')
+    with open(mcap, 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        found = [(schema, decoded)
+                 for schema, _, _, decoded in reader.iter_decoded_messages(topics=['/target_markers'])]
+    assert found, 'no target_markers in the bag'
+    schema = found[0][0]
+    assert (schema.name, schema.encoding) == ('visualization_msgs/msg/MarkerArray', 'ros2msg')
+    definition = schema.data.decode()
+    for used in ('visualization_msgs/Marker', 'std_msgs/Header', 'builtin_interfaces/Time', 'geometry_msgs/Pose',
+                 'std_msgs/ColorRGBA', 'builtin_interfaces/Duration', 'sensor_msgs/CompressedImage',
+                 'visualization_msgs/UVCoordinate', 'visualization_msgs/MeshFile'):
+        assert f'MSG: {used}\n' in definition, used
+    active = []
+    for _, msg in found:
+        assert [m.text for m in msg.markers] == names
+        for i, m in enumerate(msg.markers):
+            assert m.header.frame_id == 'immersive' and m.ns == 'targets' and m.id == i
+            assert (m.type, m.action) == (2, 0)                      # SPHERE, ADD
+            assert [m.pose.position.x, m.pose.position.y, m.pose.position.z] == positions[3 * i:3 * i + 3]
+            assert m.scale.x == m.scale.y == m.scale.z == 0.1
+        red = [m.text for m in msg.markers if (m.color.r, m.color.g, m.color.b) == (1.0, 0.0, 0.0)]
+        assert len(red) <= 1, red
+        active.append(red[0] if red else '')
+    in_turn = [a for i, a in enumerate(active) if a and (i == 0 or a != active[i - 1])]
+    assert in_turn == names, active
 
 
 def test_metadata_lists_the_offered_qos_profiles():

@@ -19,6 +19,7 @@ from std_msgs.msg import Float64MultiArray
 import yaml
 
 from deadlines import DeadlineLog
+from fabric_guidance.core.channels import ChannelMap, label_names
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
@@ -289,6 +290,24 @@ class TestCommands:
         mock = rig.latest_status(MOCK_STATUS)
         values = {kv.key: kv.value for kv in mock.values}
         assert mock.level == DiagnosticStatus.OK and values['over-limit writes'] == '0', mock
+
+    def test_the_arrays_name_their_channels(self, rig):
+        """measured_pressure's layout label lists the channel map's channels, max_written_kpa's the
+        register map's, in data order; each value is the named channel's."""
+        command = distinct_command()
+        rig.command(command)
+        wait_until(lambda: np.all(np.abs(np.asarray(rig.measured[-1].data) - command) <= MEASURED_TOLERANCE_KPA),
+                   MEASURED_DEADLINE_S, what='measured_pressure within 1 kPa of a different command per channel')
+        channels = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml').channels
+        for msg, names in ((rig.measured[-1], channels), (rig.max_written[-1], REGISTER_MAP.names)):
+            assert len(msg.layout.dim) == 1 and msg.layout.data_offset == 0, msg.layout
+            dim = msg.layout.dim[0]
+            assert label_names(dim.label) == tuple(names)
+            assert dim.size == dim.stride == len(msg.data) == N
+        measured = dict(zip(label_names(rig.measured[-1].layout.dim[0].label), rig.measured[-1].data))
+        # distinct_command() differs by 17.3 kPa between neighbours: a shifted name would show.
+        assert all(abs(measured[name] - command[i]) <= MEASURED_TOLERANCE_KPA
+                   for i, name in enumerate(REGISTER_MAP.names)), measured
 
     def test_measured_pressure_approaches_the_command(self, rig):
         rig.command(np.zeros(N))

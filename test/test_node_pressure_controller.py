@@ -14,8 +14,11 @@ import pytest
 from geometry_msgs.msg import PointStamped, PoseStamped
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
+import yaml
 
+from fabric_guidance.bag.controller_io import FIELDS
 from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
+from fabric_guidance.core.channels import label_names
 from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance import interface
 from fabric_guidance.nodes import qos
@@ -120,6 +123,43 @@ def test_target_40_left_drives_left_twist_to_the_calibrated_pressure(controller)
     upstream.activate('t1', 40.0)
     wait_until(lambda: channels_equal(probe, {'L1': f_left_40, 'L2': f_left_40}), 10.0,
                what=f'L1, L2 at f_left(40) = {f_left_40:.2f} kPa and every other channel at 0')
+
+
+def test_the_arrays_name_their_values_in_the_configured_order(tmp_path):
+    """pressure_command's layout label lists the channels in the channel map's order (here
+    reversed), and the named channels carry the values; controller_input's names its fields."""
+    data = yaml.safe_load((CONFIG / 'hardware/channel_map.yaml').read_text())
+    data['channels'] = list(reversed(data['channels']))
+    channel_map_file = tmp_path / 'reversed_channel_map.yaml'
+    channel_map_file.write_text(yaml.safe_dump(data))
+    graph = Graph(tmp_path / 'logs')
+    graph.start('pressure_controller', ('params/guidance.yaml',),
+                calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+                calibration_dir=str(tmp_path / 'calibrations'), channel_map_file=str(channel_map_file))
+    probe = Probe(graph.domain_id)
+    upstream = FakeUpstream(probe)
+    try:
+        commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
+        inputs = probe.subscribe(Float64MultiArray, interface.CONTROLLER_INPUT, qos.COMMAND_QOS)
+        f40 = SIM_CAL.laws[0].pressure(40.0)
+        upstream.activate('t1', 40.0)
+
+        def named(msg):
+            return dict(zip(label_names(msg.layout.dim[0].label), msg.data))
+        wait_until(lambda: commands and inputs and abs(named(commands[-1])['L1'] - f40) < 1e-6, 20.0,
+                   what=f'pressure_command with L1 at f_left(40) = {f40:.2f} kPa by its label')
+        for msg, names in ((commands[-1], data['channels']), (inputs[-1], FIELDS)):
+            assert len(msg.layout.dim) == 1 and msg.layout.data_offset == 0, msg.layout
+            dim = msg.layout.dim[0]
+            assert label_names(dim.label) == tuple(names)
+            assert dim.size == dim.stride == len(msg.data) == len(names)
+        values = named(commands[-1])
+        assert values['L2'] == values['L1'] and not any(v for c, v in values.items() if c not in ('L1', 'L2'))
+        assert named(inputs[-1])['condition'] == 1.0
+    finally:
+        upstream.close()
+        probe.close()
+        graph.stop_all()
 
 
 def test_error_growing_raises_the_pressure_and_fixed_condition_does_not(controller):

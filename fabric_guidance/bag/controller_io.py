@@ -21,7 +21,9 @@ that step's pressure_command, with this fixed layout (index: meaning):
   17     command     index of the pressure_command this step publishes, counting every
                      command the node published (services and shutdown included), 0-based
 
-layout.dim is empty and data_offset 0; the length is INPUT_SIZE.
+The length is INPUT_SIZE; layout.dim is one dimension (size and stride INPUT_SIZE) whose label is
+FIELDS joined by commas (the names above, as nodes/array_layout.py labels every array of the
+package); data_offset 0. A bag recorded before the label has an empty layout: the data is the same.
 """
 from __future__ import annotations
 

@@ -81,16 +81,39 @@ _CDR_LE = b'\x00\x01\x00\x00'
 
 
 def float64_array(data: bytes) -> np.ndarray | None:
-    """The data of a CDR (little endian) std_msgs/Float64MultiArray whose layout is empty, as
-    the package publishes it, read straight from the bytes; None for anything else (the
-    caller then decodes it in full). After the 4-byte header: dim count, data_offset, data
-    length (uint32 each), padding to 8, then the float64s."""
-    if len(data) < 20 or data[:4] != _CDR_LE or data[4:8] != b'\x00\x00\x00\x00':
+    """The data of a CDR (little endian) std_msgs/Float64MultiArray, read straight from the
+    bytes; None for anything else (the caller then decodes it in full). After the 4-byte
+    header (offsets and alignment count from its end): the layout's dimensions (a count, then
+    each one's label as a length and its bytes, size, stride), data_offset, the data length,
+    padding to 8, then the float64s. The package's arrays carry one labelled dimension."""
+    end = len(data)
+    if end < 16 or data[:4] != _CDR_LE:
         return None
-    n = int.from_bytes(data[12:16], 'little')
-    if len(data) < 20 + 8 * n:
+
+    def uint32(at: int) -> int:
+        return int.from_bytes(data[at:at + 4], 'little')
+
+    def align(at: int, n: int) -> int:
+        return 4 + (at - 4 + n - 1) // n * n
+
+    dims = uint32(4)
+    pos = 8
+    if dims > (end - pos) // 12:      # each dimension takes at least 12 bytes: a damaged count
         return None
-    return np.frombuffer(data, dtype='<f8', count=n, offset=20)
+    for _ in range(dims):
+        pos = align(pos, 4)
+        pos += 4 + uint32(pos)          # the label: its length (with the NUL), then its bytes
+        pos = align(pos, 4) + 8         # size, stride
+        if pos > end:
+            return None
+    pos = align(pos, 4) + 4             # data_offset
+    if pos + 4 > end:
+        return None
+    n = uint32(pos)
+    pos = align(pos + 4, 8)
+    if end < pos + 8 * n:
+        return None
+    return np.frombuffer(data, dtype='<f8', count=n, offset=pos)
 
 
 def load(path, namespace: str = '/') -> Recording:

@@ -24,6 +24,26 @@ class ChannelMapError(ValueError):
     """A channel map file or mapping that is not usable, naming the field and the reason."""
 
 
+#: Joins the names in the label of a per-channel array's layout (docs/interfaces.md, "Array
+#: labels"), so no channel name may contain it.
+LABEL_SEPARATOR = ','
+
+
+def layout_label(names: Sequence[str]) -> str:
+    """The label of the one layout dimension of a per-channel (or per-field) Float64MultiArray:
+    the names in data order, joined by LABEL_SEPARATOR."""
+    bad = [n for n in names if not isinstance(n, str) or not n or LABEL_SEPARATOR in n]
+    if bad:
+        raise ValueError(f'cannot label an array with {excerpt(bad)}: names must be non-empty strings '
+                         f'without {LABEL_SEPARATOR!r}')
+    return LABEL_SEPARATOR.join(names)
+
+
+def label_names(label: str) -> tuple[str, ...]:
+    """The names of a label layout_label() made, in data order."""
+    return tuple(label.split(LABEL_SEPARATOR)) if label else ()
+
+
 @dataclass(frozen=True)
 class ChannelMap:
     channels: tuple[str, ...]
@@ -70,6 +90,10 @@ class ChannelMap:
         if len(set(channels)) != len(channels):
             dup = sorted({c for c in channels if channels.count(c) > 1})
             raise ChannelMapError(f'{source}: field "channels" names {dup} more than once')
+        joined = [c for c in channels if LABEL_SEPARATOR in c]
+        if joined:
+            raise ChannelMapError(f'{source}: field "channels": {excerpt(joined)} contain {LABEL_SEPARATOR!r}, '
+                                  'which separates the names in the pressure arrays\' layout label')
         layouts = data.get('layouts')
         if not isinstance(layouts, Mapping) or not layouts:
             raise ChannelMapError(f'{source}: field "layouts" must map layout names to directions')

@@ -3,9 +3,10 @@ message definitions and the QoS profiles `ros2 bag play` and Foxglove need. Runs
 lab launch or the demo graph (`fabric-guidance demo --record DIR`); no rosbag2 install needed.
 
 Subscribes  every topic of fabric_guidance/bag/topics.py TOPICS (or the `topics` parameter):
-            gaze, head_pose, target, active_target, target_found, pressure_command,
-            measured_pressure, speech, calibration_status, /diagnostics, controller_input,
-            controller_parameters; each with its publishers' QoS (latched ones transient local)
+            gaze, head_pose, target, active_target, target_found, target_markers,
+            pressure_command, measured_pressure, speech, calibration_status, /diagnostics,
+            controller_input, controller_parameters; each with its publishers' QoS (latched ones
+            transient local)
 Publishes   /diagnostics (diagnostic_msgs/DiagnosticArray) every diagnostics_period_s:
             'bag_recorder: recording' with the bag path and the messages written per topic
             (a session script waits on it to know the recorder hears the controller)

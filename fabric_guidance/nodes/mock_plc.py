@@ -23,6 +23,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.interface import DIAGNOSTICS
+from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
@@ -76,6 +77,7 @@ class MockPlc(Node):
             self.create_timer(0.05, self._drain_write_log, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.address = f'{host}:{self.server.port}'
         self._max_pub = self.create_publisher(Float64MultiArray, MAX_WRITTEN, COMMAND_QOS)
+        self._max_layout = named_layout(self.register_map.names)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_timer(1.0 / status_rate_hz, self._on_status_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'mock PLC listening on {self.address}: {len(self.register_map)} channels, '
@@ -84,7 +86,8 @@ class MockPlc(Node):
 
     def _on_status_timer(self) -> None:
         written = self.server.max_written_kpa()
-        self._max_pub.publish(Float64MultiArray(data=[float(written[name]) for name in self.register_map.names]))
+        self._max_pub.publish(Float64MultiArray(layout=self._max_layout,
+                                                data=[float(written[name]) for name in self.register_map.names]))
         over, outside = len(self.server.over_limit_writes), len(self.server.out_of_map_writes)
         if over or outside:
             level = DiagnosticStatus.ERROR

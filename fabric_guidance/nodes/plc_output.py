@@ -39,6 +39,7 @@ from std_msgs.msg import Float64MultiArray
 from fabric_guidance.core.channels import ChannelMap
 from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.managed import ManagedNode
 from fabric_guidance.nodes.parameters import declare, declare_config_file
@@ -163,6 +164,7 @@ class PlcOutput(ManagedNode):
                                      self.reconnect_min_s))
         self.plc_address = ', '.join(link.client.address for link in self._links)
         self._forget_command()
+        self._measured_layout = named_layout(channel_map.channels)
         self._command_sub = self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command,
                                                      COMMAND_QOS)
         self._write_timer = self.create_timer(1.0 / self.write_rate_hz, self._on_write_timer, clock=self._steady)
@@ -286,7 +288,8 @@ class PlcOutput(ManagedNode):
         self._heartbeat += 1
         if complete:
             self._writes += 1
-            self._measured_pub.publish(Float64MultiArray(data=[float(v) for v in measured]))
+            self._measured_pub.publish(Float64MultiArray(layout=self._measured_layout,
+                                                         data=[float(v) for v in measured]))
 
     def _retry(self, link: _Link) -> None:
         """Reconnect and prove the link with a vent, a heartbeat and a read (never the command)."""

@@ -49,12 +49,13 @@ from ..core.controller_parameters import PARAMETERS, SETUP
 from ..core.feedback import REST
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
-from ..bag.controller_io import encode_input, setup_to_dict
+from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
 from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
 from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
                          DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
                          VENT)
 from ..paths import resolve
+from .array_layout import named_layout
 from .diagnostics import publish_diagnostics, status
 from .managed import ManagedNode
 from .parameters import declare_table
@@ -105,7 +106,8 @@ class PressureController(ManagedNode):
         self.invalid_inputs = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
-        self.command_msg, self.input_msg = Float64MultiArray(), Float64MultiArray()
+        self.command_msg = Float64MultiArray()   # its layout names the channels once configured
+        self.input_msg = Float64MultiArray(layout=named_layout(FIELDS))
         self.input_pub = self.create_publisher(Float64MultiArray, CONTROLLER_INPUT, COMMAND_QOS)
         self.parameters_pub = self.create_publisher(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
         self.speech_pub = self.create_publisher(String, SPEECH, EVENT_QOS)
@@ -145,6 +147,7 @@ class PressureController(ManagedNode):
         self.channel_map, self.calibration = channel_map, calibration
         self.setup = ControllerSetup(calibration=calibration, channel_map=channel_map, **setup)
         self.zeros = np.zeros(len(channel_map.channels))
+        self.command_msg.layout = named_layout(channel_map.channels)
         self.warn_origin(calibration)
         self.controller = self._make_controller()
         self.publish_parameters(self.step_count)
