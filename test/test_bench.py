@@ -44,8 +44,9 @@ def test_a_landing_is_the_latest_sample_of_its_level_and_counted_once():
 
 def test_a_quick_bench_writes_every_key(tmp_path):
     out = tmp_path / 'results.json'
-    run = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'bench', '--quick', '--out', str(out),
-                          '--work', str(tmp_path / 'work')], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    run = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'bench', '--quick', '--repeat', '2',
+                          '--out', str(out), '--work', str(tmp_path / 'work')],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert run.returncode == 0, run.stdout + run.stderr
     r = json.loads(out.read_text())
 
@@ -60,6 +61,17 @@ def test_a_quick_bench_writes_every_key(tmp_path):
         assert fig['applied'] > 0
         assert 0 < fig['p50'] <= fig['p99'] <= fig['max'] < 1000
     assert finite(r['ratio_p99']) and r['ratio_p99'] > 0
+    assert r['ratio_p99_1000'] is None or r['ratio_p99_1000'] > 0
+    # --repeat 2: two rounds, and each figure's median within its spread.
+    assert r['repeats'] == 2 and len(r['rounds']) == 2
+    for rate, summary in r['repeat_summary'].items():
+        v = summary['package_p99']
+        assert v is not None and v['min'] <= v['median'] <= v['max'], (rate, v)
+        assert {round_[rate]['package']['p99'] for round_ in r['rounds']} == {v['min'], v['max']}
+    # Idle RSS of every lab node beside the bare rclpy node's, all read.
+    assert set(r['node_rss_mb']) == {'bare rclpy node', 'gaze_bridge', 'target_selector', 'pressure_controller',
+                                     'plc_output', 'headset_display', 'bag_recorder'}
+    assert all(finite(v) and 10 < v < 4000 for v in r['node_rss_mb'].values()), r['node_rss_mb']
     for key in ('controller_step_us', 'gaze_parse_us', 'fit_ms'):
         assert 0 < r[key]['p50'] <= r[key]['p99'] and finite(r[key]['p99'])
     assert set(r['rss_mb']) == {'gaze_bridge', 'pressure_controller', 'plc_output', 'mock_plc'}
@@ -79,4 +91,5 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     table = out.with_suffix('.md').read_text()
     assert 'capture to register, C# headset' in table
     assert '| figure | value | goal | met |' in table and 'gaze to register, 90 Hz' in table
+    assert 'resident memory idle, bare rclpy node' in table and 'over 2 rounds' in table
     assert 'gaze to register, 90 Hz' in run.stdout

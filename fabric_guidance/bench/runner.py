@@ -1,10 +1,14 @@
-"""`fabric-guidance bench --out FILE [--quick]`: every benchmark in order, the figures as JSON
-(FILE) and as a markdown table beside it (FILE with .md), progress on the way. It measures and
-prints; it never fails because a machine is slow (the goals are read off the table).
+"""`fabric-guidance bench --out FILE [--quick] [--repeat N]`: every benchmark in order, the
+figures as JSON (FILE) and as a markdown table beside it (FILE with .md), progress on the way. It
+measures and prints; it never fails because a machine is slow (the goals are read off the table).
+--repeat N measures the latencies N times over (rounds of alternating blocks on the same
+graphs) and gives each figure's median and spread over the rounds, so that a change can be told
+from the noise of a shared machine.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from dataclasses import dataclass
 import json
 import math
@@ -35,16 +39,23 @@ class Plan:
     headless_repetitions: int | None = None
     blocks: int = 4
     csharp_90: int = 1000
+    repeats: int = 1
 
 
 FULL = Plan()
 QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
              fits=30, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60)
 
-#: Goals of the issue, read off the figures (never asserted).
+#: Goals, read off the figures (never asserted): the package's p99 within RATIO_GOAL of its
+#: transports' floor at both rates, 1 kHz p99 within P99_1000_GOAL_MS, and the nodes that run
+#: no fit within RSS_GOAL_MB.
+RATIO_GOAL = 1.2
+P99_1000_GOAL_MS = 3.0
+RSS_GOAL_MB = 80.0
 GOALS = {
-    'p99_90': 5.0, 'ratio_90': 3.0, 'applied_1000': 0.99, 'p99_1000': 10.0,
-    'controller_step_us': 50.0, 'fit_ms': 5.0, 'headless_speedup': 1000.0,
+    'p99_90': 5.0, 'ratio_90': RATIO_GOAL, 'ratio_1000': RATIO_GOAL, 'applied_1000': 0.99,
+    'p99_1000': P99_1000_GOAL_MS, 'controller_step_us': 50.0, 'fit_ms': 5.0, 'headless_speedup': 1000.0,
+    'rss_mb': RSS_GOAL_MB,
 }
 
 
@@ -71,7 +82,7 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     from . import components, throughput
     from .graphs import FloorGraph, PackageGraph, combine, replay as replay_offline
 
-    results: dict = {'machine': machine(), 'quick': plan is QUICK}
+    results: dict = {'machine': machine(), 'quick': plan.e2e_90 < FULL.e2e_90, 'repeats': plan.repeats}
     t_all = time.monotonic()
 
     say('components: one controller step, one gaze datagram, one calibration fit ...')
@@ -95,23 +106,40 @@ def run_all(plan: Plan, work: Path, say) -> dict:
         fl = FloorGraph(work / 'floor', say)
         pkg.rig.prime()
         fl.rig.prime()
-        # Blocks alternate between the two chains, so both see the same background load.
-        for rate, n_pkg, n_floor in (('90', plan.e2e_90, plan.floor_90), ('1000', plan.e2e_1000, plan.floor_1000)):
-            blocks = {'package': [], 'floor': []}
-            say(f'  {rate} Hz: {n_pkg} samples through the package and {n_floor} through the floor, in '
-                f'{plan.blocks} alternating blocks, each after {plan.warmup_s:g} s of warm-up ...')
-            for _ in range(plan.blocks):
-                blocks['package'].append(pkg.rig.block(float(rate), n_pkg // plan.blocks, plan.warmup_s))
-                blocks['floor'].append(fl.rig.block(float(rate), n_floor // plan.blocks, plan.warmup_s))
-            figures = {k: combine(v, float(rate)) for k, v in blocks.items()}
+        # Blocks alternate between the two chains, so both see the same background load; each
+        # round measures every rate again (--repeat).
+        rounds: list[dict] = []
+        pooled = {rate: {'package': [], 'floor': []} for rate in ('90', '1000')}
+        for k in range(plan.repeats):
+            this = {}
+            for rate, n_pkg, n_floor in (('90', plan.e2e_90, plan.floor_90),
+                                         ('1000', plan.e2e_1000, plan.floor_1000)):
+                blocks = {'package': [], 'floor': []}
+                say(f'  {rate} Hz{f" (round {k + 1} of {plan.repeats})" if plan.repeats > 1 else ""}: '
+                    f'{n_pkg} samples through the package and {n_floor} through the floor, in '
+                    f'{plan.blocks} alternating blocks, each after {plan.warmup_s:g} s of warm-up ...')
+                for _ in range(plan.blocks):
+                    blocks['package'].append(pkg.rig.block(float(rate), n_pkg // plan.blocks, plan.warmup_s))
+                    blocks['floor'].append(fl.rig.block(float(rate), n_floor // plan.blocks, plan.warmup_s))
+                figures = {name: combine(v, float(rate)) for name, v in blocks.items()}
+                for name, v in blocks.items():
+                    pooled[rate][name] += v
+                this[rate] = {**figures, 'ratio_p99': _ratio(figures['package'], figures['floor'])}
+                say('    package: ' + _line(figures['package']))
+                say('    floor:   ' + _line(figures['floor']) + f"; p99 ratio {_fmt(this[rate]['ratio_p99'])}")
+            rounds.append(this)
+        for rate in ('90', '1000'):
+            figures = {name: combine(v, float(rate)) for name, v in pooled[rate].items()}
             results.setdefault('e2e_latency_ms', {})[rate] = figures['package']
             results['floor_latency_ms' if rate == '90' else f'floor_latency_{rate}_ms'] = figures['floor']
-            say('    package: ' + _line(figures['package']))
-            say('    floor:   ' + _line(figures['floor']))
+        if plan.repeats > 1:
+            results['rounds'] = rounds
+            results['repeat_summary'] = repeat_summary(rounds)
         fl.close()
         fl = None
         results['rss_mb'] = pkg.rss_mb()
-        say(f"  resident memory: {', '.join(f'{k} {v:.0f} MB' for k, v in results['rss_mb'].items() if v)}")
+        say(f"  resident memory after the runs: "
+            f"{', '.join(f'{k} {v:.0f} MB' for k, v in results['rss_mb'].items() if v)}")
         say(f'  recording {plan.replay_s:g} s at 90 Hz for the offline replay ...')
         bag = pkg.record(plan.replay_s, 90.0)
     finally:
@@ -134,10 +162,34 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     results['capture_to_register_ms'] = csharp
     say('  ' + (f"skipped: {csharp['skipped']}" if 'skipped' in csharp else
                 _line(csharp) + f"; clock bound {csharp['clock_bound_ms']:.2f} ms"))
-    package_p99, floor_p99 = results['e2e_latency_ms']['90']['p99'], results['floor_latency_ms']['p99']
-    results['ratio_p99'] = (package_p99 / floor_p99) if package_p99 is not None and floor_p99 else None
+    from .memory import node_rss
+    results['node_rss_mb'] = node_rss(work, say)
+    say('  idle: ' + ', '.join(f'{k} {_fmt(v, 0)} MB' for k, v in results['node_rss_mb'].items()))
+    results['ratio_p99'] = _ratio(results['e2e_latency_ms']['90'], results['floor_latency_ms'])
+    results['ratio_p99_1000'] = _ratio(results['e2e_latency_ms']['1000'], results.get('floor_latency_1000_ms', {}))
     results['wall_s'] = time.monotonic() - t_all
     return results
+
+
+def _ratio(package: dict, floor: dict) -> float | None:
+    """The package's p99 over the floor's."""
+    a, b = package.get('p99'), floor.get('p99')
+    return a / b if a is not None and b else None
+
+
+def repeat_summary(rounds: list[dict]) -> dict:
+    """{rate: {figure: {median, min, max}}} over the rounds, for p50/p99/max of both chains
+    and the p99 ratio."""
+    import statistics
+    out: dict = {}
+    for rate in rounds[0]:
+        figures = {f'{chain}_{q}': [r[rate][chain][q] for r in rounds] for chain in ('package', 'floor')
+                   for q in ('p50', 'p99', 'max')}
+        figures['ratio_p99'] = [r[rate]['ratio_p99'] for r in rounds]
+        out[rate] = {name: ({'median': statistics.median(v), 'min': min(v), 'max': max(v)}
+                            if v and all(x is not None for x in v) else None)
+                     for name, v in figures.items()}
+    return out
 
 
 def _line(r: dict) -> str:
@@ -170,10 +222,11 @@ def markdown(r: dict) -> str:
          f"{_fmt(e90['p50'])} / {_fmt(e90['p99'])} / {_fmt(e90['max'])}", 'p99 <= 5', ok(le(e90['p99'], 5.0))),
         ('  applied / sent', f"{e90['applied']} / {e90['sent']}", '', ''),
         ('floor, 90 Hz: p50 / p99 / max [ms]', f"{_fmt(fl['p50'])} / {_fmt(fl['p99'])} / {_fmt(fl['max'])}", '', ''),
-        ('package p99 / floor p99, 90 Hz', _fmt(r['ratio_p99']), '<= 3', ok(le(r['ratio_p99'], 3.0))),
+        ('package p99 / floor p99, 90 Hz', _fmt(r['ratio_p99']), f'<= {RATIO_GOAL:g}',
+         ok(le(r['ratio_p99'], RATIO_GOAL))),
         ('gaze to register, 1000 Hz: p50 / p99 / max [ms]',
-         f"{_fmt(e1000['p50'])} / {_fmt(e1000['p99'])} / {_fmt(e1000['max'])}", 'p99 <= 10',
-         ok(le(e1000['p99'], 10.0))),
+         f"{_fmt(e1000['p50'])} / {_fmt(e1000['p99'])} / {_fmt(e1000['max'])}", f'p99 <= {P99_1000_GOAL_MS:g}',
+         ok(le(e1000['p99'], P99_1000_GOAL_MS))),
         ('  applied / sent', f"{e1000['applied']} / {e1000['sent']} "
                              f"({_fmt(None if applied_1000 is None else 100 * applied_1000, 1)} %)",
          '>= 99 %', ok(None if applied_1000 is None else applied_1000 >= 0.99)),
@@ -182,6 +235,15 @@ def markdown(r: dict) -> str:
         rows.append(('floor, 1000 Hz: p50 / p99 / max [ms]',
                      f"{_fmt(fl1000['p50'])} / {_fmt(fl1000['p99'])} / {_fmt(fl1000['max'])} "
                      f"({fl1000['applied']} / {fl1000['sent']})", '', ''))
+        ratio_1000 = r.get('ratio_p99_1000')
+        rows.append(('package p99 / floor p99, 1000 Hz', _fmt(ratio_1000), f'<= {RATIO_GOAL:g}',
+                     ok(le(ratio_1000, RATIO_GOAL))))
+    for rate, summary in (r.get('repeat_summary') or {}).items():
+        for name in ('package_p50', 'package_p99', 'package_max', 'floor_p50', 'floor_p99', 'floor_max', 'ratio_p99'):
+            v = summary.get(name)
+            if v is not None:
+                rows.append((f"  {rate} Hz {name.replace('_', ' ')} over {len(r['rounds'])} rounds: median "
+                             f"(min - max)", f"{_fmt(v['median'])} ({_fmt(v['min'])} - {_fmt(v['max'])})", '', ''))
     cs = r.get('capture_to_register_ms', {'skipped': 'not measured'})
     rows.append(('capture to register, C# headset, 90 Hz: p50 / p99 / max [ms]',
                  f"skipped: {cs['skipped']}" if 'skipped' in cs else
@@ -198,7 +260,12 @@ def markdown(r: dict) -> str:
         ('offline replay [x real time]', _fmt(r['replay_speedup'], 0) if r['replay_speedup'] is not None
          else f"n/a ({r.get('replay_reason', '')})", '', ''),
     ]
-    rows += [(f'resident memory, {k} [MB]', _fmt(v, 0), '', '') for k, v in r['rss_mb'].items()]
+    rows += [(f'resident memory after the runs, {k} [MB]', _fmt(v, 0), '', '') for k, v in r['rss_mb'].items()]
+    from .memory import BARE, FITS
+    for k, v in r.get('node_rss_mb', {}).items():
+        goal = '' if k == BARE or k in FITS else f'<= {RSS_GOAL_MB:g}'
+        rows.append((f'resident memory idle, {k} [MB]', _fmt(v, 0), goal,
+                     ok(le(v, RSS_GOAL_MB)) if goal else ''))
     lines = ['| figure | value | goal | met |', '| --- | --- | --- | --- |']
     lines += [f'| {a} | {b} | {c_} | {d} |' for a, b, c_, d in rows]
     head = (f"Benchmarks{' (quick)' if r['quick'] else ''}: {m['cores']} cores, Python {m['python']}, "
@@ -216,6 +283,8 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, default=Path('bench/results.json'),
                    help='the JSON file to write; the markdown table goes beside it (.md)')
     p.add_argument('--quick', action='store_true', help='few samples: a smoke run, not figures to quote')
+    p.add_argument('--repeat', type=int, default=1, metavar='N',
+                   help='measure the latencies N times over: median and spread per figure (default 1)')
     p.add_argument('--work', type=Path, default=None, help='folder for logs and the recorded session '
                    '(default: a temporary folder, removed afterwards)')
     return p
@@ -227,7 +296,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args, stream=sys.stdout) -> int:
     say = subcommand.printer(stream)
-    plan = QUICK if args.quick else FULL
+    if args.repeat < 1:
+        say(f'--repeat must be 1 or more, got {args.repeat}')
+        return 2
+    plan = dataclasses.replace(QUICK if args.quick else FULL, repeats=args.repeat)
     if args.work is not None:
         results = run_all(plan, Path(args.work), say)
     else:

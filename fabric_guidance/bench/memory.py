@@ -1,0 +1,85 @@
+"""Resident memory of every lab node beside a bare rclpy node, in the same environment and the
+same ROS domain: what each node costs on top of rclpy itself.
+
+Every node is started idle (no gaze, no PLC answering: plc_output keeps retrying its link),
+as it sits at the start of a session; its RSS is read from /proc once it has been steady for a
+second. The bare node is `rclpy.create_node` spun by a SingleThreadedExecutor, nothing else.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+import socket
+import subprocess
+import sys
+import time
+from typing import Callable
+
+from ..process_graph import Graph, free_port
+from .graphs import FILES, SIM_CALIBRATION, rss_mb
+
+#: The lab nodes (the simulators stand in for hardware and are left out).
+LAB_NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display',
+             'bag_recorder')
+BARE = 'bare rclpy node'
+#: Nodes that may load scipy: the one that fits Algorithm 1 (and only when it does).
+FITS = ('pressure_controller',)
+
+BARE_NODE = '''
+import signal, threading, rclpy
+from rclpy.executors import SingleThreadedExecutor
+rclpy.init()
+node = rclpy.create_node('bare_node')
+stop = threading.Event()
+signal.signal(signal.SIGINT, lambda *a: stop.set())
+signal.signal(signal.SIGTERM, lambda *a: stop.set())
+executor = SingleThreadedExecutor()
+executor.add_node(node)
+print('bare node spinning', flush=True)
+while not stop.is_set():
+    executor.spin_once(timeout_sec=0.05)
+node.destroy_node()
+rclpy.shutdown()
+'''
+
+
+def _steady_rss(pid: int, timeout_s: float = 30.0) -> float | None:
+    """RSS once two readings a second apart differ by less than 0.5 MB (start-up done)."""
+    deadline = time.monotonic() + timeout_s
+    last = rss_mb(pid)
+    while time.monotonic() < deadline:
+        time.sleep(1.0)
+        now = rss_mb(pid)
+        if now is None or (last is not None and abs(now - last) < 0.5):
+            return now
+        last = now
+    return last
+
+
+def node_rss(work: Path, say: Callable[[str], None]) -> dict[str, float | None]:
+    """{name: MB} for the bare node and every lab node, started together and idle."""
+    graph = Graph(Path(work) / 'memory_logs')
+    bare = None
+    try:
+        bare = subprocess.Popen([sys.executable, '-c', BARE_NODE], env=graph.env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.STDOUT)
+        graph.start('gaze_bridge', FILES, port=free_port(socket.SOCK_DGRAM))
+        graph.start('target_selector', FILES)
+        graph.start('pressure_controller', FILES, calibration_file=str(SIM_CALIBRATION),
+                    calibration_dir=str(Path(work) / 'calibrations'))
+        graph.start('plc_output', FILES, plc_port=free_port())      # nobody listens: it retries
+        graph.start('headset_display', FILES, display_port=free_port(socket.SOCK_DGRAM))
+        graph.start('bag_recorder', FILES, output=str(Path(work) / 'memory_bag'))
+        say(f'  resident memory of {len(LAB_NODES)} idle lab nodes and a bare rclpy node ...')
+        out = {BARE: _steady_rss(bare.pid)}
+        for name in LAB_NODES:
+            proc = graph.processes[name]
+            out[name] = _steady_rss(proc.pid) if proc.poll() is None else None
+        return out
+    finally:
+        if bare is not None:
+            bare.terminate()
+            try:
+                bare.wait(10)
+            except subprocess.TimeoutExpired:
+                bare.kill()
+        graph.stop_all(check=False)
