@@ -14,6 +14,7 @@
   example   the core alone on a worked example (no ROS)
   dds-profile  a Fast DDS profile keeping DDS on one network interface of the lab PC
   discovery-server  Fast DDS's discovery server for the lab graph (no multicast discovery)
+  security-policy  the SROS2 permissions policy of the lab graph, from the interface table
 """
 from __future__ import annotations
 
@@ -54,6 +55,8 @@ SUBCOMMANDS = {
                     'network interface of the lab PC'),
     'discovery-server': ('fabric_guidance.discovery_server',
                          "run Fast DDS's discovery server for the lab graph (no multicast discovery)"),
+    'security-policy': ('fabric_guidance.security_policy', 'write the SROS2 permissions policy of the lab graph, '
+                        'generated from the interface table'),
 }
 
 

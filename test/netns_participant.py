@@ -4,9 +4,11 @@ gives it. It reports what it sees of the graph, one JSON line whenever that chan
 {"m": CLOCK_MONOTONIC (the same clock as the test's), "nodes": [other nodes' names],
 "subscribers": {topic: count}}, the first as soon as its node exists, where
 subscribers counts the remote subscriptions matched on the topics it publishes (its own node
-subscribes to none of them). With --intrude it publishes on `pressure_command` (CHANNEL at
-INTRUDER_KPA, the rest 0) and `gaze` at 20 Hz, as a participant trying to drive the suit would.
-It stops by itself after --seconds.
+subscribes to none of them). With --publish pressure_command (CHANNEL at INTRUDER_KPA, the rest 0)
+and/or --publish gaze it publishes there at 20 Hz, as a participant trying to drive the suit
+would; a publisher the middleware refuses (SROS2 permissions) is reported as {"refused": error}
+and the process exits 3. It stops by itself after --seconds. Also run outside namespaces
+(test_security_policy.py).
 """
 import argparse
 import json
@@ -24,24 +26,26 @@ from fabric_guidance.paths import config_path
 CHANNELS = ChannelMap.load(config_path('hardware/channel_map.yaml')).channels
 CHANNEL = 'F1'         # the test graph guides to the left: F1 stays at 0
 INTRUDER_KPA = 123.0
+TOPICS = {interface.PRESSURE_COMMAND: (Float64MultiArray, interface.COMMAND),
+          interface.GAZE: (PoseStamped, interface.SENSOR)}
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument('--name', required=True)
     parser.add_argument('--seconds', type=float, required=True)
-    parser.add_argument('--intrude', action='store_true')
+    parser.add_argument('--publish', action='append', default=[], choices=sorted(TOPICS))
     args = parser.parse_args(argv)
     rclpy.init()
     node = rclpy.create_node(args.name)
     publishers = {}
-    if args.intrude:
-        publishers = {
-            '/' + interface.PRESSURE_COMMAND: node.create_publisher(
-                Float64MultiArray, interface.PRESSURE_COMMAND, interface.qos_profile(interface.COMMAND)),
-            '/' + interface.GAZE: node.create_publisher(
-                PoseStamped, interface.GAZE, interface.qos_profile(interface.SENSOR)),
-        }
+    for topic in args.publish:
+        msg_type, kind = TOPICS[topic]
+        try:
+            publishers['/' + topic] = node.create_publisher(msg_type, topic, interface.qos_profile(kind))
+        except Exception as exc:  # noqa: BLE001 - rclpy's errors have no common base; reported as they are
+            print(json.dumps({'m': time.monotonic(), 'refused': f'{topic}: {exc}'}), flush=True)
+            return 3
     command = Float64MultiArray(data=[INTRUDER_KPA if c == CHANNEL else 0.0 for c in CHANNELS])
     gaze = PoseStamped()
     gaze.header.frame_id = interface.IMMERSIVE_FRAME
@@ -53,9 +57,9 @@ def main(argv=None):
         rclpy.spin_once(node, timeout_sec=0.05)
         now = time.monotonic()
         if publishers and now >= next_publish:
-            publishers['/' + interface.PRESSURE_COMMAND].publish(command)
             gaze.header.stamp = node.get_clock().now().to_msg()
-            publishers['/' + interface.GAZE].publish(gaze)
+            for topic, publisher in publishers.items():
+                publisher.publish(command if topic == '/' + interface.PRESSURE_COMMAND else gaze)
             next_publish = now + 0.05
         seen = {'nodes': sorted(n for n in node.get_node_names() if n != args.name),
                 'subscribers': {t: p.get_subscription_count() for t, p in publishers.items()}}

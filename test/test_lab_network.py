@@ -258,12 +258,13 @@ class Participant:
     """netns_participant.py on a host, its reports in a file."""
 
     def __init__(self, ns, name, env, log_dir, seconds, intrude=False):
+        publish = ['--publish', 'pressure_command', '--publish', 'gaze'] if intrude else []
         self.name = name
         self.path = Path(log_dir) / f'{name}.jsonl'
         self.log = open(self.path, 'w')
         self.proc = subprocess.Popen(
             ['ip', 'netns', 'exec', ns, sys.executable, str(PARTICIPANT), '--name', name, '--seconds', str(seconds),
-             *(['--intrude'] if intrude else [])], stdout=self.log, stderr=subprocess.STDOUT, env=env)
+             *publish], stdout=self.log, stderr=subprocess.STDOUT, env=env)
 
     def reports(self) -> list[dict]:
         out = []
