@@ -7,6 +7,10 @@
 headset_address goes to gaze_bridge (clock pings) and headset_display (display messages), the
 two nodes that send to the HoloLens (docs/headset.md).
 
+keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
+discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
+start_discovery_server:=true also runs it here (docs/lab_network.md). Unset, nothing changes.
+
 Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
 if given (its values win); an argument given here overrides both, an argument left empty keeps
 the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
@@ -21,7 +25,8 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 import yaml
 
-from fabric_guidance.launch_support import NodeOverrides
+from fabric_guidance.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
+                                            lab_node_kwargs)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -71,8 +76,9 @@ def _nodes(context, *args, **kwargs):
                 overrides[node][parameter] = argument_value(arg, kind, text)
     generated = NodeOverrides(context)
     nodes = [Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                  parameters=[*files, generated.file(name, overrides[name])]) for name in NODES]
-    return [*nodes, generated.cleanup_action()]
+                  parameters=[*files, generated.file(name, overrides[name])], **lab_node_kwargs(context, name))
+             for name in NODES]
+    return [*lab_network_actions(context), *nodes, generated.cleanup_action()]
 
 
 def generate_launch_description():
@@ -89,5 +95,6 @@ def generate_launch_description():
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
+        *lab_launch_arguments(),   # keystore, discovery_server, start_discovery_server
         OpaqueFunction(function=_nodes),
     ])
