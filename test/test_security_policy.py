@@ -279,3 +279,10 @@ def test_enforced_only_the_controllers_enclave_reaches_the_plc(tmp_path):
         if watch is not None:
             watch.client.close()
         graph.stop_all()
+
+
+def test_the_lab_network_modules_import_no_rclpy():
+    """The generators and their commands run without ROS (a lab PC writing a profile, CI)."""
+    code = ('import sys, fabric_guidance.security_policy, fabric_guidance.lab_network, '
+            'fabric_guidance.discovery_server; sys.exit(any(m.split(".")[0] == "rclpy" for m in sys.modules))')
+    assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
