@@ -199,16 +199,19 @@ def test_a_profile_naming_no_interface_of_the_machine_fails_closed(tmp_path):
     of the demo see each other."""
     typo = write_profile(tmp_path / 'typo.xml', 'nosuchif0')
     loopback = CONFIG / 'fastdds_loopback.xml'
-    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE='SYSTEM_DEFAULT')
+    pairs = {}
+    for name, profile in (('loopback', loopback), ('typo', typo)):   # both pairs at once, a domain each
+        env = dds_env(dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id())),
+                      {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT',
+                       'FASTDDS_DEFAULT_PROFILES_FILE': str(profile)})
+        pairs[name] = [subprocess.Popen([sys.executable, str(PARTICIPANT), '--name', f'{name}_{i}', '--seconds', '6'],
+                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+                       for i in (1, 2)]
     seen = {}
-    for name, profile in (('loopback', loopback), ('typo', typo)):
-        env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
-        pair = [subprocess.Popen([sys.executable, str(PARTICIPANT), '--name', f'{name}_{i}', '--seconds', '6'],
-                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-                for i in (1, 2)]
+    for name, pair in pairs.items():
         outs = [p.communicate(timeout=60)[0] for p in pair]
-        seen[name] = [{n for line in out.splitlines() if line.startswith('{') for n in json.loads(line)['nodes']}
-                      for out in outs]
+        seen[name] = [{n for line in outs[i].splitlines() if line.startswith('{') for n in json.loads(line)['nodes']}
+                      for i in (0, 1)]
         if name == 'typo':
             assert 'All whitelist interfaces were filtered out' in outs[0] + outs[1]
     assert seen['loopback'] == [{'loopback_2'}, {'loopback_1'}], seen
