@@ -12,6 +12,9 @@
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
   example   the core alone on a worked example (no ROS)
+  dds-profile  a Fast DDS profile keeping DDS on one network interface of the lab PC
+  discovery-server  Fast DDS's discovery server for the lab graph (no multicast discovery)
+  security-policy  the SROS2 permissions policy of the lab graph, from the interface table
 """
 from __future__ import annotations
 
@@ -48,6 +51,12 @@ SUBCOMMANDS = {
               "transports' floor, component costs, memory, simulation and replay speed"),
     'example': ('fabric_guidance.example_command',
                 'the core alone on a worked example: calibration and guided turns'),
+    'dds-profile': ('fabric_guidance.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '
+                    'network interface of the lab PC'),
+    'discovery-server': ('fabric_guidance.discovery_server',
+                         "run Fast DDS's discovery server for the lab graph (no multicast discovery)"),
+    'security-policy': ('fabric_guidance.security_policy', 'write the SROS2 permissions policy of the lab graph, '
+                        'generated from the interface table'),
 }
 
 

@@ -36,6 +36,10 @@ VENT = 'vent'
 NEXT_TARGET = 'next_target'
 RESET_SEQUENCE = 'reset_sequence'
 
+#: The lifecycle (managed) nodes: the standard lifecycle services and transition_event are
+#: theirs (docs/lifecycle.md); launch files drive them, the security policy grants them.
+MANAGED_NODES = ('pressure_controller', 'plc_output')
+
 #: The frame of the immersive space (REP 103 axes, Unity's world origin).
 IMMERSIVE_FRAME = 'immersive'
 

@@ -7,17 +7,23 @@
   plc_output's first connection succeeds instead of logging an ERROR.
 - `lifecycle_bring_up`: launch_ros's lifecycle events that configure a managed node once its
   process runs and activate it once it is configured (the launch argument autostart).
+- `lab_launch_arguments`, `lab_node_kwargs`, `lab_network_actions`: the lab's keystore (each
+  node in its SROS2 enclave, security enforced; docs/security.md) and discovery server (each
+  node its client; optionally started by the launch; docs/lab_network.md). Unset: no change.
 """
 from __future__ import annotations
 
 import atexit
 import os
 import shutil
+import sys
 import tempfile
 
-from launch.actions import RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler
 from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
+
+from . import discovery_server, security_policy
 
 #: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
 MOCK_PLC_LISTENING = 'mock PLC listening on'
@@ -92,3 +98,55 @@ def after_mock_plc_listens(mock_plc, actions):
 
     return RegisterEventHandler(OnProcessIO(target_action=mock_plc, on_stdout=on_output,
                                             on_stderr=on_output))
+
+
+def lab_launch_arguments() -> list:
+    """The launch arguments of the lab's network set-up; empty or false: the launch as before."""
+    return [
+        DeclareLaunchArgument('keystore', default_value='',
+                              description='SROS2 keystore (ros2 security generate_artifacts with the policy of '
+                                          '`fabric-guidance security-policy`): each node in its enclave '
+                                          '/fabric_guidance/<node>, security enforced (empty: '
+                                          'ROS_SECURITY_KEYSTORE if set, else no security)'),
+        DeclareLaunchArgument('discovery_server', default_value='',
+                              description='ADDRESS[:PORT] of the Fast DDS discovery server: every node its client '
+                                          '(ROS_DISCOVERY_SERVER; empty: as the environment says)'),
+        DeclareLaunchArgument('start_discovery_server', default_value='false',
+                              description='also run the discovery server on this PC, at discovery_server'),
+    ]
+
+
+def _setting(context, name: str, environment: str | None = None) -> str:
+    # launch_configurations, not LaunchConfiguration: the simulated launches ask before the lab
+    # launch that declares the arguments is included.
+    value = context.launch_configurations.get(name, '')
+    return value or (os.environ.get(environment, '') if environment else '')
+
+
+def lab_node_kwargs(context, node: str) -> dict:
+    """launch_ros Node keyword arguments for `node`: its enclave and ROS_SECURITY_* when the lab
+    set a keystore, ROS_DISCOVERY_SERVER when it named a discovery server; {} otherwise. A
+    keystore without the node's enclave stops the launch with one line."""
+    keystore = _setting(context, 'keystore', 'ROS_SECURITY_KEYSTORE')
+    kwargs = security_policy.node_security(node, keystore)
+    if keystore:
+        enclave = os.path.join(keystore, 'enclaves', security_policy.enclave_path(node).lstrip('/'))
+        if not os.path.isdir(enclave):
+            raise ValueError(f'keystore {keystore}: no enclave {security_policy.enclave_path(node)} '
+                             f'({enclave} is missing; docs/security.md)')
+    server = _setting(context, 'discovery_server')
+    if server:
+        kwargs.setdefault('additional_env', {}).update(discovery_server.client_env(server))
+    return kwargs
+
+
+def lab_network_actions(context) -> list:
+    """The discovery server as a process of the launch when start_discovery_server:=true."""
+    if _setting(context, 'start_discovery_server').lower() != 'true':
+        return []
+    server = _setting(context, 'discovery_server')
+    if not server:
+        raise ValueError('launch argument start_discovery_server:=true needs discovery_server:=ADDRESS[:PORT]')
+    discovery_server.parse_locator(server)
+    return [ExecuteProcess(cmd=[sys.executable, '-m', 'fabric_guidance.cli', 'discovery-server', '--listen', server],
+                           name='discovery_server', output='screen')]

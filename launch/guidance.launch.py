@@ -11,6 +11,10 @@ pressure_controller and plc_output are lifecycle nodes: with autostart:=true (th
 launch configures and activates them; autostart:=false leaves them unconfigured for the
 operator (`ros2 lifecycle set /plc_output configure`, then activate; docs/lifecycle.md).
 
+keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
+discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
+start_discovery_server:=true also runs it here (docs/lab_network.md). Unset, nothing changes.
+
 Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
 if given (its values win); an argument given here overrides both, an argument left empty keeps
 the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
@@ -25,7 +29,9 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import LifecycleNode, Node
 import yaml
 
-from fabric_guidance.launch_support import NodeOverrides, lifecycle_bring_up
+from fabric_guidance.interface import MANAGED_NODES
+from fabric_guidance.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
+                                            lab_node_kwargs, lifecycle_bring_up)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -46,7 +52,7 @@ ARGUMENTS = {
 }
 NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
 #: Lifecycle nodes (nodes/managed.py): brought up by this launch's lifecycle events, not by themselves.
-MANAGED = ('pressure_controller', 'plc_output')
+MANAGED = MANAGED_NODES
 
 
 def argument_value(name: str, kind, text: str):
@@ -84,15 +90,17 @@ def _nodes(context, *args, **kwargs):
     generated = NodeOverrides(context)
     actions = []
     for name in NODES:
+        lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset
         if name in MANAGED:
             overrides[name]['autostart'] = False     # the launch drives the transitions
             node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace='',
-                                 output='screen', parameters=[*files, generated.file(name, overrides[name])])
+                                 output='screen', parameters=[*files, generated.file(name, overrides[name])],
+                                 **lab)
             actions += [node, *(lifecycle_bring_up(node) if autostart else [])]
         else:
             actions.append(Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                                parameters=[*files, generated.file(name, overrides[name])]))
-    return [*actions, generated.cleanup_action()]
+                                parameters=[*files, generated.file(name, overrides[name])], **lab))
+    return [*lab_network_actions(context), *actions, generated.cleanup_action()]
 
 
 def generate_launch_description():
@@ -112,5 +120,6 @@ def generate_launch_description():
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
+        *lab_launch_arguments(),   # keystore, discovery_server, start_discovery_server
         OpaqueFunction(function=_nodes),
     ])

@@ -27,11 +27,12 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node, SetRemap
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
+from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
-                'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart')
+                'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart', 'keystore',
+                'discovery_server', 'start_discovery_server')
 
 
 def _graph(context, *args, **kwargs):
@@ -60,7 +61,7 @@ def _graph(context, *args, **kwargs):
                  name='micromanipulator_sim', output='screen', parameters=[extra_file],
                  condition=IfCondition(LaunchConfiguration('micromanipulator_sim')),
                  remappings=[(f'live_targets/{name}', LaunchConfiguration(f'{name}_topic'))
-                             for name in OBJECTS])
+                             for name in OBJECTS], **lab_node_kwargs(context, 'micromanipulator_sim'))
     if not simulated_wearer:
         return [lab, stack]
     # The simulated PLC and wearer on the ports the lab graph was given, if any.
@@ -69,10 +70,12 @@ def _graph(context, *args, **kwargs):
     wearer_ports = {'bridge_port': int(arguments['gaze_port'])} if 'gaze_port' in arguments else {}
     wearer_ports['display_port'] = int(arguments['display_port'])
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
-                    output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)])
+                    output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)],
+                    **lab_node_kwargs(context, 'mock_plc'))
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
                   output='screen',
-                  parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)])
+                  parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)],
+                  **lab_node_kwargs(context, 'wearer_sim'))
     return [mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
             ports.cleanup_action()]
 

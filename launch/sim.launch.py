@@ -19,7 +19,7 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
+from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
 
 
 def _graph(context, *args, **kwargs):
@@ -45,12 +45,14 @@ def _graph(context, *args, **kwargs):
     ports = NodeOverrides(context)
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
                     output='screen',
-                    parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})])
+                    parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})],
+                    **lab_node_kwargs(context, 'mock_plc'))
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
                   output='screen',
                   parameters=[sim_params,
                               ports.file('wearer_sim', {'bridge_port': int(gaze_port),
-                                                        'display_port': int(display_port)})])
+                                                        'display_port': int(display_port)})],
+                  **lab_node_kwargs(context, 'wearer_sim'))
     return [mock_plc, wearer, after_mock_plc_listens(mock_plc, [lab]), ports.cleanup_action()]
 
 

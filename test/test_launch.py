@@ -373,3 +373,59 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     yield
     # After shutdown: the per-launch files are gone.
     assert _fabric_guidance_temp_files() <= before
+
+
+# ------------------------------------------------------- keystore:= and discovery_server:= (issue 21)
+LAB_NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
+
+
+def _environ(pid):
+    with open(f'/proc/{pid}/environ', 'rb') as f:
+        return dict(item.split('=', 1) for item in f.read().decode(errors='replace').split('\0') if '=' in item)
+
+
+@pytest.fixture
+def keystore(tmp_path):
+    """A keystore with the lab nodes' enclave folders, empty: rcl finds each node's enclave, the
+    middleware then has no certificates (or, as the pip wheels, no security at all)."""
+    for node in LAB_NODES:
+        os.makedirs(os.path.join(tmp_path, 'keystore', 'enclaves', 'fabric_guidance', node))
+    return os.path.join(tmp_path, 'keystore')
+
+
+@launch_pytest.fixture
+def secured_lab(lab_arguments, keystore):
+    watch, domain_id = Watch(), fresh_domain_id()
+    return _graph(watch, domain_id, _include('guidance.launch.py', keystore=keystore, **lab_arguments)), watch
+
+
+@pytest.mark.launch(fixture=secured_lab)
+def test_with_a_keystore_each_node_starts_in_its_enclave_or_not_at_all(secured_lab, keystore, plc):
+    _, watch = secured_lab
+    wait_until(lambda: all(watch.exited(n) for n in LAB_NODES), 60.0, what='every node refusing to run open')
+    for node in LAB_NODES:
+        log = watch.log(node)
+        assert f'Found security directory: {keystore}/enclaves/fabric_guidance/{node}' in log, log
+        assert 'cannot start' in log and watch.returncodes[watch.name(node)] != 0, log
+    assert plc.client_count == 0 and not plc.commands_kpa().any()
+
+
+@launch_pytest.fixture
+def lab_with_discovery_server(lab_arguments):
+    watch, domain_id = Watch(), fresh_domain_id()
+    server = f'127.0.0.1:{free_port(socket.SOCK_DGRAM)}'
+    lab = _include('guidance.launch.py', discovery_server=server, start_discovery_server='true', **lab_arguments)
+    return _graph(watch, domain_id, lab), watch, server
+
+
+@pytest.mark.launch(fixture=lab_with_discovery_server)
+def test_discovery_server_started_by_the_launch_and_every_node_its_client(lab_with_discovery_server, plc):
+    _, watch, server = lab_with_discovery_server
+    wait_until(lambda: f'UDPv4:[127.0.0.1]:{server.rsplit(":", 1)[1]}' in watch.log('discovery_server'), 30.0,
+               what=f'the discovery server on {server}')
+    wait_until(lambda: all(watch.name(n) for n in LAB_NODES), 30.0, what='every node started')
+    for node in LAB_NODES:
+        env = _environ(watch.pids[watch.name(node)])
+        assert env.get('ROS_DISCOVERY_SERVER') == server, node
+        assert 'ROS_SECURITY_ENABLE' not in env and 'ROS_SECURITY_ENCLAVE_OVERRIDE' not in env, node
+    wait_until(lambda: plc.client_count >= 1, 30.0, what='plc_output connected')

@@ -5,8 +5,9 @@ From the bottom up (docs/architecture.md):
     0  paths, interface, subcommand,      where files are; topic names, types, QoS; the CLI pattern;
        workers                            the process pool of the simulations
     1  core                               the paper's algorithms, no ROS
-    2  plc, calibration_report, views     the PLC link; a calibration's report (core data only);
-                                          the operator's Foxglove layout (from interface and core)
+    2  plc, calibration_report, views,   the PLC link; a calibration's report (core data only);
+       lab_network, discovery_server,     the operator's Foxglove layout; the lab network's DDS
+       security_policy                    profile, discovery server and SROS2 policy (no ROS)
     3  sim, bag                           the simulator; bags (neither imports the other)
     4  experiments                        the paper's experiments and studies on sim
     5  nodes                              the ROS nodes: thin wiring over the layers below
@@ -28,7 +29,7 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1] / 'fabric_guidance'
 LAYERS = {
     'paths': 0, 'interface': 0, 'subcommand': 0, 'workers': 0,
     'core': 1,
-    'plc': 2, 'calibration_report': 2, 'views': 2,
+    'plc': 2, 'calibration_report': 2, 'views': 2, 'lab_network': 2, 'discovery_server': 2, 'security_policy': 2,
     'sim': 3, 'bag': 3,
     'experiments': 4,
     'nodes': 5,

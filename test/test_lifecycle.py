@@ -256,3 +256,19 @@ def test_a_transition_that_raises_goes_through_error_processing_and_releases():
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_the_managed_nodes_are_the_interfaces():
+    """One list: the nodes that are ManagedNodes are interface.MANAGED_NODES (launch files and the
+    security policy read it)."""
+    import importlib
+    from fabric_guidance.interface import MANAGED_NODES
+    from fabric_guidance.nodes.managed import ManagedNode
+    from test_node_imports import lab_nodes
+    managed = set()
+    for name in lab_nodes():
+        module = importlib.import_module(f'fabric_guidance.nodes.{name}')
+        if any(isinstance(v, type) and issubclass(v, ManagedNode) and v is not ManagedNode
+               for v in vars(module).values()):
+            managed.add(name)
+    assert managed == set(MANAGED_NODES)

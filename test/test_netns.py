@@ -10,93 +10,21 @@ guidance reaches the PLC, a stopped gaze vents, SIGKILL of plc_output lets the P
 vent. Needs root (CAP_SYS_ADMIN) and `ip netns`; skipped with the reason where that is not
 allowed (containers, CI runners).
 """
-import ctypes
-import json
 import os
-import shutil
 import socket
-import subprocess
-import threading
 
 import pytest
 
-from rosgraph import Graph, free_port
-from test_graph import SIM_CAL, HoloLensStub, RegisterWatch, end_to_end
+from netns import NetnsGraph, NetnsRegisterWatch, in_netns, ip as _ip, link_stats, why_no_netns as _why_no_netns
+from rosgraph import free_port
+from test_graph import SIM_CAL, HoloLensStub, end_to_end
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 FILES = ('params/guidance.yaml', 'params/sim.yaml')
-CLONE_NEWNET = 0x40000000
 HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')
 HOST_B = ('plc_output', 'mock_plc')
 SUBNET = '10.231.7'
-
-
-def _ip(*args, check=True):
-    return subprocess.run(['ip', *args], capture_output=True, text=True, check=check)
-
-
-def _why_no_netns():
-    if shutil.which('ip') is None:
-        return '`ip` (iproute2) is not installed'
-    if os.geteuid() != 0:
-        return 'network namespaces need root (CAP_SYS_ADMIN); this runs as an ordinary user'
-    probe = f'fgprobe{os.getpid()}'
-    out = _ip('netns', 'add', probe, check=False)
-    if out.returncode != 0:
-        return f'`ip netns add` is not allowed here: {out.stderr.strip()}'
-    _ip('netns', 'del', probe, check=False)
-    return None
-
-
-def in_netns(name, fn):
-    """Run fn() on a thread that has entered network namespace `name` (setns affects only the
-    calling thread); sockets it creates stay in that namespace whoever uses them later."""
-    result = {}
-
-    def run():
-        libc = ctypes.CDLL(None, use_errno=True)
-        fd = os.open(f'/var/run/netns/{name}', os.O_RDONLY)
-        try:
-            if libc.setns(fd, CLONE_NEWNET) != 0:
-                raise OSError(ctypes.get_errno(), f'setns into {name} failed')
-        finally:
-            os.close(fd)
-        try:
-            result['value'] = fn()
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller
-            result['error'] = exc
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    thread.join()
-    if 'error' in result:
-        raise result['error']
-    return result['value']
-
-
-class NetnsGraph(Graph):
-    """A Graph whose nodes run on host A or host B (`ip netns exec`, which execs: the Popen's
-    pid is the node's)."""
-
-    def __init__(self, log_dir, hosts):
-        super().__init__(log_dir)
-        self.hosts = hosts
-        self.env.update(ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
-        self.env.pop('FASTDDS_DEFAULT_PROFILES_FILE')   # the loopback profile: not across the veth
-
-    def command_prefix(self, node):
-        return ['ip', 'netns', 'exec', self.hosts[node]]
-
-
-class NetnsRegisterWatch(RegisterWatch):
-    """RegisterWatch whose Modbus socket lives on host B."""
-
-    def __init__(self, port, ns):
-        super().__init__(port)
-        self.ns = ns
-
-    def read(self):
-        return in_netns(self.ns, super().read)
 
 
 @pytest.fixture
@@ -140,8 +68,7 @@ def test_the_graph_split_over_two_hosts_passes_the_end_to_end_test(two_hosts, tm
         watch = NetnsRegisterWatch(plc_port, b)
         stale_vent, watchdog_vent = end_to_end(graph, hololens, watch)
         # The commands crossed the veth link: host A sent DDS traffic over it.
-        stats = json.loads(_ip('-n', a, '-s', '-j', 'link', 'show', 'dev', f'va{os.getpid()}').stdout)[0]
-        sent = stats['stats64']['tx']['packets']
+        sent = link_stats(a, f'va{os.getpid()}')['tx']['packets']
         assert sent > 100, f'only {sent} packets left host A over the veth link'
         print(f'[netns] hosts {a} (10.231.7.1: {", ".join(HOST_A)}) and {b} (10.231.7.2: {", ".join(HOST_B)}): '
               f'gaze stop vented in {stale_vent:.3f} s, watchdog in {watchdog_vent:.3f} s; {sent} packets A -> B')
