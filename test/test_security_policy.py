@@ -30,8 +30,18 @@ PARAMETER_SERVICES = {'describe_parameters', 'get_parameter_types', 'get_paramet
                       'set_parameters', 'set_parameters_atomically'}
 
 
+#: rclpy.lifecycle's services and event topic (rcl_lifecycle's names), for interface.MANAGED_NODES.
+LIFECYCLE_SERVICES = {'change_state', 'get_state', 'get_available_states', 'get_available_transitions',
+                      'get_transition_graph'}
+
+
 def default_replies(node):
-    return {f'/{node}/{s}' for s in PARAMETER_SERVICES | {'get_type_description'}}
+    lifecycle = LIFECYCLE_SERVICES if node in interface.MANAGED_NODES else set()
+    return {f'/{node}/{s}' for s in PARAMETER_SERVICES | {'get_type_description'} | lifecycle}
+
+
+def default_publishes(node):
+    return DEFAULT_PUBLISH | ({f'/{node}/transition_event'} if node in interface.MANAGED_NODES else set())
 
 
 @pytest.fixture(scope='module')
@@ -56,7 +66,7 @@ def test_every_node_gets_exactly_the_tables_topics_and_services(policy):
         if node == 'bag_recorder':   # records every topic the table marks recorded
             subscribes |= {fq(t.name) for t in interface.TOPICS if t.recorded}
         replies = {fq(s.name) for s in interface.SERVICES if s.node == node}
-        assert g.publish == publishes | DEFAULT_PUBLISH, node
+        assert g.publish == publishes | default_publishes(node), node
         assert g.subscribe == subscribes | DEFAULT_SUBSCRIBE, node
         assert g.reply == replies | default_replies(node), node
         assert g.request == set(), f'{node} may call services: {g.request}'
@@ -81,8 +91,10 @@ def test_what_drives_the_suit_has_one_publisher_each(policy):
 def test_the_operator_calls_the_services_and_watches_but_publishes_no_topic_of_the_table(policy):
     g = policy['/fabric_guidance/operator']
     assert g.request == ({'/' + s.name for s in interface.SERVICES}
-                         | {f'/{n}/{s}' for n in sp.NODES for s in PARAMETER_SERVICES})
-    assert g.subscribe == {fq(t.name) for t in interface.TOPICS}
+                         | {f'/{n}/{s}' for n in sp.NODES for s in PARAMETER_SERVICES}
+                         | {f'/{n}/{s}' for n in interface.MANAGED_NODES for s in LIFECYCLE_SERVICES})
+    assert g.subscribe == ({fq(t.name) for t in interface.TOPICS}
+                           | {f'/{n}/transition_event' for n in interface.MANAGED_NODES})
     assert g.publish == DEFAULT_PUBLISH
     assert g.reply == {'/*/get_type_description'}   # its node's name is ros2cli's
     assert set(sp.read_policy(sp.policy_xml(operator=False))) == {f'/fabric_guidance/{n}' for n in sp.NODES}
