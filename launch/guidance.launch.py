@@ -92,11 +92,15 @@ def _nodes(context, *args, **kwargs):
     for name in NODES:
         lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset
         if name in MANAGED:
-            overrides[name]['autostart'] = False     # the launch drives the transitions
+            # The launch drives the transitions over DDS, except with a keystore or a discovery
+            # server: the launch process is neither in an enclave nor a client of the server, so
+            # it could not reach the nodes' lifecycle services; they then bring themselves up.
+            by_launch = not lab
+            overrides[name]['autostart'] = False if by_launch else autostart
             node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace='',
                                  output='screen', parameters=[*files, generated.file(name, overrides[name])],
                                  **lab)
-            actions += [node, *(lifecycle_bring_up(node) if autostart else [])]
+            actions += [node, *(lifecycle_bring_up(node) if autostart and by_launch else [])]
         else:
             actions.append(Node(package='fabric_guidance', executable=name, name=name, output='screen',
                                 parameters=[*files, generated.file(name, overrides[name])], **lab))
