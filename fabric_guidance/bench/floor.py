@@ -8,7 +8,7 @@
 
 Each hop is what the package's path cannot avoid: a UDP receive, a DDS publish and subscribe
 per node hop, one Modbus write, in Python on rclpy, spun as the package's nodes spin
-(nodes/spin.run: the SingleThreadedExecutor, spin_once with a 50 ms timeout).
+(nodes/spin.run: the executor of the node each hop stands for, spin_once with a 50 ms timeout).
 
     python -m fabric_guidance.bench.floor udp --port P | relay | modbus --plc-port P
 """
@@ -91,8 +91,10 @@ def main(argv=None) -> int:
         node.create_subscription(Float64MultiArray, COMMAND_TOPIC, write, COMMAND_QOS)
         closers.append(client.close)
 
-    from rclpy.executors import SingleThreadedExecutor
-    executor = SingleThreadedExecutor()
+    from ..nodes.spin import DEFAULT_EXECUTOR, make_executor
+    # Each hop spun as the node it stands for (like compared with like): the Modbus writer as
+    # plc_output (single-threaded), the others as gaze_bridge and pressure_controller.
+    executor = make_executor('single' if args.role not in ('udp', 'relay') else DEFAULT_EXECUTOR)
     executor.add_node(node)
     try:
         while not stop.is_set() and rclpy.ok():

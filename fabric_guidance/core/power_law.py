@@ -169,6 +169,12 @@ def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     return np.clip(t, 0.0, THETA_MAX), p
 
 
+def load_fit_libraries() -> None:
+    """Import what a fit needs (scipy: 1-2 s). A node that fits live calls this when it starts,
+    so that the import never lands inside a control step; everything else never pays for it."""
+    from scipy import optimize, stats  # noqa: F401
+
+
 def initial_guess(theta: np.ndarray, pressure: np.ndarray) -> PowerLaw:
     """A deliberate start for LM: c a little below the smallest pressure, then a and b from
     a straight-line fit of log(P - c) against log(theta) over the positive angles."""

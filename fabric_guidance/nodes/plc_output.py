@@ -428,7 +428,10 @@ class PlcOutput(ManagedNode):
 
 
 def main(args=None):
-    return run(lambda: PlcOutput(), args)
+    # rclpy's SingleThreadedExecutor, not the events executor: this node blocks in its callbacks
+    # (Modbus requests), and behind a slow link the events executor starved the diagnostics
+    # timer (test_faults_link's slow-link test); the single-threaded one serves every timer.
+    return run(lambda: PlcOutput(), args, executor='single')
 
 
 if __name__ == '__main__':

@@ -47,6 +47,7 @@ from ..core.calibration import DONE, FAILED, Acceptance
 from ..core.channels import ChannelMapError
 from ..core.controller_parameters import PARAMETERS, SETUP
 from ..core.feedback import REST
+from ..core.power_law import load_fit_libraries
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
@@ -151,6 +152,9 @@ class PressureController(ManagedNode):
         self.warn_origin(calibration)
         self.controller = self._make_controller()
         self.publish_parameters(self.step_count)
+        # Algorithm 1's fit runs in this node: its scipy import now, not inside a control step
+        # (it takes 1-2 s, longer than gaze_timeout_s: the calibration would fail on it).
+        load_fit_libraries()
         self.period_s = 1.0 / self.setup.control_rate_hz
         self.control_timer = self.create_timer(self.period_s, self.on_timer, clock=self.steady)
         self.get_logger().info(

@@ -36,7 +36,30 @@ def _end_process(code: int) -> None:
         os._exit(code)
 
 
-def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+#: The executor the nodes spin in: 'events' (rclpy's EventsExecutor, rclpy.experimental in
+#: Kilted; the default) or 'single' (rclpy's SingleThreadedExecutor). Measured on the package
+#: graph (docs/benchmarks.md): the events executor halves pressure_controller's and plc_output's
+#: CPU per gaze sample and takes 0.9 ms off the 90 Hz median; 'single' is the fallback should
+#: the experimental executor misbehave on a lab's rclpy.
+EXECUTOR_ENV = 'FABRIC_GUIDANCE_EXECUTOR'
+DEFAULT_EXECUTOR = 'events'
+
+
+def make_executor(kind: str = DEFAULT_EXECUTOR):
+    """The executor of `kind`, unless the environment variable names one for every node."""
+    kind = os.environ.get(EXECUTOR_ENV, kind)
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:          # an rclpy before Kilted: the one executor it has
+            return SingleThreadedExecutor()
+        return EventsExecutor()
+    if kind != 'single':
+        raise ValueError(f'{EXECUTOR_ENV}={kind!r}: use single or events')
+    return SingleThreadedExecutor()
+
+
+def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, executor: str = DEFAULT_EXECUTOR) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
 
@@ -68,10 +91,10 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int
         # middle of a control step) every so many allocations.
         gc.collect()
         gc.freeze()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+        spinner = make_executor(executor)
+        spinner.add_node(node)
         while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.05)
+            spinner.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:
         pass
     except ConfigureError as exc:   # the node's error line is logged; this is the process's
