@@ -12,8 +12,10 @@ import subprocess
 import threading
 import uuid
 
-from rosgraph import Graph
-from test_graph import RegisterWatch
+import socket
+
+from rosgraph import Graph, free_port
+from test_graph import SIM_CAL, HoloLensStub, RegisterWatch
 
 CLONE_NEWNET = 0x40000000
 #: Two hosts discovering each other by multicast on their one link, UDP only (test_netns.py):
@@ -122,3 +124,23 @@ class NetnsRegisterWatch(RegisterWatch):
 def link_stats(ns: str, dev: str) -> dict:
     """The kernel's counters of `dev` in `ns` (rx/tx packets, bytes...)."""
     return json.loads(ip('-n', ns, '-s', '-j', 'link', 'show', 'dev', dev).stdout)[0]['stats64']
+
+
+#: The parameter files of every namespace graph.
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
+
+
+def start_graph(graph, a, b, tmp_path):
+    """The lab graph of test_graph's end-to-end test on hosts a (gaze side) and b (PLC side); the
+    HoloLens stub's socket on a, the register watch's on b."""
+    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
+    graph.start('mock_plc', FILES, port=plc_port)
+    graph.start('plc_output', FILES, plc_port=plc_port)
+    graph.start('gaze_bridge', FILES, port=gaze_port)
+    graph.start('target_selector', FILES, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
+                auto_advance=False)
+    graph.start('pressure_controller', FILES, calibration_file=str(SIM_CAL),
+                calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)  # a still stub
+    hololens = in_netns(a, lambda: HoloLensStub(gaze_port))   # its socket on host A
+    watch = NetnsRegisterWatch(plc_port, b)
+    return hololens, watch

@@ -41,12 +41,10 @@ import pytest
 from fabric_guidance import discovery_server, lab_network
 from fabric_guidance.discovery_server import client_env
 from fabric_guidance.lab_network import process_env, write_profile
-from netns import (NetnsGraph, NetnsRegisterWatch, add_host, dds_env, delete_host, in_netns, ip, link_stats,
-                   why_no_netns)
+from netns import NetnsGraph, add_host, dds_env, delete_host, ip, link_stats, start_graph, why_no_netns
 from rosgraph import CONFIG, ROOT, free_port, fresh_domain_id, wait_until
-from test_graph import F_LEFT_40, RESOLUTION_KPA, SIM_CAL, HoloLensStub, end_to_end
+from test_graph import F_LEFT_40, RESOLUTION_KPA, end_to_end
 
-FILES = ('params/guidance.yaml', 'params/sim.yaml')
 HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')
 HOST_B = ('plc_output', 'mock_plc')
 GRAPH_NODES = set(HOST_A + HOST_B)
@@ -300,18 +298,16 @@ class Participant:
         self.log.close()
 
 
-def start_graph(graph, a, b, tmp_path):
-    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
-    graph.start('mock_plc', FILES, port=plc_port)
-    graph.start('plc_output', FILES, plc_port=plc_port)
-    graph.start('gaze_bridge', FILES, port=gaze_port)
-    graph.start('target_selector', FILES, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
-                auto_advance=False)
-    graph.start('pressure_controller', FILES, calibration_file=str(SIM_CAL),
-                calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)  # a still stub
-    hololens = in_netns(a, lambda: HoloLensStub(gaze_port))   # its socket on host A
-    watch = NetnsRegisterWatch(plc_port, b)
-    return hololens, watch
+def stop_everything(participants, hololens, graph, watch):
+    """The end of a namespace test: the extra participants, the HoloLens stub, the graph, the
+    register watch."""
+    for p in participants:
+        p.close()
+    if hololens is not None:
+        hololens.close()
+    graph.stop_all()
+    if watch is not None:
+        watch.client.close()
 
 
 def intruder_sees_and_moves_nothing(intruder, control, watch):
@@ -377,13 +373,7 @@ def test_pinned_to_the_lab_interface_the_graph_works_and_the_other_network_neith
               f'(deadline {CONTROL_S:.0f} s); graph unseen and {reads} register reads unmoved for {NEGATIVE_S:.0f} s; '
               f'vents {stale_vent:.3f} s, {watchdog_vent:.3f} s')
     finally:
-        for p in others:
-            p.close()
-        if hololens is not None:
-            hololens.close()
-        graph.stop_all()
-        if watch is not None:
-            watch.client.close()
+        stop_everything(others, hololens, graph, watch)
 
 
 @pytest.mark.graph
@@ -433,13 +423,7 @@ def test_with_a_discovery_server_and_no_multicast_the_graph_works_and_an_unconfi
               f'{t_control:.2f} s (deadline {CONTROL_S:.0f} s); graph unseen and {reads} register reads unmoved for '
               f'{NEGATIVE_S:.0f} s; vents {stale_vent:.3f} s, {watchdog_vent:.3f} s')
     finally:
-        for p in others:
-            p.close()
-        if hololens is not None:
-            hololens.close()
-        graph.stop_all()
-        if watch is not None:
-            watch.client.close()
+        stop_everything(others, hololens, graph, watch)
         server.send_signal(signal.SIGINT)
         try:
             server.wait(10)

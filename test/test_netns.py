@@ -11,17 +11,14 @@ vent. Needs root (CAP_SYS_ADMIN) and `ip netns`; skipped with the reason where t
 allowed (containers, CI runners).
 """
 import os
-import socket
 
 import pytest
 
-from netns import NetnsGraph, NetnsRegisterWatch, in_netns, ip as _ip, link_stats, why_no_netns as _why_no_netns
-from rosgraph import free_port
-from test_graph import SIM_CAL, HoloLensStub, end_to_end
+from netns import NetnsGraph, ip as _ip, link_stats, start_graph, why_no_netns as _why_no_netns
+from test_graph import end_to_end
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
-FILES = ('params/guidance.yaml', 'params/sim.yaml')
 HOST_A = ('gaze_bridge', 'target_selector', 'pressure_controller')
 HOST_B = ('plc_output', 'mock_plc')
 SUBNET = '10.231.7'
@@ -53,19 +50,10 @@ def two_hosts():
 def test_the_graph_split_over_two_hosts_passes_the_end_to_end_test(two_hosts, tmp_path):
     a, b = two_hosts
     hosts = {**{n: a for n in HOST_A}, **{n: b for n in HOST_B}}
-    plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = NetnsGraph(tmp_path / 'logs', hosts)
     hololens = watch = None
     try:
-        graph.start('mock_plc', FILES, port=plc_port)
-        graph.start('plc_output', FILES, plc_port=plc_port)
-        graph.start('gaze_bridge', FILES, port=gaze_port)
-        graph.start('target_selector', FILES, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
-                    auto_advance=False)
-        graph.start('pressure_controller', FILES, calibration_file=str(SIM_CAL),
-                    calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)  # a still stub
-        hololens = in_netns(a, lambda: HoloLensStub(gaze_port))   # its socket on host A
-        watch = NetnsRegisterWatch(plc_port, b)
+        hololens, watch = start_graph(graph, a, b, tmp_path)
         stale_vent, watchdog_vent = end_to_end(graph, hololens, watch)
         # The commands crossed the veth link: host A sent DDS traffic over it.
         sent = link_stats(a, f'va{os.getpid()}')['tx']['packets']
