@@ -26,7 +26,7 @@ from .paths import share_dir
 
 ROOT = share_dir()
 CONFIG = ROOT / 'config'
-#: The Fast DDS profile that keeps the simulated graph's DDS on 127.0.0.1 (issue 14).
+#: The Fast DDS profile that keeps the simulated graph's DDS on 127.0.0.1 (docs/safety.md).
 LOOPBACK_DDS_PROFILE = CONFIG / 'fastdds_loopback.xml'
 
 

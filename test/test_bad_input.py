@@ -1,4 +1,4 @@
-"""Bad input from outside (issue 14): every file the package reads, given broken, hostile or
+"""Bad input from outside: every file the package reads, given broken, hostile or
 extreme content, ends in one line naming the file, the field and the reason, a non-zero exit
 (a vent for a running node), nothing written where it should not be, and bounded memory.
 

@@ -1,4 +1,4 @@
-"""Issue 11: the frame of Eq. 5's angles and the rate estimate that tracker noise cannot fool."""
+"""The frame of Eq. 5's angles and the rate estimate that tracker noise cannot fool."""
 import math
 
 import numpy as np
@@ -188,7 +188,7 @@ def cmd_direction(proc):
     return None if proc.phase == 'rest' else proc.direction
 
 
-# ---- refusing useless calibrations (issue 11, deliver 3)
+# ---- refusing useless calibrations
 
 def run_procedure(angles_of_step, acceptance=None):
     """Algorithm 1 on a wearer at the front whose left angle at step k is angles_of_step[k-1]
@@ -259,7 +259,7 @@ def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_l
     law = (d['guidance_frame'], d['rate_estimator'], d['stall_timeout_s'])
     assert law == ('rest', 'filtered', 10.0)
     assert setup_to_dict(setup_from_yaml(setup_to_yaml(new))) == d
-    # A bag of the law before issue 11: no such keys -> per-target frame, sign test, no stall.
+    # A bag of the law before these keys existed: no such keys -> per-target frame, sign test, no stall.
     for key in ('guidance_frame', 'rate_estimator', 'rate_filter_tau_s', 'rate_threshold_dps',
                 'stall_timeout_s'):
         del d[key]

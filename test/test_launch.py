@@ -375,7 +375,7 @@ def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
     assert _fabric_guidance_temp_files() <= before
 
 
-# ------------------------------------------------------- keystore:= and discovery_server:= (issue 21)
+# ---------------------------------------------------------------- keystore:= and discovery_server:=
 LAB_NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
 
 

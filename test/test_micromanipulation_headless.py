@@ -1,4 +1,4 @@
-"""Issue 11: the micromanipulation sequence headless, straight from object to object.
+"""The micromanipulation sequence headless, straight from object to object.
 
 The three objects of config/params/micromanipulation.yaml (micromanipulator_sim's default positions,
 mapped by live_scale and live_offset) are presented one after another with no return to the

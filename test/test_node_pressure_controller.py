@@ -341,7 +341,7 @@ STALL_S = 1.0
 
 @pytest.mark.parametrize('controller', [{'stall_timeout_s': STALL_S}], indirect=True)
 def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
-    """Issue 11: a wearer stuck (here: at the front) while guided 40 deg left is vented after
+    """A wearer stuck (here: at the front) while guided 40 deg left is vented after
     stall_timeout_s, /diagnostics says why, and the next target guides again."""
     from diagnostic_msgs.msg import DiagnosticArray
     graph, probe, upstream, _ = controller

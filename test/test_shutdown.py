@@ -1,6 +1,6 @@
 """A node's process ends in bounded time once it has vented, whatever its teardown does.
 
-plc_output once stayed up after logging its vent until `ros2 launch` killed it (issue 16);
+plc_output once stayed up after logging its vent until `ros2 launch` killed it;
 nodes/spin.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
 leaves a non-daemon thread behind that never ends, which would hold the interpreter's exit
 forever: the process must still exit 0 after its vent.

@@ -220,7 +220,7 @@ def test_each_effect_has_its_own_stream_keyed_by_name_wearer_and_run():
     assert first('gaze_noise', seed=8) != base
 
 
-# ---- the wearer who can be wrong (issue 12) -----------------------------------------------------
+# ---- the wearer who can be wrong ----------------------------------------------------------------
 
 def test_new_effect_parameters_out_of_range_name_the_field():
     with pytest.raises(EffectError,

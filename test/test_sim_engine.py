@@ -279,7 +279,7 @@ def test_calibration_failure_is_an_outcome_with_its_reason():
     assert not out.ok and out.error.startswith('calibration failed: up:') and 'distinct angles' in out.error
 
 
-# ---- the wearer who can be wrong (issue 12) ----------------------------------------------------
+# ---- the wearer who can be wrong ---------------------------------------------------------------
 
 def test_cue_misreading_of_zero_leaves_the_trajectory_bit_identical():
     base = NOISY

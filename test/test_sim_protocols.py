@@ -33,7 +33,7 @@ def small(data, subjects=2, trial_s=10.0, reps=2):
 
 # ---- scene files --------------------------------------------------------------------------------
 
-#: The wearer model of issue 12: only the fitted scenes list it (the paper scenes stay as they
+#: The wearer who can be wrong: only the fitted scenes list it (the paper scenes stay as they
 #: were).
 WEARER_MODEL = {'cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view'}
 

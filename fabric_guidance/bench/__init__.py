@@ -7,5 +7,7 @@ component costs, memory per node and simulation/replay throughput (`fabric-guida
 - graphs:     the package's graph and the floor's, started and measured
 - components: controller step, datagram parse, calibration fit
 - throughput: headless simulation and offline replay speed
+- headset:    capture to register with the compiled C# headset as the source
+- memory:     resident memory of every lab node beside a bare rclpy node
 - runner:     everything in order, bench/results.json and bench/results.md
 """

@@ -1,12 +1,20 @@
-"""The paper's mathematics and task logic as plain Python: no rclpy, no ROS messages.
+"""The paper's mathematics, the task logic and the wire formats as plain Python: no rclpy, no
+ROS messages (the nodes, the simulation, the bench and the tests all run on it).
 
-geometry     frames (Unity -> REP 103) and the horizontal/vertical target angles
-power_law    P = a*theta^b + c, its inverse, the Levenberg-Marquardt fit (Algorithm 1)
-feedback     the gaze-error feedback law (Eq. 5), per direction and for all four
-channels     direction pressures onto named suit/arm channels in a configured order
-calibration  Algorithm 1 as a state machine, and the calibration file
-conditions   the four guidance conditions of the experiments
-speech       the phrase of condition 4
+geometry               frames (Unity -> REP 103) and the horizontal/vertical target angles
+power_law              P = a*theta^b + c, its inverse, the Levenberg-Marquardt fit (Algorithm 1)
+feedback               the gaze-error feedback law (Eq. 5), per direction and for all four
+channels               direction pressures onto named suit/arm channels in a configured order
+calibration            Algorithm 1 as a state machine, and the calibration file
+conditions             the four guidance conditions of the experiments
+speech                 the phrase of condition 4
+task                   when a target counts as found (the acceptance cone and the dwell)
+control_step           pressure_controller's step without ROS (the node and the offline replay)
+controller_parameters  the controller's parameters in one table (declarations, scene, docs)
+gaze_wire              the HoloLens gaze datagram (wire format v1)
+display_wire           the display downlink to the headset (v1)
+clock_sync             the headset clock's offset and drift from the echo exchange
+safe_input             reading outside files safely, with one-line errors naming the field
 """
 from .calibration import Calibration, CalibrationFileError, CalibrationProcedure, pressure_schedule
 from .channels import ChannelMap, ChannelMapError

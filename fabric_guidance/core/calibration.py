@@ -95,7 +95,7 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
 
 @dataclass(frozen=True)
 class Acceptance:
-    """When a direction's fit is good enough to guide with (issue 11: refuse useless ones).
+    """When a direction's fit is good enough to guide with: useless ones are refused.
 
     min_r2 [-]: the fit explains this share of the pressure variance: 0.8 refuses a plateau
     (the issue's R^2 0.77) and anything worse than the mean, and accepts the simulated paper
@@ -138,7 +138,7 @@ class Acceptance:
         return ''
 
 
-#: Accept every fit the solver produced (the behaviour before issue 11; for experiments).
+#: Accept every fit the solver produced (the behaviour before fits were checked; for experiments).
 ACCEPT_ALL = Acceptance(None, None, None, None)
 
 

@@ -28,7 +28,7 @@ the raw rate of successive samples above rate_deadband_dps (0: any growth, howev
 Frame (docs/guidance.md): with frame REST (the default) both angles of Eq. 5 are measured from
 the rest gaze that the wearer's calibration recorded (Algorithm 1's g0), the origin f_k was
 fitted from; frame TARGET takes g0 from the gaze when guidance to a target begins (the
-behaviour before issue 11, kept as an explicit option).
+earlier behaviour, kept as an explicit option).
 
 Beyond the paper (its Discussion: "the proposed system cannot be directly applied to the
 directional guidance of moving targets"): with follow_target, a change of theta_t while guiding

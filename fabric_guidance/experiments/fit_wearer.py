@@ -198,7 +198,7 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
     text = config_path(f'scenes/{base_name}.yaml').read_text()
     fitted = ', '.join(f'{e}.{p} = {v:g}' for (e, p), v in values.items())
     header = [
-        f'# {new_name}: {base_name} plus a wearer who can be wrong (issue 12), its free human',
+        f'# {new_name}: {base_name} plus a wearer who can be wrong, its free human',
         '# parameters fitted by `fabric-guidance fit-wearer` '
         '(fabric_guidance/experiments/fit_wearer.py)',
         "# to the paper's four per-condition mean numbers of identified targets (the means of its",

@@ -271,7 +271,7 @@ class Senses:
     realised elsewhere (the graph's mock PLC is the regulator); cue: False switches the cue
     effects off (Algorithm 1: a slow, supervised procedure, where the wearer is not misled).
 
-    The cue effects (issue 12), in the haptic conditions while the wearer follows: the wearer
+    The cue effects (the wearer who can be wrong), in the haptic conditions while the wearer follows: the wearer
     reads the cue through cue_misreading; surface_resistance (suit only) makes them read it
     again with the right direction once a wrong move has built up enough resistance;
     relative_perception (suit only) makes them read it again, with the right direction, when
