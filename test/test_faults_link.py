@@ -20,7 +20,7 @@ import pytest
 from deadlines import DeadlineLog
 from faultproxy import FaultProxy, is_modbus_write_multiple
 from fabric_guidance.plc import PlcClient, PlcLinkError
-from fabric_guidance.plc.modbus import MockPlcServer
+from fabric_guidance.plc.mock_server import MockPlcServer
 from rosgraph import free_port, wait_until
 from test_node_plc import MOCK, N, OUTPUT, REGISTER_MAP   # the parameters as the graph gets them
 

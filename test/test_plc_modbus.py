@@ -12,8 +12,8 @@ import pytest
 from fabric_guidance.paths import config_path
 from fabric_guidance.plc import FirstOrderLag, RegulatorSim, Watchdog
 from fabric_guidance.plc import pymodbus_compat as compat
-from fabric_guidance.plc.modbus import (MockPlcServer, PlcClient, PlcLinkError, PlcNoAnswerError,
-                                        PlcRefusedError)
+from fabric_guidance.plc.mock_server import MockPlcServer
+from fabric_guidance.plc.modbus import PlcClient, PlcLinkError, PlcNoAnswerError, PlcRefusedError
 from fabric_guidance.plc.register_map import RegisterMap
 
 WATCHDOG_S = 0.3

@@ -2,7 +2,8 @@
 
 register_map  which register carries which channel; kPa <-> counts, clamped to p_max
 regulator     the PLC's regulator lag and heartbeat watchdog, simulated in plain Python
-modbus        PlcClient and MockPlcServer (the PLC contract, served without pymodbus)
+modbus        PlcClient, the client the package drives the suit with (pymodbus)
+mock_server   MockPlcServer: the PLC contract, served without pymodbus (tests, the demo)
 pymodbus_compat  the only module that imports pymodbus: every version difference
 
 The pymodbus-backed names are imported lazily, so the register map and the simulation can
@@ -21,6 +22,9 @@ __all__ = ['ChannelRegisters', 'FirstOrderLag', 'MockPlcServer', 'PlcClient', 'P
 
 def __getattr__(name: str):
     # PEP 562: import pymodbus only when a Modbus name is actually used.
+    if name == 'MockPlcServer':
+        from .mock_server import MockPlcServer
+        return MockPlcServer
     if name in _MODBUS_NAMES:
         from . import modbus
         return getattr(modbus, name)

@@ -1,0 +1,469 @@
+"""A mock PLC on Modbus TCP for tests and the demo (the client is modbus.py).
+
+:class:`MockPlcServer` is a Modbus TCP server of its own (asyncio, in a background thread, no
+pymodbus) that keeps the PLC contract (docs/plc.md) exactly as the PLC program does: the
+register map's addresses only (exception 02 elsewhere), function codes 3, 4, 6, 16 (01 for
+others), the quantity limits (03), silence for another unit id, the write sequence gate (a stale
+or unnumbered command write is answered normally and undone), the clamp to p_max counts, the
+heartbeat watchdog and the regulator lag (regulator.py). It records every write it gets,
+optionally to a file (records.py), so tests can assert what left the package.
+"""
+from __future__ import annotations
+
+import asyncio
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .records import MAX_LISTED, write_records
+from .register_map import REGISTER_MAX, RegisterMap
+from .regulator import RegulatorSim
+from .sequence import SequenceGate
+
+# ------------------------------------------------------------------------ mock PLC
+#: The records file lags the records by at most this [s] (plus one scan).
+RECORDS_PERIOD_S = 0.1
+#: Quantity limits of the Modbus specification: read 1..125 registers, write 1..123.
+MAX_READ, MAX_WRITE = 125, 123
+_MBAP = struct.Struct('>HHHB')   # transaction id, protocol id, length (unit id + PDU), unit id
+#: Largest PDU of Modbus TCP (a 260-byte ADU less the 7-byte MBAP header).
+MAX_PDU = 253
+
+
+class _Registers:
+    """The PLC's registers and what the PLC program does with a request (the contract).
+
+    Only the map's registers exist: holding = the command registers, the sequence register and
+    the heartbeat register; input = the measured registers (with the contract's layout, the
+    arrays 0..N+1 and 0..N-1). Thread-safe through ``lock``; no sockets here.
+    """
+
+    def __init__(self, register_map: RegisterMap, lock: threading.RLock):
+        m = register_map
+        self._map, self.lock = m, lock
+        self.commands = tuple(m.command_registers)
+        self.holding_addresses = frozenset(self.commands) | {m.heartbeat_register} | (
+            {m.sequence_register} if m.sequence_register is not None else set())
+        self.input_addresses = frozenset(m.measured_registers)
+        # The gate works on the request that carries commands and number together; a map
+        # without that block has no sequencing (its client writes the commands alone).
+        self.sequence = m.sequence_register if m.sequenced_block() is not None else None
+        self._channel_of = {c.command_register: c.name for c in m.channels}
+        self.holding: dict[int, int] = {}
+        self.input: dict[int, int] = {}
+        self.gate = SequenceGate()
+        self.max_written_counts: dict[str, int] = {}
+        self.out_of_map_writes: list[tuple[int, int]] = []
+        self.over_limit_writes: list[tuple[int, int]] = []
+        #: (sequence number or None when the request had none, last applied) of undone writes
+        self.stale_writes: list[tuple[int | None, int | None]] = []
+        self.writes = 0    # client write requests that reached the registers
+        self.version = 0   # bumped on every change of the records
+        #: (time.monotonic_ns(), first address, values) per client write, when timing is on
+        #: (the benchmarks' landing times); None: off, nothing is recorded.
+        self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
+        self.power_up()
+
+    def power_up(self) -> None:
+        """All registers 0, the gate without a reference; the records are kept."""
+        with self.lock:
+            self.holding = dict.fromkeys(self.holding_addresses, 0)
+            self.input = dict.fromkeys(self.input_addresses, 0)
+            self.gate.reset()
+
+    # ---- one request (PDU in, PDU out; None: no answer)
+    def handle(self, pdu: bytes) -> bytes:
+        fc = pdu[0]
+        try:
+            if fc in (3, 4):
+                if len(pdu) != 5:
+                    return _exception(fc, 3)
+                start, quantity = struct.unpack('>HH', pdu[1:5])
+                if not 1 <= quantity <= MAX_READ:
+                    return _exception(fc, 3)
+                table = self.holding if fc == 3 else self.input
+                with self.lock:
+                    if not self._mapped(table, start, quantity):
+                        return _exception(fc, 2)
+                    values = [table[a] for a in range(start, start + quantity)]
+                return struct.pack(f'>BB{quantity}H', fc, 2 * quantity, *values)
+            if fc == 6:
+                if len(pdu) != 5:
+                    return _exception(fc, 3)
+                address, value = struct.unpack('>HH', pdu[1:5])
+                if not self._mapped(self.holding, address, 1):
+                    self._record_out_of_map(address, [value])
+                    return _exception(fc, 2)
+                self.write(address, [value])
+                return pdu[:5]
+            if fc == 16:
+                if len(pdu) < 6:
+                    return _exception(fc, 3)
+                start, quantity, byte_count = struct.unpack('>HHB', pdu[1:6])
+                if (not 1 <= quantity <= MAX_WRITE or byte_count != 2 * quantity
+                        or len(pdu) != 6 + byte_count):
+                    return _exception(fc, 3)
+                values = list(struct.unpack(f'>{quantity}H', pdu[6:]))
+                if not self._mapped(self.holding, start, quantity):
+                    self._record_out_of_map(start, values)
+                    return _exception(fc, 2)
+                self.write(start, values)
+                return pdu[:5]
+        except struct.error:
+            return _exception(fc, 3)
+        return _exception(fc, 1)
+
+    @staticmethod
+    def _mapped(table: dict, start: int, quantity: int) -> bool:
+        return all(a in table for a in range(start, start + quantity))
+
+    def _record_out_of_map(self, start: int, values: list[int]) -> None:
+        # Refused with exception 02 and never stored, but recorded: the package must not try.
+        with self.lock:
+            self.out_of_map_writes.extend((a, v) for a, v in enumerate(values, start)
+                                          if a not in self.holding)
+            self.version += 1
+
+    def write(self, start: int, values: list[int]) -> None:
+        """A client write to mapped holding registers, as the PLC program applies it."""
+        m = self._map
+        with self.lock:
+            self.writes += 1
+            self.version += 1
+            landed_ns = time.monotonic_ns()
+            before = dict(self.holding)
+            for a, v in enumerate(values, start):
+                name = self._channel_of.get(a)
+                if name is not None:
+                    # Recorded as sent (before the clamp and the gate): the records are about
+                    # what the package wrote.
+                    self.max_written_counts[name] = max(v, self.max_written_counts.get(name, 0))
+                    if v > m.p_max_counts:
+                        self.over_limit_writes.append((a, v))
+                    v = min(v, m.p_max_counts)   # stored clamped: never reaches an output
+                self.holding[a] = v
+            if self._undo_unless_sequenced(before, start, values):
+                return
+            if self.write_times is not None:
+                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
+                # process. Taken under the lock, so a take_write_times() never misses one.
+                self.write_times.append((landed_ns, start, tuple(values)))
+
+    def _undo_unless_sequenced(self, before: dict[int, int], start: int,
+                               values: list[int]) -> bool:
+        """The sequence gate on a write just stored; True when it was undone."""
+        seq = self.sequence
+        if seq is None:
+            return False
+        commands_changed = any(self.holding[a] != before[a] for a in self.commands)
+        seq_changed = self.holding[seq] != before[seq]
+        if not (commands_changed or seq_changed):
+            return False
+        last = self.gate.last
+        if seq_changed and self.gate.accept(self.holding[seq]):
+            return False
+        # Not newer, or no number at all: answered normally but undone (the library the PLC
+        # program runs on writes first and offers no hook; the program restores).
+        for a in self.commands + (seq,):
+            self.holding[a] = before[a]
+        written_seq = values[seq - start] if start <= seq < start + len(values) else None
+        self.stale_writes.append((written_seq, last))
+        return True
+
+    def force_commands_zero(self) -> None:
+        """The watchdog's vent: done by the PLC itself, not a client write (not recorded)."""
+        with self.lock:
+            for a in self.commands:
+                self.holding[a] = 0
+
+
+def _exception(fc: int, code: int) -> bytes:
+    """An exception response PDU: the function code with its high bit set, then the code."""
+    return bytes([(fc | 0x80) & 0xFF, code])
+
+
+class MockPlcServer:
+    """A simulated pressure PLC on Modbus TCP, for tests and the demo.
+
+    Runs a Modbus TCP server (asyncio streams, the contract in :class:`_Registers`) on its own
+    loop in a daemon thread, plus a scan
+    task at ``update_hz`` that runs :class:`RegulatorSim` (watchdog + first-order lag) and
+    writes the measured pressures into the input registers. Restartable: ``stop()`` then
+    ``start()`` listens on the same port again (a fresh PLC boot: registers 0, watchdog
+    tripped), keeping the write records and the trip count.
+    """
+
+    def __init__(self, register_map: RegisterMap, host: str = '127.0.0.1', port: int = 0,
+                 regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0,
+                 records_path: str | Path | None = None, time_writes: bool = False):
+        if not update_hz > 0:
+            raise ValueError(f'update_hz must be > 0, got {update_hz!r}')
+        self.map = register_map
+        # Where the write records go (JSON, records.py), for checks after the process is gone:
+        # rewritten within RECORDS_PERIOD_S of a change and on stop().
+        self.records_path = Path(records_path) if records_path else None
+        self._records_written: tuple[int, int] | None = None
+        self.host = host
+        self._port = port
+        self.update_hz = float(update_hz)
+        self._lock = threading.RLock()
+        self._holding = _Registers(register_map, self._lock)
+        if time_writes:
+            self._holding.write_times = []
+        self._sim = RegulatorSim(len(register_map), register_map.p_max_kpa, regulator_tau_s, watchdog_s)
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop_event: asyncio.Event | None = None
+        self._cond = threading.Condition()
+        self._listening = False
+        self._error: BaseException | None = None
+        self._writers: set[asyncio.StreamWriter] = set()
+
+    # ---- life cycle
+    @property
+    def port(self) -> int:
+        """The TCP port (the one actually bound once started with port=0)."""
+        return self._port
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self, timeout_s: float = 5.0) -> 'MockPlcServer':
+        """Start listening; returns once connections are accepted (RuntimeError otherwise)."""
+        if self.running:
+            raise RuntimeError('MockPlcServer already running')
+        with self._lock:
+            self._holding.power_up()
+            self._sim.reset()
+        self._listening, self._error, self._stop_event = False, None, None
+        self._thread = threading.Thread(target=self._run, name=f'mock-plc-{self._port}', daemon=True)
+        self._thread.start()
+        with self._cond:
+            self._cond.wait_for(lambda: self._listening or self._error is not None, timeout=timeout_s)
+        if not self._listening:
+            self.stop()
+            raise RuntimeError(f'mock PLC did not start on {self.host}:{self._port}: '
+                               f'{self._error or "timed out"}')
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Close the listener and all connections, stop the loop and join the thread."""
+        thread, loop = self._thread, self._loop
+        if thread is None:
+            return
+        if loop is not None and self._stop_event is not None:
+            try:
+                loop.call_soon_threadsafe(self._stop_event.set)
+            except RuntimeError:  # loop already closed: the thread is ending anyway
+                pass
+        thread.join(timeout_s)
+        if thread.is_alive():
+            raise RuntimeError(f'mock PLC thread did not stop within {timeout_s} s')
+        self._thread = None
+        self.save_records()
+
+    @property
+    def client_count(self) -> int:
+        """Clients connected now (read from another thread: a snapshot)."""
+        return len(self._writers) if self.running else 0
+
+    def wait_until_vented(self, timeout_s: float, poll_s: float = 0.02) -> bool:
+        """Wait until no client is connected and every command register is 0, at most
+        timeout_s; True if so. A PLC going away under a client that is still venting would
+        leave the last command as the PLC's last state."""
+        deadline = time.monotonic() + timeout_s
+        while self.client_count or np.any(self.commands_kpa()):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(poll_s)
+        return True
+
+    def __enter__(self) -> 'MockPlcServer':
+        return self.start()
+
+    def __exit__(self, *_exc) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._serve())
+        except BaseException as exc:  # noqa: BLE001 - reported to start(), not lost in the thread
+            self._signal(error=exc)
+        finally:
+            loop.close()
+            self._loop = None
+
+    def _signal(self, *, listening: bool = False, error: BaseException | None = None) -> None:
+        with self._cond:
+            self._listening = self._listening or listening
+            self._error = error
+            self._cond.notify_all()
+
+    async def _serve(self) -> None:
+        self._stop_event = asyncio.Event()
+        listener = await asyncio.start_server(self._serve_connection, self.host, self._port)
+        # With port=0 the OS picked one; remember it so a restart comes back on the same port.
+        self._port = listener.sockets[0].getsockname()[1]
+        scan = asyncio.create_task(self._scan_loop())
+        self._signal(listening=True)
+        try:
+            await self._stop_event.wait()
+        finally:
+            scan.cancel()
+            listener.close()
+            for writer in list(self._writers):
+                writer.close()
+            others = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in others:
+                task.cancel()
+            # Lets the cancelled tasks and the transports' connection_lost callbacks run, so
+            # sockets are closed before the loop is.
+            await asyncio.gather(*others, return_exceptions=True)
+            await asyncio.sleep(0)
+
+    async def _serve_connection(self, reader: asyncio.StreamReader,
+                                writer: asyncio.StreamWriter) -> None:
+        """One client connection: request, answer, in order (Modbus TCP, MBAP framing)."""
+        self._writers.add(writer)
+        try:
+            while True:
+                header = await reader.readexactly(_MBAP.size)
+                tid, protocol, length, unit = _MBAP.unpack(header)
+                if protocol != 0 or not 2 <= length <= MAX_PDU + 1:
+                    return  # not Modbus TCP: drop the connection, as a device does
+                pdu = await reader.readexactly(length - 1)
+                if unit != self.map.unit_id:
+                    continue  # another unit id: no answer at all; the connection stays open
+                answer = self._holding.handle(pdu)
+                writer.write(_MBAP.pack(tid, 0, len(answer) + 1, unit) + answer)
+                await writer.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            return  # the client went away
+        except asyncio.CancelledError:
+            return  # stop(): the connection is closed below
+        finally:
+            self._writers.discard(writer)
+            writer.close()
+
+    async def _scan_loop(self) -> None:
+        period = 1.0 / self.update_hz
+        next_s = time.monotonic()
+        next_records_s = next_s
+        while True:
+            self._scan(time.monotonic())
+            if time.monotonic() >= next_records_s:
+                next_records_s = time.monotonic() + RECORDS_PERIOD_S
+                self.save_records()
+            next_s += period
+            delay = next_s - time.monotonic()
+            if delay < 0:  # fell behind (e.g. a busy test machine): resume the grid from now
+                next_s, delay = time.monotonic(), 0.0
+            await asyncio.sleep(delay)
+
+    def _scan(self, now_s: float) -> None:
+        """One PLC scan: watchdog, vent if tripped, regulator step, measured -> input registers."""
+        m, h = self.map, self._holding
+        with self._lock:
+            counts = [h.holding[a] for a in m.command_registers]
+            result = self._sim.scan(list(m.decode(counts)), h.holding[m.heartbeat_register], now_s)
+            if result.vent:
+                h.force_commands_zero()
+            for a, p in zip(m.measured_registers, result.measured_kpa):
+                h.input[a] = min(max(int(round(p * m.counts_per_kpa)), 0), REGISTER_MAX)
+
+    # ---- records
+    def records(self) -> dict:
+        """What clients wrote, as records.py describes it (lists cut at MAX_LISTED entries)."""
+        with self._lock:
+            h = self._holding
+            return {
+                'p_max_kpa': self.map.p_max_kpa, 'p_max_counts': self.map.p_max_counts,
+                'counts_per_kpa': self.map.counts_per_kpa, 'writes': h.writes,
+                'max_written_counts': {name: int(h.max_written_counts.get(name, 0)) for name in self.map.names},
+                'over_limit_count': len(h.over_limit_writes), 'over_limit_writes': h.over_limit_writes[:MAX_LISTED],
+                'out_of_map_count': len(h.out_of_map_writes), 'out_of_map_writes': h.out_of_map_writes[:MAX_LISTED],
+                'stale_count': len(h.stale_writes), 'stale_writes': h.stale_writes[:MAX_LISTED],
+                'watchdog_trips': self._sim.watchdog.trips,
+            }
+
+    def save_records(self) -> None:
+        """Write the records file if there is one and something changed since the last time."""
+        if self.records_path is None:
+            return
+        with self._lock:
+            version = (self._holding.version, self._sim.watchdog.trips)
+            if version == self._records_written:
+                return
+            records = self.records()
+        write_records(self.records_path, records)
+        self._records_written = version
+
+    @property
+    def stale_writes(self) -> list[tuple[int | None, int | None]]:
+        """(sequence number, last applied) of every command write answered but undone: its number
+        was not newer than the last applied one, or it had none (None)."""
+        with self._lock:
+            return list(self._holding.stale_writes)
+
+    # ---- observation (thread-safe; kPa in channel order unless said otherwise)
+    def commands_kpa(self) -> np.ndarray:
+        """The command holding registers as they are now."""
+        with self._lock:
+            return self.map.decode([self._holding.holding[a] for a in self.map.command_registers])
+
+    def measured_kpa(self) -> np.ndarray:
+        """The measured-pressure input registers as they are now."""
+        with self._lock:
+            return self.map.decode([self._holding.input[a] for a in self.map.measured_registers])
+
+    def take_write_times(self) -> list[tuple[int, int, tuple[int, ...]]]:
+        """The (time.monotonic_ns(), first address, values) of every client write since the last
+        call, oldest first; [] unless started with time_writes=True."""
+        with self._lock:
+            taken = self._holding.write_times
+            if taken is None:
+                return []
+            self._holding.write_times = []
+            return taken
+
+    def heartbeat_value(self) -> int:
+        with self._lock:
+            return self._holding.holding[self.map.heartbeat_register]
+
+    def max_written_kpa(self) -> dict[str, float]:
+        """Largest value ever written by a client to each command channel (kPa); unwritten: 0."""
+        with self._lock:
+            return {name: self._holding.max_written_counts.get(name, 0) / self.map.counts_per_kpa
+                    for name in self.map.names}
+
+    @property
+    def out_of_map_writes(self) -> list[tuple[int, int]]:
+        """(address, value) of every client write to a holding register that is not in the map
+        (each refused with exception 02)."""
+        with self._lock:
+            return list(self._holding.out_of_map_writes)
+
+    @property
+    def over_limit_writes(self) -> list[tuple[int, int]]:
+        """(address, counts) of every client write above p_max counts to a command register
+        (stored clamped to p_max counts; still a violation of the package's invariant)."""
+        with self._lock:
+            return list(self._holding.over_limit_writes)
+
+    @property
+    def watchdog_trips(self) -> int:
+        """How often the watchdog vented after heartbeats stopped (kept across restarts)."""
+        with self._lock:
+            return self._sim.watchdog.trips
+
+    @property
+    def watchdog_armed(self) -> bool:
+        """True while commands are applied (heartbeat alive)."""
+        with self._lock:
+            return self._sim.watchdog.armed
