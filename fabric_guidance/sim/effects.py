@@ -514,7 +514,7 @@ class SpeechLatency(Effect):
 
 
 # ---------------------------------------------------------------------------------------------
-# The wearer's reading of the cue (issue 12). The wearer (wearer.SceneWearer) interprets the
+# The wearer's reading of the cue (the wearer who can be wrong). The wearer (wearer.SceneWearer) interprets the
 # haptic percept through cue_misreading's current reading; wearer.Senses decides when the cue is
 # read again (surface_resistance, relative_perception, a stop without the target in sight).
 
