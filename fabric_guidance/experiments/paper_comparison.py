@@ -33,7 +33,7 @@ import numpy as np
 from .. import subcommand
 from . import paper
 from .paper import ACCURACY_CLAIMS, CONDITIONS, SPEED_CLAIMS, Claim
-from .report import md_table
+from .analysis_report import md_table
 from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
 
 PROG = 'fabric-guidance compare-paper'

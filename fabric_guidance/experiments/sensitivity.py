@@ -53,7 +53,7 @@ from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene
 from ..workers import WorkerPool
 from .fit_wearer import FREE
-from .report import image_path, md_table
+from .analysis_report import image_path, md_table
 from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key
 from .tradeoff.settings import paired_scenes
 
