@@ -12,6 +12,7 @@
   paper_comparison  `fabric-guidance compare-paper`: every figure of the paper beside the model's
   tradeoff/         `fabric-guidance tradeoff`: what accuracy costs in time, one module per job
   sensitivity       `fabric-guidance sensitivity`: the headline figures against each assumed parameter
+                    (the command; its runs in sensitivity_runs, its outputs in sensitivity_report)
   discussion/       `fabric-guidance beyond`: the Discussion's two open points, one module per study
 """
 from .analysis_report import markdown_report
