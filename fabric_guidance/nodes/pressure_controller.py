@@ -162,7 +162,7 @@ class PressureController(ManagedNode):
             f'calibration: {cal_file or "none"}')
 
     def activate(self) -> None:
-        self.enabled = True
+        self.enabled = self.v['start_enabled']
         self.vent_controller()     # Eq. 5 starts afresh from the gaze at activation
 
     def deactivate(self) -> None:
