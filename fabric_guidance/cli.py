@@ -50,8 +50,8 @@ SUBCOMMANDS = {
                "per-wearer gain G and moving targets, with the paper's statistics"),
     'bench': ('fabric_guidance.bench.runner', "benchmarks: gaze to regulator latency against the "
               "transports' floor, component costs, memory, simulation and replay speed"),
-    'chaos': ('fabric_guidance.bench.chaos', 'a seeded schedule of faults (kills, stops, link and gaze '
-              "faults) on the lab graph, invariants checked from the mock PLC's register log"),
+    'chaos': ('fabric_guidance.bench.chaos', 'a seeded schedule of faults on the lab graph, invariants '
+              'checked from the PLC register log'),
     'example': ('fabric_guidance.example_command',
                 'the core alone on a worked example: calibration and guided turns'),
     'dds-profile': ('fabric_guidance.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '
