@@ -136,6 +136,8 @@ def test_the_supervisor_restarts_a_killed_node_and_stop_all_leaves_nothing(tmp_p
         (restart,) = graph.restarts
         assert restart.returncode == -signal.SIGKILL and restart.pid != first.pid
         assert restart.started - restart.died >= 0.2
+        # The new process logs after its predecessor, in the same file.
+        wait_until(lambda: graph.log('target_selector').count('live targets') == 2, 30.0, what='the new one up')
         # Stopped on purpose: not restarted.
         assert graph.stop('target_selector') == 0
         assert graph.restart_count('target_selector') == 1
