@@ -441,10 +441,11 @@ def run_chaos(seed: int, faults: int, out: Path, say) -> tuple[list[dict], list[
             found = [v for v in judge(lab.register_log, outcomes, lab.p_max_counts) if v not in violations]
             violations += found
             deadline = f'{p.deadline_s:.3f} s' if p.deadline_s is not None else 'none'
-            vent = f'{o.vent_s:.3f} s' if o.vent_s is not None else 'not vented'
+            vent = f'vented in {o.vent_s:.3f} s' if o.vent_s is not None else 'not vented'
             gate = ', enable gate held' if o.t_enable is not None and not o.notes else ''
-            say(f'[{i}/{faults}] {p.kind} ({p.phase}): vented in {vent} (deadline {deadline}); '
-                f'guidance back {o.recovery_s:.2f} s after the heal{gate}'
+            since = 'the kill' if p.action == 'kill' else 'the heal'
+            say(f'[{i}/{faults}] {p.kind} ({p.phase}): {vent} (deadline {deadline}); '
+                f'guidance back {o.recovery_s:.2f} s after {since}{gate}'
                 + (f'; BROKEN: {"; ".join(found)}' if found else ''))
     finally:
         problems = lab.close()
