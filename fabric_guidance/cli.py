@@ -6,7 +6,7 @@
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
-  fit-wearer  fit the simulated wearer's human parameters to the paper's speed means
+  fit-wearer  fit the simulated population to the paper's whole speed table across seeds
   compare-paper  both experiments on several seeds, every figure of the paper beside the model's
   sensitivity  which headline figures rest on which assumed human parameters (low/high sweep)
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
@@ -38,7 +38,7 @@ SUBCOMMANDS = {
     'experiment': ('fabric_guidance.experiments.experiment',
                    "run one of the paper's experiments on simulated wearers"),
     'fit-wearer': ('fabric_guidance.experiments.fit_wearer',
-                   "fit the simulated wearer's human parameters to the paper's speed means"),
+                   "fit the simulated population to the paper's whole speed table across seeds"),
     'tradeoff': ('fabric_guidance.experiments.tradeoff',
                  'sweep the knobs that buy accuracy with time; table, plots and a reading of the '
                  'curves'),
