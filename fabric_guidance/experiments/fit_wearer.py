@@ -39,6 +39,7 @@ import time
 import numpy as np
 
 from .. import subcommand
+from ..atomic import write_text
 from ..paths import config_path
 from . import paper
 
@@ -241,10 +242,7 @@ def write_scenes(out: Path, values: dict, means, obj: float, seed: int, budget: 
         name = f'paper-fitted-{protocol}'
         text = fitted_text(f'paper-{protocol}', name, values, means, target, se, obj, seed, budget)
         path = out / f'{name}.yaml'
-        tmp = path.with_suffix('.yaml.tmp')
-        tmp.write_text(text)
-        load_scene(tmp)                    # never write a scene that does not load
-        tmp.replace(path)
+        write_text(path, text, check=load_scene)   # never write a scene that does not load
         written.append(path)
     return written
 
