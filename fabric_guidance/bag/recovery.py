@@ -5,8 +5,12 @@ chunk index, no statistics) and its rosbag2 folder usually no metadata.yaml: ros
 both only when the bag is closed. The indexed reading (reader.py) needs the summary, so this
 reads the data section from the start, record by record, and keeps a record only when all of
 its bytes are there and it parses completely; a chunk counts only when every record inside it
-does. Reading stops at the first record that is cut off or unreadable: what follows it cannot
-be located without the index. What was kept and what was lost is told by Recovered.describe().
+does and what the writer wrote after it is there too: its message index records (each
+message's time and place in the chunk, matched one by one), or a next record. rosbags writes
+no chunk CRC, and a file system may leave zeros where a crash cut the data off: a chunk whose
+end is zeros parses, its index after it does not. Reading stops at the first record that is
+cut off or unreadable: what follows it cannot be located without the summary. What was kept
+and what was lost is told by Recovered.describe().
 
 The records are read with the mcap library's record classes, over the bounds checked here (its
 StreamReader would hand a short read of a cut record to the parser). No rosbags, no rclpy.
@@ -20,7 +24,7 @@ from pathlib import Path
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, Message, MessageIndex, Schema
 from mcap.stream_reader import get_chunk_data_stream
 
 MAGIC = b'\x89MCAP0\r\n'
@@ -106,6 +110,8 @@ def _parse(opcode: int, body):
         record = Message.read(s, len(body))
     elif opcode == Opcode.CHUNK:
         record = Chunk.read(s)
+    elif opcode == Opcode.MESSAGE_INDEX:
+        record = MessageIndex.read(s)
     else:
         return None
     if s.count != len(body):
@@ -119,15 +125,23 @@ class _Scan:
         self.wanted = wanted
         self.max_chunk_bytes = max_chunk_bytes
 
-    def inner(self, chunk: Chunk) -> list:
-        """The records of a chunk, all parsed (schemas and channels first known), or ValueError."""
+    def inner(self, chunk: Chunk) -> tuple[list, dict[int, list[tuple[int, int]]]]:
+        """The records of a chunk, all parsed, and per channel the (log time, offset) of its
+        messages as the chunk's message index records must list them; or ValueError."""
         if chunk.uncompressed_size > self.max_chunk_bytes:    # a damaged size: do not allocate it
             raise ValueError(f'a chunk of {chunk.uncompressed_size} bytes uncompressed')
         stream, n = get_chunk_data_stream(chunk, validate_crc=True)
         data = stream.read(n) if n else b''
         if len(data) != chunk.uncompressed_size:
             raise ValueError(f'a chunk of {len(data)} bytes, its header says {chunk.uncompressed_size}')
-        return [_parse(op, body) for _, op, body in _records(data, 0, len(data))]
+        records, index = [], {}
+        for at, op, body in _records(data, 0, len(data)):
+            if op not in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE) and op < 0x80:
+                raise ValueError(f'no record a chunk holds at its byte {at} (opcode 0x{op:02x})')
+            records.append(_parse(op, body))
+            if op == Opcode.MESSAGE:
+                index.setdefault(records[-1].channel_id, []).append((records[-1].log_time, at))
+        return records, index
 
     def commit(self, records: list) -> int:
         """Take the records of one intact unit (a chunk, or one record); the messages taken."""
@@ -169,6 +183,16 @@ def scan(file: str | Path, buf, wanted: set[str] | None = None,
     result.intact_end = pos = len(MAGIC)
     work = _Scan(result, wanted, max_chunk_bytes)
     header_seen = False
+    pending = None        # the last chunk read: (records, its index still to come, its end, its start)
+
+    def confirm() -> None:
+        nonlocal pending
+        if pending is not None:
+            work.commit(pending[0])
+            result.chunks += 1
+            result.intact_end = pending[2]
+            pending = None
+
     while True:
         if pos >= size:
             result.stop = 'the file ends there, cut between two records'
@@ -179,28 +203,53 @@ def scan(file: str | Path, buf, wanted: set[str] | None = None,
         opcode, length = buf[pos], _u64(buf, pos + 1)
         end = pos + _RECORD_HEAD + length
         name = Opcode(opcode).name.lower() if opcode in Opcode._value2member_map_ else f'opcode 0x{opcode:02x}'
+        if opcode not in Opcode._value2member_map_ and opcode < 0x80:
+            # 0x00 and 0x10-0x7f are no record (0x80 and up are private records, skipped): what
+            # follows is not what the writer wrote (a file system's zero-filled tail after a crash)
+            result.stop = f'no MCAP record at byte {pos} (opcode 0x{opcode:02x})'
+            break
         if end > size:
             result.stop = (f'the {name} record at byte {pos} is cut off: '
                            f'{size - pos - _RECORD_HEAD} of its {length} bytes')
             break
         if not header_seen and opcode != Opcode.HEADER:
             raise NothingRecovered(f'{file}: not a readable MCAP file (no header record after the magic bytes)')
-        if opcode in (Opcode.DATA_END, Opcode.FOOTER):
-            result.stop = ''               # the data section ended: only the summary is unreadable
-            break
+        header_seen = True
         try:
+            if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                confirm()
+                result.stop = ''           # the data section ended: only the summary is unreadable
+                break
             record = _parse(opcode, buf[pos + _RECORD_HEAD:end])
-            if isinstance(record, Chunk):
-                work.commit(work.inner(record))
-                result.chunks += 1
-            elif record is not None:
-                work.commit([record])
+            if isinstance(record, MessageIndex) and pending is not None:
+                expected = pending[1].pop(record.channel_id, None)
+                if expected is None or [tuple(r) for r in record.records] != expected:
+                    raise ValueError(f'it does not index the messages of channel {record.channel_id} '
+                                     'in the chunk before it')
+                pending = (pending[0], pending[1], end, pending[3])
+                if not pending[1]:
+                    confirm()
+            elif not isinstance(record, MessageIndex):
+                confirm()                  # a record after the chunk: its bytes were all written
+                if isinstance(record, Chunk):
+                    records, index = work.inner(record)
+                    pending = (records, index, end, pos)
+                    if not index:          # no message to index: nothing more to wait for
+                        confirm()
+                elif record is not None:
+                    work.commit([record])
+                    result.intact_end = end
+                else:
+                    result.intact_end = end
+            else:                          # an index of a chunk already confirmed
+                result.intact_end = end
         except Exception as exc:  # the mcap parsers raise many kinds on bytes that are not a record
             text = ' '.join(f'{type(exc).__name__}: {exc}'.split())[:120]
             result.stop = f'the {name} record at byte {pos} is unreadable ({text})'
             break
-        header_seen = True
-        result.intact_end = pos = end
+        pos = end
+    if pending is not None:   # its index never came: whether all of the chunk was written is unknown
+        result.stop += f'; the chunk at byte {pending[3]} before it lacks its message index: not trusted'
     if not result.total:
         raise NothingRecovered(f'{file}: cut off before its first intact chunk ({result.stop or "no message"}); '
                                'nothing to recover')
