@@ -65,7 +65,8 @@ def written(tmp_path_factory):
     if data[data_end] == 0x0c:             # rosbags' metadata record, written on close
         data_end += 9 + int.from_bytes(data[data_end + 1:data_end + 9], 'little')
     assert data[data_end] == 0x0f          # then the DataEnd record
-    return bag, data, sent, list(zip(ends, before)), data_end
+    record_ends = sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
+    return bag, data, sent, list(zip(ends, before)), data_end, record_ends
 
 
 def _expected(chunks, cut: int) -> int:
@@ -91,7 +92,7 @@ def _read_cut(folder: Path, content: bytes, name='cut'):
 
 
 def test_a_cut_at_any_byte_reads_up_to_the_last_intact_chunk(written, tmp_path):
-    bag, data, sent, chunks, _ = written
+    bag, data, sent, chunks, _, _ = written
     rng = random.Random(7)
     cuts = {0, 1, 7, 8, 9, 50, len(data) - 1}
     for end, _ in chunks:
@@ -126,7 +127,7 @@ def test_a_cut_at_any_byte_reads_up_to_the_last_intact_chunk(written, tmp_path):
                                                st.integers(1, 5000).map(lambda n: b'\x00' * n)))
 def test_a_cut_with_anything_after_it_never_gives_a_damaged_message(written, tmp_path_factory, cut, tail):
     """What a crash leaves after the cut (a zero-filled tail, junk) is not read as messages."""
-    _, data, sent, chunks, _ = written
+    _, data, sent, chunks, _, _ = written
     at = int(cut * (len(data) - 1))
     try:
         got, recovered = _read_cut(tmp_path_factory.mktemp('tail'), data[:at] + tail)
@@ -140,8 +141,20 @@ def test_a_cut_with_anything_after_it_never_gives_a_damaged_message(written, tmp
     assert len(got) >= _expected(chunks, at)
 
 
+def test_zeros_where_the_crash_cut_the_data_are_not_read_as_a_message(written, tmp_path):
+    """A file system may show zeros where a crash cut the writes: here over the last bytes of a
+    chunk's last message and all after it. The chunk parses (its last message with zeros for
+    data); its message index, zeros too, does not: the chunk is not taken."""
+    _, data, sent, chunks, _, record_ends = written
+    for k in (1, 4, len(chunks) - 1):
+        content = data[:record_ends[k] - 5] + bytes(len(data) - record_ends[k] + 5)
+        got, [r] = _read_cut(tmp_path / 'zeros', content)
+        assert _by_topic(got) == _by_topic(sent[:chunks[k - 1][1]]), k
+        assert r.intact_end == chunks[k - 1][0] and 'lacks its message index' in r.describe(), r.describe()
+
+
 def test_a_stale_metadata_file_and_a_cut_in_the_summary(written, tmp_path):
-    bag, data, sent, chunks, data_end = written
+    bag, data, sent, chunks, data_end, _ = written
     folder = tmp_path / 'stale'
     got, [r] = _read_cut(folder, data[:data_end + 13 + 40])   # the whole data section, the summary cut
     assert len(got) == N_MESSAGES and 'the data section is whole' in r.describe()
@@ -184,7 +197,7 @@ def _same_through_every_reader(recovered_bag: Path, expected: list) -> None:
 
 
 def test_recover_writes_a_complete_bag_and_never_overwrites(written, tmp_path):
-    _, data, sent, chunks, _ = written
+    _, data, sent, chunks, _, _ = written
     cut = tmp_path / 'cut'
     _read_cut(cut, data[:chunks[5][0] + 100])
     before = (cut / 'cut.mcap').read_bytes()
