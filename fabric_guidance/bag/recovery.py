@@ -68,7 +68,8 @@ class Recovered:
                 if self.stop else f'the data section is whole; the {self.lost_bytes} bytes after it '
                 '(the summary) are unusable')
         return (f'{self.file}: recovered a cut-off recording ({missing}): {self.total} messages '
-                f'over {self.span_s:.2f} s in {self.chunks} intact chunks ({topics or "no topic"}); {lost}')
+                f'over {self.span_s:.2f} s in {self.chunks} intact chunk{"s" * (self.chunks != 1)} '
+                f'({topics or "no topic"}); {lost}')
 
 
 class NothingRecovered(ValueError):
