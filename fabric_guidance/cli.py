@@ -48,7 +48,7 @@ SUBCOMMANDS = {
                       "several seeds and set every figure of the paper beside the simulation's"),
     'sensitivity': ('fabric_guidance.experiments.sensitivity', 'vary every assumed human '
                     'parameter low and high: how much each moves the headline figures'),
-    'beyond': ('fabric_guidance.experiments.beyond', 'beyond the paper, in simulation: a '
+    'beyond': ('fabric_guidance.experiments.discussion.beyond', 'beyond the paper, in simulation: a '
                "per-wearer gain G and moving targets, with the paper's statistics"),
     'bench': ('fabric_guidance.bench.runner', "benchmarks: gaze to regulator latency against the "
               "transports' floor, component costs, memory, simulation and replay speed"),

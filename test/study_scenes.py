@@ -1,5 +1,5 @@
-"""Scenes and wearers the Discussion studies' tests share (test_sim_per_wearer_gain.py,
-test_sim_moving_targets.py, test_beyond.py)."""
+"""Scenes and wearers the Discussion studies' tests share (test_study_per_wearer_gain.py,
+test_study_moving_targets.py, test_beyond.py)."""
 from dataclasses import replace
 
 from fabric_guidance.sim.population import calibrate_wearer, sample_wearer

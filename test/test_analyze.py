@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from fabric_guidance.experiments import analyze
-from fabric_guidance.experiments.plots import _groups, _stack, violin_plot
-from fabric_guidance.experiments.report import markdown_report
+from fabric_guidance.experiments.violin_plots import _groups, _stack, violin_plot
+from fabric_guidance.experiments.analysis_report import markdown_report
 from fabric_guidance.experiments.stats import analyze_blocks, analyze_trials
 from test_stats import PAPER_CSV, paper_table, trials_from, write  # noqa: E402 (test/ is on sys.path)
 

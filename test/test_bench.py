@@ -11,7 +11,7 @@ import pytest
 
 from fabric_guidance.bench.graphs import make_sweep
 from fabric_guidance.bench.latency import Write, landings, percentiles_ms
-from fabric_guidance.bench.sweep import check_sweep
+from fabric_guidance.bench.gaze_sweep import check_sweep
 from rosgraph import ROOT
 
 

@@ -1,11 +1,11 @@
-"""Both Discussion studies on the same wearers (sim/discussion_studies.py) and the `beyond`
-command (experiments/beyond.py); each study alone: test_sim_per_wearer_gain.py,
-test_sim_moving_targets.py."""
+"""Both Discussion studies on the same wearers (experiments/discussion/studies.py) and the `beyond`
+command (experiments/discussion/beyond.py); each study alone: test_study_per_wearer_gain.py,
+test_study_moving_targets.py."""
 import pandas as pd
 
-from fabric_guidance.experiments import beyond as beyond_cmd
-from fabric_guidance.sim.discussion_studies import StudySettings, run_studies
-from fabric_guidance.sim.moving_targets import LAWS
+from fabric_guidance.experiments.discussion import beyond as beyond_cmd
+from fabric_guidance.experiments.discussion.studies import StudySettings, run_studies
+from fabric_guidance.experiments.discussion.moving_targets import LAWS
 
 from study_scenes import short
 

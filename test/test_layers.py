@@ -126,3 +126,13 @@ def test_no_two_modules_import_each_other():
 def test_the_import_reader_resolves_relative_imports(text, expected):
     """The guard itself: an import in sim/ resolves to the module it names."""
     assert [t for _, t in _imports(PACKAGE_DIR / 'sim' / 'probe.py', text)] == [expected]
+
+
+def test_no_module_file_name_is_used_twice():
+    """One name, one room: a module's file name says where it lives (package files excepted)."""
+    seen: dict[str, list[str]] = {}
+    for path in SOURCES:
+        if not (path.name.startswith('__') and path.name.endswith('__.py')):
+            seen.setdefault(path.name, []).append(str(path.relative_to(PACKAGE_DIR)))
+    repeated = {name: paths for name, paths in seen.items() if len(paths) > 1}
+    assert not repeated, f'file names used more than once: {repeated}'

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from fabric_guidance.experiments import sensitivity as S
+from fabric_guidance.experiments import sensitivity_runs as R
 from fabric_guidance.paths import config_path
 from fabric_guidance.sim.effects import REGISTRY
 
@@ -58,7 +59,7 @@ def test_every_parameter_of_every_listed_effect_and_the_population_and_dwell():
     expect = [f'{e}.{p}' for e in spd.effect_names for p, (default,
                                                            _) in REGISTRY[e].parameters().items()
               if (spd.effect(e).params_dict.get(p, default)) is not None
-              and (e, p) not in S.MEASURED]
+              and (e, p) not in R.MEASURED]
     assert 'speech_latency.per_word_s' not in keys     # fitted by fit-wearer: not an assumption
     assert [k for k in keys if not k.startswith(('population.', 'protocol.'))] == expect
     assert keys[-5:] == ['population.spread.a', 'population.spread.b', 'population.spread.c',
@@ -80,7 +81,7 @@ def test_an_effect_no_scene_lists_is_not_swept_and_one_scene_is_enough():
 
 def test_measured_or_fitted_parameters_are_not_swept(monkeypatch):
     spd, acc = _scenes()
-    monkeypatch.setattr(S, 'MEASURED', {('gaze_noise', 'sd_deg')})
+    monkeypatch.setattr(R, 'MEASURED', {('gaze_noise', 'sd_deg')})
     keys = _keys(S.assumed_parameters(spd, acc, exclude=('protocol.dwell_s',)))
     assert 'gaze_noise.sd_deg' not in keys and 'protocol.dwell_s' not in keys
     assert 'reaction_delay.mean_s' in keys
@@ -94,7 +95,7 @@ def test_low_and_high_values_zero_and_clipping():
     assert p.values(0.5, 2.0) == (pytest.approx(0.3), 1.0)          # clipped to the range
     zero = S.Parameter('population.arm_spread', '(log) -', 0.0, 0.0, 3.0)
     low, high = zero.values(0.5, 2.0)
-    assert low is None and high == S.SMALL_BY_UNIT['(log) -']          # 0 -> a small positive
+    assert low is None and high == R.SMALL_BY_UNIT['(log) -']          # 0 -> a small positive
     eff = S.Parameter('suit_hysteresis.band_kpa', 'kPa', 0.0, 0.0, None, default=20.0)
     assert eff.values(0.5, 2.0) == (None, 20.0)                        # the effect's own default
     top = S.Parameter('weber_perception.fraction', '-', 10.0, 0.0, 10.0)

@@ -17,7 +17,7 @@ from ..plc import RegisterMap
 from ..process_graph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 from . import floor
 from .latency import Sender, WriteLog, landings, percentiles_ms
-from .sweep import Sweep
+from .gaze_sweep import Sweep
 
 FILES = ('params/guidance.yaml', 'params/sim.yaml')
 SIM_CALIBRATION = CONFIG / 'calibrations' / 'sim-wearer.yaml'

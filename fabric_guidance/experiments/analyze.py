@@ -50,11 +50,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         plot = None
         if args.plot is not None:
-            from .plots import violin_plot  # matplotlib only when a plot is asked for
+            from .violin_plots import violin_plot  # matplotlib only when a plot is asked for
             plot = violin_plot(analysis, label, args.plot, significance=analysis)
             print(f'\nplot: {plot}')
         if args.report is not None:
-            from .report import markdown_report
+            from .analysis_report import markdown_report
             text = markdown_report(f'Statistics of {args.table.name}', {label: analysis},
                                    {label: plot} if plot is not None else {},
                                    notes=[f'Source: {args.table}'], relative_to=args.report.parent)

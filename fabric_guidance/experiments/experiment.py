@@ -43,8 +43,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args) -> int:
     from ..sim.protocols import format_summary, run_protocol, trials_frame
     from ..sim.scene import SceneError, load_scene
-    from .plots import violin_plot
-    from .report import markdown_report
+    from .violin_plots import violin_plot
+    from .analysis_report import markdown_report
     from .stats import analyze_trials, format_analysis
 
     if (args.protocol is None) == (args.scene is None):

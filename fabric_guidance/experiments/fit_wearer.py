@@ -1,6 +1,6 @@
 """fit-wearer: fit the simulated wearer's free human parameters to the paper's speed results.
 
-The model (sim/effects.py) has four human parameters nobody measured: how often the wearer
+The model (sim/effects/) has four human parameters nobody measured: how often the wearer
 misreads the suit's direction (cue_misreading.direction_p), how much resistance tells them a
 move is wrong (surface_resistance.threshold_kpa_deg), how long confirming a found target takes
 (hololens_view.confirm_s), and how long the synthesized speech takes per word
@@ -77,7 +77,7 @@ FREE = (
     Free('speech_latency', 'per_word_s', 0.1, 1.2, 0.5),
 )
 
-#: The new effects with their fixed (not fitted) parameters: their defaults (sim/effects.py).
+#: The new effects with their fixed (not fitted) parameters: their defaults (sim/effects/).
 MODEL_EFFECTS = ('cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view')
 
 
@@ -211,7 +211,7 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
         '# Speed means (fitted seed) vs paper (SE): ' + ', '.join(
             f'c{c} {m:.2f} vs {t:.2f} ({s:.2f})'
             for c, m, t, s in zip((1, 2, 3, 4), means, target, se)),
-        '# Every other number is the base scene\'s or the effect\'s default (sim/effects.py).',
+        '# Every other number is the base scene\'s or the effect\'s default (sim/effects/).',
         '#',
     ]
     text = re.sub(r'^name: .*$', f'name: {new_name}', text, count=1, flags=re.M)
@@ -227,7 +227,7 @@ def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, 
         fitted_here = [p for (e, p) in values if e == name]
         params.update({p: v for (e, p), v in values.items() if e == name})
         note = (f'fitted: {", ".join(fitted_here)}; the rest defaults' if fitted_here
-                else 'defaults (sim/effects.py)')
+                else 'defaults (sim/effects/)')
         lines.append(_effect_line(name, params, note))
     return '\n'.join(header + lines) + '\n'
 

@@ -34,7 +34,7 @@ from .. import subcommand
 from ..atomic import atomic_write, write_csv, write_text
 from . import paper
 from .paper import ACCURACY_CLAIMS, CONDITIONS, SPEED_CLAIMS, Claim
-from .report import md_table
+from .analysis_report import md_table
 from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
 
 PROG = 'fabric-guidance compare-paper'

@@ -90,25 +90,21 @@ class ManagedNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.active = False
-        self._release_quietly()
-        self.state_label = UNCONFIGURED
-        self.get_logger().info('cleaned up (vented)')
-        return TransitionCallbackReturn.SUCCESS
+        return self._released(UNCONFIGURED, 'cleaned up (vented)')
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.active = False
-        self._release_quietly()
-        self.state_label = FINALIZED
-        self.get_logger().info('shut down (vented)')
-        return TransitionCallbackReturn.SUCCESS
+        return self._released(FINALIZED, 'shut down (vented)')
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         # A transition raised: vent, drop everything, and go back to unconfigured.
-        self.active = False
+        return self._released(UNCONFIGURED, f'error processing (from {state.label}): vented, unconfigured',
+                              self.get_logger().error)
+
+    def _released(self, label: str, what: str, log=None) -> TransitionCallbackReturn:
+        """Vent and drop what configure opened, then stand in `label`."""
         self._release_quietly()
-        self.state_label = UNCONFIGURED
-        self.get_logger().error(f'error processing (from {state.label}): vented, unconfigured')
+        self.state_label = label
+        (log or self.get_logger().info)(what)
         return TransitionCallbackReturn.SUCCESS
 
     def _say(self, what: str) -> None:

@@ -2,7 +2,8 @@
 Below it only core/ and paths.py; nothing here imports ROS or experiments/.
 
 wearer              SimulatedWearer (the node's simple wearer) and SceneWearer (the engine's)
-effects             the effect library and its registry (only what a scene lists is simulated)
+effects/            the effect library, one module per stage of the loop, and its registry (only
+                    what a scene lists is simulated)
 scene               scene files (config/scenes/*.yaml), validated
 population          wearers sampled from a scene, calibrated by Algorithm 1 in simulation
 engine              the headless closed loop, on the same core code as the nodes
@@ -11,9 +12,6 @@ worked_example      the worked example of `fabric-guidance example`
 scene_wearer        a scene's wearer side as the ROS graph's wearer_sim runs it (SceneSide)
 scene_plan          what a scene changes in the simulated graph (`fabric-guidance demo --scene`)
 node_loop           the closed loop built as the pressure_controller node builds it (NodeLoop)
-study_trials        the keys of the Discussion studies' trials
-per_wearer_gain     the Discussion's first open point: a per-wearer adjustment gain
-moving_targets      the Discussion's second open point: moving targets
-discussion_studies  both studies on the same wearers (`fabric-guidance beyond`)
-headless            old name of worked_example, until the merge
+
+The Discussion studies built on NodeLoop are in experiments/discussion/.
 """

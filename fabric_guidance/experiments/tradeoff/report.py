@@ -7,7 +7,7 @@ import pandas as pd
 
 from ...atomic import write_csv, write_text
 
-from ..report import image_path, md_table
+from ..analysis_report import image_path, md_table
 from .plots import _is_plane_only, plane_curves, plot_knob, plot_plane
 from .reading import gain_rate_reading, read_curve
 from .settings import CONDITION_LABELS, KNOBS, KNOB_TITLES, REFERENCE

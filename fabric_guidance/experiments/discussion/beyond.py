@@ -8,14 +8,14 @@
 
 Statistics as the paper's: per-wearer means, Friedman test and Dunn-Bonferroni on the Friedman
 mean ranks (experiments.stats; for two conditions the same block test). How the simulation is
-set up: fabric_guidance/sim/per_wearer_gain.py and sim/moving_targets.py; the analyses, plots
-and report sections of each study: experiments/per_wearer_gain.py, experiments/moving_targets.py.
+set up, analysed, plotted and reported: per_wearer_gain.py and moving_targets.py beside this
+file (one module per study), both run on the same wearers by studies.py.
 
 Writes DIR/beyond.md (report), DIR/*.csv (one row per trial; gain_choice.csv one row per
 wearer) and DIR/*.png (violin plots); prints a summary. Deterministic for a scene.
 Exit status: 0 done, 2 bad arguments or scene, 1 an output file could not be written.
 
-Also runs alone: python -m fabric_guidance.experiments.beyond --out DIR [--subjects N] [--quick]
+Also runs alone: python -m fabric_guidance.experiments.discussion.beyond --out DIR [--subjects N] [--quick]
 """
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ import os
 from pathlib import Path
 import sys
 
-from .. import subcommand
-from ..atomic import write_csv, write_text
+from ... import subcommand
+from ...atomic import write_csv, write_text
 from .moving_targets import analyze_moving, moving_plots, moving_report, moving_summary
 from .per_wearer_gain import analyze_gain, gain_plots, gain_report, gain_summary
 
@@ -96,8 +96,8 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
            f'{n_in} simulated wearers calibrated by Algorithm 1, {n_ex} excluded'
            + (': ' + '; '.join(f'{w}: {e}' for w, e in results.exclusions) if n_ex else '') + '. '
            f'{results.sim_s:.0f} simulated s in {results.wall_s:.1f} wall s. '
-           'Set-up and keys of every trial: `fabric_guidance/sim/per_wearer_gain.py`, '
-           '`sim/moving_targets.py`. Statistics: per-wearer means, '
+           'Set-up and keys of every trial: `fabric_guidance/experiments/discussion/per_wearer_gain.py`, '
+           '`moving_targets.py`. Statistics: per-wearer means, '
            'Friedman test, Dunn-Bonferroni on the Friedman mean ranks (`fabric_guidance/experiments/stats.py`), '
            'as the paper.', '', '## Summary', '']
     doc += [f'- {line.strip()}' for line in summary_lines(results, parts)] + ['']
@@ -121,8 +121,8 @@ def report_text(results, parts: dict, plots: dict, out: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sim.discussion_studies import QUICK, StudySettings, run_studies
-    from ..sim.scene import SceneError, load_scene
+    from .studies import QUICK, StudySettings, run_studies
+    from ...sim.scene import SceneError, load_scene
     try:
         scene = load_scene(args.scene)
         if scene.protocol.kind != 'speed':

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .effects import generator
-from .engine import trial_run
-from .protocols import target_stream
-from .scene import Scene
+from ...sim.effects import generator
+from ...sim.engine import trial_run
+from ...sim.protocols import target_stream
+from ...sim.scene import Scene
 
 #: The condition the gain and the moving-target laws are studied in (suit, adjusted).
 CONDITION = 1

@@ -1,4 +1,4 @@
-"""The moving-target study in simulation (sim/moving_targets.py) on the loop built as the node
+"""The moving-target study in simulation (experiments/discussion/moving_targets.py) on the loop built as the node
 builds it (sim/node_loop.py): the target's motion, the static case as the engine's, and the law
 stepped as GuidanceController.update does."""
 import numpy as np
@@ -6,9 +6,9 @@ import pytest
 
 from fabric_guidance.core.feedback import GuidanceController
 from fabric_guidance.sim.engine import ClosedLoop, gaze_from_angles
-from fabric_guidance.sim.moving_targets import LAWS, TargetMotion, moving_trial
+from fabric_guidance.experiments.discussion.moving_targets import LAWS, TargetMotion, moving_trial
 from fabric_guidance.sim.node_loop import NodeLoop
-from fabric_guidance.sim.study_trials import TrialKey
+from fabric_guidance.experiments.discussion.trials import TrialKey
 
 from study_scenes import short, wearer_and_cal
 

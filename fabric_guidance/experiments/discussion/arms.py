@@ -1,4 +1,4 @@
-"""What both Discussion studies (experiments/per_wearer_gain.py, experiments/moving_targets.py)
+"""What both Discussion studies (per_wearer_gain.py, moving_targets.py)
 use: the paper's statistics on compared arms, per wearer."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pandas as pd
 
-from .stats import BlockAnalysis, analyze_trials
+from ..stats import BlockAnalysis, analyze_trials
 
 
 def analyze_arms(frame: pd.DataFrame, measure: str, higher: bool,

@@ -13,13 +13,13 @@ import math
 import time
 from typing import Callable, Iterable
 
-from ..workers import WorkerPool
-from .engine import package_channel_map
+from ...sim.engine import package_channel_map
+from ...sim.population import calibrate_wearer, sample_wearer, subject_indices
+from ...sim.scene import Scene
+from ...workers import WorkerPool
 from .moving_targets import LAWS, SCENARIOS, moving_trial
 from .per_wearer_gain import GAIN_GRID, choose_gain, gain_means, run_gain_grid, tune_gain
-from .population import calibrate_wearer, sample_wearer, subject_indices
-from .scene import Scene
-from .study_trials import TrialKey, evaluation_keys
+from .trials import TrialKey, evaluation_keys
 
 
 @dataclass(frozen=True)

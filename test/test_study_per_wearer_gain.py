@@ -1,4 +1,4 @@
-"""The per-wearer gain study in simulation (sim/per_wearer_gain.py): the choice of G, the
+"""The per-wearer gain study in simulation (experiments/discussion/per_wearer_gain.py): the choice of G, the
 tuning and its seeds, the evaluation trials as the protocol's, the gain reaching the controller."""
 import math
 
@@ -8,8 +8,8 @@ import pytest
 from fabric_guidance.sim import protocols
 from fabric_guidance.sim.engine import trial_run
 from fabric_guidance.sim.node_loop import NodeLoop
-from fabric_guidance.sim.per_wearer_gain import GAIN_GRID, choose_gain, speed_trial, tune_gain
-from fabric_guidance.sim.study_trials import TrialKey, evaluation_keys, tuning_keys
+from fabric_guidance.experiments.discussion.per_wearer_gain import GAIN_GRID, choose_gain, speed_trial, tune_gain
+from fabric_guidance.experiments.discussion.trials import TrialKey, evaluation_keys, tuning_keys
 
 from study_scenes import short, wearer_and_cal
 

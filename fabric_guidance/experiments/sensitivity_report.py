@@ -1,0 +1,149 @@
+"""The outputs of `fabric-guidance sensitivity` (sensitivity.py): the CSV, the Markdown table
+sorted by the largest move in seed SDs, and the tornado plot per headline figure."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_write, write_csv, write_text
+from .analysis_report import image_path, md_table
+from .sensitivity_runs import HEADLINE_TITLES, HEADLINES, MEASURED, NOISE_SDS, SensitivityResult
+
+
+def _fmt(x) -> str:
+    if x is None or not math.isfinite(x):
+        return 'n/a'
+    return f'{x:.3g}' if abs(x) >= 1e-3 or x == 0 else f'{x:.2e}'
+
+
+def _signed(x) -> str:
+    return 'n/a' if x is None or not math.isfinite(x) else f'{x:+.3g}'
+
+
+def markdown_table(result: SensitivityResult) -> str:
+    params = {p.key: p for p in result.parameters}
+    sd = result.seed_sd()
+    by = {(r.parameter, r.side): r for r in result.runs}
+    base = result.baseline
+    header = ['parameter', 'scene value',
+              'low / high run'] + [f'{h}: low / high' for h in HEADLINES] + \
+        ['largest move (seed SDs)']
+    rows = [['baseline', '', f'{len(result.baselines)} seeds']
+            + [f'{_fmt(base[h])} (seed SD {_fmt(sd[h])})' for h in HEADLINES] + ['']]
+    for key, z, h in result.ranking():
+        p = params[key]
+        lo, hi = by.get((key, 'low')), by.get((key, 'high'))
+        vals = ' / '.join(_fmt(r.value) if r else '-' for r in (lo, hi))
+        cells = []
+        for name in HEADLINES:
+            cells.append(' / '.join(_signed(r.figures[name] - base[name]) if r else '-'
+                                    for r in (lo, hi)))
+        mark = ' **beyond noise**' if z >= NOISE_SDS else ''
+        unit = f' {p.unit}' if p.unit and p.unit != '-' else ''
+        rows.append([key, f'{_fmt(p.value)}{unit}', vals] + cells + [f'{z:.1f} ({h}){mark}'])
+    return '\n'.join(md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
+
+
+def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
+    """One panel per figure: for each parameter (sorted by its largest move, the largest on
+    top) a bar from the baseline to the low run (blue) and to the high run (orange); the grey
+    band is +-2 seed SDs of the baseline."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    ranking = [k for k, _, _ in result.ranking()]
+    n = max(len(ranking), 1)
+    fig = Figure(figsize=(3.3 * len(HEADLINES) + 2.6, 1.6 + 0.32 * n), layout='constrained')
+    FigureCanvasAgg(fig)
+    by = {(r.parameter, r.side): r for r in result.runs}
+    base, sd = result.baseline, result.seed_sd()
+    axes = fig.subplots(1, len(HEADLINES), sharey=True)
+    ypos = {k: n - 1 - i for i, k in enumerate(ranking)}
+    for ax, h in zip(np.atleast_1d(axes), HEADLINES):
+        b = base[h]
+        noise = NOISE_SDS * result.scale(h, sd)
+        ax.axvspan(b - noise, b + noise, color='0.85', zorder=0)
+        ax.axvline(b, color='black', lw=1.0, zorder=1)
+        for key in ranking:
+            y = ypos[key]
+            for side, colour, dy in (('low', 'tab:blue', 0.18), ('high', 'tab:orange', -0.18)):
+                r = by.get((key, side))
+                if r is not None and math.isfinite(r.figures[h]):
+                    ax.barh(y + dy, r.figures[h] - b, left=b, height=0.34, color=colour, zorder=2)
+        ax.set_title(HEADLINE_TITLES[h], fontsize=9)
+        ax.grid(axis='x', alpha=0.3)
+        ax.tick_params(axis='x', labelsize=8)
+    first = np.atleast_1d(axes)[0]
+    first.set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=8)
+    first.set_ylim(-0.7, n - 0.3)
+    s = result.settings
+    fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters '
+                 f'(x{s.low:g} blue, x{s.high:g} '
+                 f'orange; black line: baseline, grey band: +-{NOISE_SDS:g} SD over '
+                 f'{len(result.baselines)} '
+                 f'seeds)\n{s.subjects} wearers, scenes {result.scenes[0].name} / '
+                 f'{result.scenes[1].name}; '
+                 'sorted by the largest move in seed SDs', fontsize=10)
+    fig.legend(handles=[Patch(color='tab:blue', label=f'low (x{s.low:g})'),
+                        Patch(color='tab:orange', label=f'high (x{s.high:g})'),
+                        Patch(color='0.85', label=f'baseline +-{NOISE_SDS:g} seed SD')],
+               loc='outside lower center', ncol=3, fontsize=8, frameon=False)
+    path = Path(path)
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
+    return path
+
+
+def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {'csv': out / 'sensitivity.csv', 'png': out / 'sensitivity.png',
+             'md': out / 'sensitivity.md'}
+    write_csv(paths['csv'], result.frame())
+    plot_tornado(result, paths['png'])
+    s = result.settings
+    spd, acc = result.scenes
+    beyond = [(k, z, h) for k, z, h in result.ranking() if z >= NOISE_SDS]
+    lines = ['# Which figures rest on which assumptions', '',
+             f'Scenes `{spd.name}` (speed protocol, conditions '
+             f'{", ".join(map(str, spd.conditions))}, '
+             f'{s.speed_repetitions} trial(s) of {spd.protocol.trial_s:g} s per wearer and '
+             'condition) and '
+             f'`{acc.name}` (accuracy protocol, conditions '
+             f'{", ".join(map(str, acc.conditions))}, {s.repetitions} '
+             f'trials), on the same {s.subjects} wearers (the speed scene\'s seed {spd.seed} and '
+             'population). '
+             f'Each assumed parameter at x{s.low:g} and x{s.high:g} of the scene value (0 goes '
+             'to a small positive '
+             'value; clipped to the valid range), one at a time, same seed: the moves are '
+             'paired. '
+             f'{len(result.baselines) + len(result.runs)} runs in {result.wall_s:.0f} s wall '
+             f'with {s.workers} '
+             f'worker(s)' + (' (--quick)' if s.quick else '') + '.', '',
+             'Figures: ' + '; '.join(f'`{h}` {HEADLINE_TITLES[h]}' for h in HEADLINES)
+             + '. Targets are scaled '
+             'to 40 s; errors are the true gaze\'s at the key press (hypot of h and v).', '',
+             '## Table', '',
+             f'Moves from the baseline (first row: the baseline at seed {spd.seed} and the SD of '
+             'each figure over '
+             f'{len(result.baselines)} seeds, i.e. other wearers and targets). Sorted by the '
+             'largest move in seed SDs; '
+             f'**beyond noise**: at least {NOISE_SDS:g} seed SDs (a paired move can be real '
+             'below that, but is '
+             'not shown to matter on this many wearers).', '',
+             markdown_table(result), '']
+    if beyond:
+        lines += [f'{len(beyond)} of {len(result.ranking())} parameters move a figure beyond '
+                  'noise: '
+                  + ', '.join(f'`{k}` ({h}, {z:.1f} SD)' for k, z, h in beyond) + '.', '']
+    else:
+        lines += ['No parameter moves a figure by 2 seed SDs or more.', '']
+    skipped = sorted({f'{e}.{p}' for e, p in MEASURED} | set(s.exclude))
+    if skipped:
+        lines += ['Not swept (measured, fitted or excluded): '
+                  + ', '.join(f'`{k}`' for k in skipped) + '.', '']
+    lines += ['## Tornado plot', '', f'![sensitivity]({image_path(paths["png"], out)})', '']
+    write_text(paths['md'], '\n'.join(lines))
+    return paths
