@@ -27,7 +27,7 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
   test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
-.PHONY: test-hololens demo test test-deep test-launch test-py312 bench venv clean system-deps test-pymodbus
+.PHONY: test-hololens demo test test-deep test-launch test-py312 bench chaos venv clean system-deps test-pymodbus
 
 venv: $(STAMP)
 
@@ -135,6 +135,14 @@ test-hololens:
 # Measures and prints; never fails on a slow machine (the goals are read off bench/results.md).
 bench: $(STAMP)
 	$(VENV)/bin/fabric-guidance bench --out bench/results.json
+
+# The long chaos run (docs/soak_and_chaos.md): FAULTS seeded faults on the lab graph, every
+# invariant checked from the mock PLC's register log; table, logs and bags in chaos/seed-SEED/.
+# `make test` runs the short form (test/test_chaos.py).
+SEED ?= 1
+FAULTS ?= 40
+chaos: $(STAMP)
+	$(VENV)/bin/fabric-guidance chaos --seed $(SEED) --faults $(FAULTS) --out chaos/seed-$(SEED)
 
 # The distribution's packages some tests use (root; CI runs this before `make test`). Without
 # them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their reason.

@@ -12,6 +12,7 @@
   sensitivity  which headline figures rest on which assumed human parameters (low/high sweep)
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
+  chaos     a seeded schedule of faults on the lab graph, invariants checked from the PLC's log
   example   the core alone on a worked example (no ROS)
   dds-profile  a Fast DDS profile keeping DDS on one network interface of the lab PC
   discovery-server  Fast DDS's discovery server for the lab graph (no multicast discovery)
@@ -52,6 +53,8 @@ SUBCOMMANDS = {
                "per-wearer gain G and moving targets, with the paper's statistics"),
     'bench': ('fabric_guidance.bench.runner', "benchmarks: gaze to regulator latency against the "
               "transports' floor, component costs, memory, simulation and replay speed"),
+    'chaos': ('fabric_guidance.bench.chaos', 'a seeded schedule of faults on the lab graph, invariants '
+              'checked from the PLC register log'),
     'example': ('fabric_guidance.example_command',
                 'the core alone on a worked example: calibration and guided turns'),
     'dds-profile': ('fabric_guidance.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '

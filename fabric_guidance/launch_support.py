@@ -7,6 +7,8 @@
   plc_output's first connection succeeds instead of logging an ERROR.
 - `lifecycle_bring_up`: launch_ros's lifecycle events that configure a managed node once its
   process runs and activate it once it is configured (the launch argument autostart).
+- `respawn_kwargs`: the launch arguments respawn and respawn_delay as launch_ros Node keyword
+  arguments, for the nodes that may restart (docs/lifecycle.md, "Restarts").
 - `lab_launch_arguments`, `lab_node_kwargs`, `lab_network_actions`: the lab's keystore (each
   node in its SROS2 enclave, security enforced; docs/security.md) and discovery server (each
   node its client; optionally started by the launch; docs/lab_network.md). Unset: no change.
@@ -83,6 +85,46 @@ def lifecycle_bring_up(node_action) -> list:
                                                entities=[change(Transition.TRANSITION_ACTIVATE)])),
         RegisterEventHandler(OnProcessStart(target_action=node_action,
                                             on_start=[change(Transition.TRANSITION_CONFIGURE)])),
+    ]
+
+
+#: The nodes of the lab graph that the lab launch restarts when their process dies (respawn).
+#: mock_plc stands for the PLC and never restarts; bag_recorder is not in the lab launch (a
+#: restarted recorder would start a new bag: docs/lifecycle.md).
+RESPAWNED = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
+
+
+def respawn_enabled(context) -> bool:
+    """The launch argument respawn: '' (an including launch passing it through unset) or 'true'."""
+    text = context.launch_configurations.get('respawn', '').strip().lower()
+    if text not in ('', 'true', 'false'):
+        raise ValueError(f'launch argument respawn:={text!r} is not true or false')
+    return text != 'false'
+
+
+def respawn_kwargs(context, node: str) -> dict:
+    """launch_ros Node keyword arguments that restart `node` respawn_delay seconds after its
+    process died, as often as it dies (launch's delay is fixed; it has no growing back-off)."""
+    if node not in RESPAWNED or not respawn_enabled(context):
+        return {}
+    text = context.launch_configurations.get('respawn_delay', '') or '2.0'
+    try:
+        delay = float(text)
+    except ValueError:
+        delay = -1.0
+    if not delay >= 0.0:
+        raise ValueError(f'launch argument respawn_delay:={text!r} is not a number of seconds >= 0')
+    return {'respawn': True, 'respawn_delay': delay}
+
+
+def respawn_arguments() -> list:
+    return [
+        DeclareLaunchArgument('respawn', default_value='true',
+                              description='restart a lab node whose process died (false: leave it down); '
+                                          'the controller then starts disabled: guidance resumes only '
+                                          'once the operator calls enable'),
+        DeclareLaunchArgument('respawn_delay', default_value='2.0',
+                              description='seconds from a node process dying to its restart'),
     ]
 
 

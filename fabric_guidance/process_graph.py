@@ -8,6 +8,11 @@ concurrent runs and other machines are never heard.
 Every mock_plc a graph starts keeps its write records in a file in the log folder, and
 `stop_all()` fails (PlcInvariantError) if any of them shows a write above p_max or outside
 the register map (plc/records.py): every test that runs a graph is held to that.
+
+`supervise()` opts nodes into the launch files' restart policy: a supervised process that dies
+(not stopped through `stop`/`stop_all`) is started again with the same parameters after a
+back-off that doubles while it keeps dying young. Every process of a graph carries its token in
+the environment, so `leftovers()` finds any that outlived `stop_all()`, its children included.
 """
 from __future__ import annotations
 
@@ -20,6 +25,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any, Callable
 
 from .paths import share_dir
@@ -70,6 +76,32 @@ class PlcInvariantError(AssertionError):
     """A mock PLC of the graph received a write above p_max or outside the register map."""
 
 
+#: The environment variable that marks every process of one graph (Graph.leftovers).
+GRAPH_TOKEN = 'FABRIC_GUIDANCE_GRAPH'
+
+
+@dataclass
+class Restart:
+    """One restart by the supervisor: when the death was seen, when the new process started."""
+    node: str
+    returncode: int
+    died: float      # time.monotonic() the supervisor saw the exit
+    started: float   # time.monotonic() the new process was started
+    pid: int
+
+
+@dataclass
+class _Policy:
+    delay_s: float
+    max_delay_s: float
+    stable_s: float
+    fresh: Callable[[int], dict] | None
+    next_delay_s: float = 0.0
+    due: float | None = None      # time.monotonic() of the pending restart
+    died: float = 0.0
+    returncode: int = 0
+
+
 class Graph:
     """Nodes of the package as separate processes, the way a launch file starts them."""
 
@@ -79,8 +111,19 @@ class Graph:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: dict[str, subprocess.Popen] = {}
         self.records_files: list[Path] = []   # one per mock_plc started, restarts included
+        self.token = f'{os.getpid()}-{self.domain_id}-{next(_counter)}-{time.monotonic_ns()}'
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1',
-                        RCUTILS_COLORIZED_OUTPUT='0', **loopback_dds_env())
+                        RCUTILS_COLORIZED_OUTPUT='0', **{GRAPH_TOKEN: self.token}, **loopback_dds_env())
+        self.specs: dict[str, tuple[str, tuple, dict]] = {}   # key -> node, files, overrides
+        self.started_at: dict[str, float] = {}
+        self.pids: list[tuple[str, int]] = []   # every process ever started, restarts included
+        self.restarts: list[Restart] = []
+        self._policies: dict[str, _Policy] = {}
+        self._stopping: set[str] = set()   # stopped on purpose: not restarted
+        self._lock = threading.RLock()
+        self._closing = threading.Event()
+        self._supervisor: threading.Thread | None = None
+        self._restarting = False
 
     def command_prefix(self, node: str) -> list[str]:
         """Words put before a node's command (e.g. `ip netns exec NAME`); none here."""
@@ -92,6 +135,9 @@ class Graph:
         `-p name:=value` overrides. ``as_name``: the key of the process and its log (default: the
         node), so that a graph can run two of a node (two mock PLCs)."""
         proc_key = as_name or node
+        with self._lock:
+            self.specs[proc_key] = (node, tuple(params_files), dict(overrides))
+            self._stopping.discard(proc_key)
         if node == 'mock_plc' and 'records_file' not in overrides:
             overrides['records_file'] = str(self.log_dir / f'mock_plc-{len(self.records_files)}.records.json')
             self.records_files.append(Path(overrides['records_file']))
@@ -100,16 +146,71 @@ class Graph:
             cmd += ['--params-file', str(CONFIG / f)]
         for key, value in overrides.items():
             cmd += ['-p', f'{key}:={_param_text(value)}']
-        log = open(self.log_dir / f'{proc_key}.log', 'w')
+        # A supervised restart appends: its log follows its predecessor's.
+        log = open(self.log_dir / f'{proc_key}.log', 'a' if self._restarting else 'w')
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=ROOT)
-        self.processes[proc_key] = proc
+        log.close()   # the child has its own descriptor
+        with self._lock:
+            self.processes[proc_key] = proc
+            self.started_at[proc_key] = time.monotonic()
+            self.pids.append((proc_key, proc.pid))
         return proc
+
+    # ---- restarts
+    def supervise(self, *keys: str, delay_s: float = 0.5, max_delay_s: float = 8.0, stable_s: float = 10.0,
+                  fresh: dict[str, Callable[[int], dict]] | None = None) -> None:
+        """Restart each of `keys` (started already) whenever its process dies, delay_s after the
+        death; the delay doubles up to max_delay_s while the node dies within stable_s of its
+        start, and is back to delay_s once it ran longer. ``fresh[key](n)``: parameters that
+        replace the recorded ones at the n-th restart (a bag recorder's new folder)."""
+        with self._lock:
+            for key in keys:
+                if key not in self.specs:
+                    raise KeyError(f'supervise: {key} was never started in this graph')
+                self._policies[key] = _Policy(delay_s, max_delay_s, stable_s, (fresh or {}).get(key),
+                                              next_delay_s=delay_s)
+            if self._supervisor is None:
+                self._supervisor = threading.Thread(target=self._supervise_loop, name='graph-supervisor',
+                                                    daemon=True)
+                self._supervisor.start()
+
+    def restart_count(self, key: str) -> int:
+        with self._lock:
+            return sum(1 for r in self.restarts if r.node == key)
+
+    def _supervise_loop(self) -> None:
+        while not self._closing.wait(0.02):
+            now = time.monotonic()
+            with self._lock:
+                for key, policy in self._policies.items():
+                    proc = self.processes[key]
+                    if key in self._stopping or proc.poll() is None:
+                        continue
+                    if policy.due is None:   # a death just seen: schedule the restart
+                        lived = now - self.started_at[key]
+                        policy.next_delay_s = (min(2 * policy.next_delay_s, policy.max_delay_s)
+                                               if lived < policy.stable_s else policy.delay_s)
+                        policy.due, policy.died, policy.returncode = now + policy.next_delay_s, now, proc.returncode
+                    elif now >= policy.due:
+                        node, files, overrides = self.specs[key]
+                        n = self.restart_count(key) + 1
+                        if policy.fresh is not None:
+                            overrides = {**overrides, **policy.fresh(n)}
+                        self._restarting = True
+                        try:
+                            new = self.start(node, files, as_name=key, **overrides)
+                        finally:
+                            self._restarting = False
+                        self.restarts.append(Restart(key, policy.returncode, policy.died, time.monotonic(), new.pid))
+                        policy.due = None
 
     def log(self, node: str) -> str:
         return (self.log_dir / f'{node}.log').read_text()
 
     def stop(self, node: str, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
-        proc = self.processes[node]
+        with self._lock:
+            self._stopping.add(node)   # not restarted by the supervisor
+            proc = self.processes[node]
         if proc.poll() is None:
             proc.send_signal(sig)
             try:
@@ -123,6 +224,9 @@ class Graph:
     def stop_all(self, check: bool = True) -> None:
         """SIGINT every node, wait for them, then (with `check`) hold the mock PLCs' records to
         the invariants."""
+        self._closing.set()
+        if self._supervisor is not None:
+            self._supervisor.join(5)
         for name, proc in list(self.processes.items()):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -136,6 +240,25 @@ class Graph:
             found = self.plc_violations()
             if found:
                 raise PlcInvariantError('\n'.join(found))
+
+    def leftovers(self) -> list[str]:
+        """Processes still alive that this graph started (restarts and their children included:
+        they inherit the graph's token), one line each: pid and command."""
+        found = []
+        for entry in Path('/proc').iterdir():
+            if not entry.name.isdigit() or int(entry.name) == os.getpid():
+                continue
+            try:
+                environ = (entry / 'environ').read_bytes()
+                if f'{GRAPH_TOKEN}={self.token}'.encode() not in environ.split(b'\0'):
+                    continue
+                state = (entry / 'stat').read_text().rsplit(')', 1)[1].split()[0]
+                cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+            except OSError:   # gone meanwhile, or not ours to read
+                continue
+            if state != 'Z':  # a zombie has ended; only its parent's wait is missing
+                found.append(f'pid {entry.name}: {cmdline.strip()[:120]}')
+        return found
 
     def plc_violations(self) -> list[str]:
         """Broken invariants in the records of every mock_plc started so far (a mock that never

@@ -11,6 +11,13 @@ pressure_controller and plc_output are lifecycle nodes: with autostart:=true (th
 launch configures and activates them; autostart:=false leaves them unconfigured for the
 operator (`ros2 lifecycle set /plc_output configure`, then activate; docs/lifecycle.md).
 
+respawn:=true (the default) restarts a node whose process died, respawn_delay:=2.0 s later,
+and starts pressure_controller disabled: every start, first or respawned, stays vented until
+the operator calls `enable` (`ros2 service call /enable std_srvs/srv/SetBool "{data: true}"`).
+The lifecycle nodes then bring themselves up at every start (their autostart parameter, from
+the launch argument) instead of by the launch's lifecycle events. respawn:=false: nothing
+restarts, and the controller guides as soon as it is active (docs/lifecycle.md, "Restarts").
+
 keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
 discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
 start_discovery_server:=true also runs it here (docs/lab_network.md). Unset, nothing changes.
@@ -31,7 +38,8 @@ import yaml
 
 from fabric_guidance.interface import MANAGED_NODES
 from fabric_guidance.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
-                                            lab_node_kwargs, lifecycle_bring_up)
+                                            lab_node_kwargs, lifecycle_bring_up, respawn_arguments,
+                                            respawn_enabled, respawn_kwargs)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -87,23 +95,30 @@ def _nodes(context, *args, **kwargs):
     if text not in ('', 'true', 'false'):
         raise ValueError(f'launch argument autostart:={text!r} is not true or false')
     autostart = text != 'false'
+    if respawn_enabled(context):
+        # Every start of the controller, first or respawned, waits for the operator's enable:
+        # a respawn must not resume guidance on its own.
+        overrides['pressure_controller']['start_enabled'] = False
     generated = NodeOverrides(context)
     actions = []
     for name in NODES:
         lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset
+        restart = respawn_kwargs(context, name)
         if name in MANAGED:
             # The launch drives the transitions over DDS, except with a keystore or a discovery
             # server: the launch process is neither in an enclave nor a client of the server, so
             # it could not reach the nodes' lifecycle services; they then bring themselves up.
-            by_launch = not lab
+            # So they do with respawn: a request sent to a respawned node while the graph still
+            # lists its dead predecessor's service is lost, and the node would stay unconfigured.
+            by_launch = not lab and not restart
             overrides[name]['autostart'] = False if by_launch else autostart
             node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace='',
                                  output='screen', parameters=[*files, generated.file(name, overrides[name])],
-                                 **lab)
+                                 **lab, **restart)
             actions += [node, *(lifecycle_bring_up(node) if autostart and by_launch else [])]
         else:
             actions.append(Node(package='fabric_guidance', executable=name, name=name, output='screen',
-                                parameters=[*files, generated.file(name, overrides[name])], **lab))
+                                parameters=[*files, generated.file(name, overrides[name])], **lab, **restart))
     return [*lab_network_actions(context), *actions, generated.cleanup_action()]
 
 
@@ -124,6 +139,7 @@ def generate_launch_description():
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
+        *respawn_arguments(),      # respawn, respawn_delay
         *lab_launch_arguments(),   # keystore, discovery_server, start_discovery_server
         OpaqueFunction(function=_nodes),
     ])

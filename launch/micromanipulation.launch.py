@@ -32,7 +32,7 @@ from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
                 'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart', 'keystore',
-                'discovery_server', 'start_discovery_server')
+                'discovery_server', 'start_discovery_server', 'respawn', 'respawn_delay')
 
 
 def _graph(context, *args, **kwargs):
@@ -50,6 +50,7 @@ def _graph(context, *args, **kwargs):
         arguments.setdefault('calibration_file', os.path.join(share, 'config', 'calibrations', 'sim-wearer.yaml'))
         arguments.setdefault('headset_address', '127.0.0.1')   # the simulated headset is wearer_sim
         arguments.setdefault('display_port', '5006')
+        arguments.setdefault('respawn', 'false')   # simulated: guide at once, as sim.launch.py
     remaps = [SetRemap(src=f'live_targets/{name}', dst=LaunchConfiguration(f'{name}_topic')) for name in OBJECTS]
     lab = GroupAction([
         *remaps,

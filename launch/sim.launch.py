@@ -41,6 +41,9 @@ def _graph(context, *args, **kwargs):
             'headset_address': '127.0.0.1',
             'display_port': display_port,
             'autostart': LaunchConfiguration('autostart'),
+            # The simulated graph guides at once, as `make demo` does; the lab's restarts and
+            # their enable gate are for a wearer (guidance.launch.py).
+            'respawn': 'false',
         }.items())
     ports = NodeOverrides(context)
     mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',

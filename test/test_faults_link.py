@@ -1,4 +1,4 @@
-"""Faults on the Modbus TCP link, injected by a proxy (faultproxy.py) between the client and
+"""Faults on the Modbus TCP link, injected by a proxy (bench/faultproxy.py) between the client and
 the mock PLC: drop, disconnect, half-open, and a delay that lets an old command arrive late.
 
 First the PLC layer alone (PlcClient against MockPlcServer, no ROS): a write held on a dead
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from deadlines import DeadlineLog
-from faultproxy import FaultProxy, is_modbus_write_multiple
+from fabric_guidance.bench.faultproxy import FaultProxy, is_modbus_write_multiple
 from fabric_guidance.plc import PlcClient, PlcLinkError
 from fabric_guidance.plc.mock_server import MockPlcServer
 from rosgraph import free_port, wait_until

@@ -9,8 +9,10 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from fabric_guidance.experiments import fit_wearer
+from fabric_guidance.experiments import population_fit as pf
 from fabric_guidance.sim.protocols import run_protocol, summarize
 from fabric_guidance.sim.scene import load_scene
 
@@ -38,33 +40,76 @@ def test_a_table_without_a_condition_column_is_one_line_naming_it(tmp_path):
         fit_wearer.paper_targets(bad)
 
 
-def test_the_free_parameters_map_the_unit_cube_onto_their_bounds():
-    for free in fit_wearer.FREE:
-        assert free.value(0.0) == pytest.approx(free.lo)
-        assert free.value(1.0) == pytest.approx(free.hi)
-        assert free.value(free.unit(free.start)) == pytest.approx(free.start)
-        assert free.value(-1.0) == pytest.approx(free.lo)     # clipped to the bounds
+def test_a_median_shift_moves_every_parameter_of_a_trait_on_its_scale():
+    for t in pf.FITTED:
+        for v in t.design_values:
+            assert pf.shifted(v, 0.0, t.scale) == pytest.approx(v)
+            up, down = pf.shifted(v, 0.5, t.scale), pf.shifted(v, -0.5, t.scale)
+            assert down < v < up
+            if t.scale == 'logit':
+                assert 0 < down and up < 1
+
+
+def test_the_design_population_weighs_its_own_wearers_equally():
+    rng = np.random.default_rng(3)
+    sd0 = np.array([t.design_sd for t in pf.FITTED])
+    design = pf.Design(rng.normal(0, sd0, (200, len(sd0))), rng.normal(10, 2, (200, 4)), np.zeros(200))
+    w = pf.weights(design, np.concatenate([np.zeros(len(sd0)), sd0]))
+    np.testing.assert_allclose(w, 1 / 200)
+    narrow = pf.weights(design, np.concatenate([np.zeros(len(sd0)), 0.2 * sd0]))
+    assert 1 / np.sum(narrow ** 2) < 100          # a narrower population: fewer effective wearers
+
+
+def test_the_weighted_fit_recovers_a_known_population():
+    """A synthetic design whose condition means depend on the traits as a model could; a 'paper'
+    table of 15 people drawn from a known population; the fit finds that population's medians
+    (the statistics it fits could fail to pin them)."""
+    rng = np.random.default_rng(11)
+    k = len(pf.FITTED)
+    sd0 = np.array([t.design_sd for t in pf.FITTED])
+
+    def means(u):
+        pace = np.exp(-u[:, 2])
+        return np.stack([11 * pace - 4 * u[:, 0], 11 * pace - 1.0 - 1 * u[:, 0], 10 * pace - 5 * u[:, 1],
+                         8 + 1.5 * pace - 3 * u[:, 3]], axis=1)
+
+    u = rng.normal(0, sd0, (1500, k))
+    design = pf.Design(u, means(u) + rng.normal(0, 0.8, (1500, 4)), np.zeros(1500))
+    true = np.array([-0.3, 0.4, 0.1, -0.2, 0.3, 0.3, 0.2, 0.15])
+    people = rng.normal(true[:k], true[k:], (4000, k))
+    table = means(people) + rng.normal(0, 0.8, (4000, 4))
+    target = pf.table_statistics(table)
+    target['best'] = target['best'] * 15 / 4000
+    phi, obj = pf.fit_population(design, target, 15, starts=6)
+    np.testing.assert_allclose(phi[:k], true[:k], atol=0.15)
 
 
 def test_fit_wearer_runs_end_to_end_and_writes_scenes_that_load(tmp_path):
     proc = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer',
-                           '--budget', '2', '--subjects', '2', '--workers', '1',
+                           '--wearers', '2', '--design-seeds', '5,6', '--bootstrap', '2', '--workers', '1',
                            '--out', str(tmp_path)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    evals = [line for line in proc.stdout.splitlines() if line.startswith('eval ')]
-    assert len(evals) == 2 and all('objective' in line for line in evals)
+    assert 'fit: objective' in proc.stdout and (tmp_path / 'design.npz').exists()
     speed = load_scene(tmp_path / 'paper-fitted-speed.yaml')
     accuracy = load_scene(tmp_path / 'paper-fitted-accuracy.yaml')
     assert speed.protocol.kind == 'speed' and accuracy.protocol.kind == 'accuracy'
-    for free in fit_wearer.FREE:
-        # The same human parameters in both scenes.
-        assert speed.effect(free.effect).params_dict[free.param] == \
-            accuracy.effect(free.effect).params_dict[free.param]
+    # The same people in both scenes: traits and the fitted medians.
+    assert speed.population.traits == accuracy.population.traits
+    assert {t.name for t in speed.population.traits} == {t.name for t in pf.FITTED + pf.ASSUMED}
+    for effect, param in fit_wearer.FITTED_PARAMS:
+        assert speed.effect(effect).params_dict[param] == accuracy.effect(effect).params_dict[param]
     for name in fit_wearer.MODEL_EFFECTS:
         assert speed.effect(name) is not None and accuracy.effect(name) is not None
-    text = (tmp_path / 'paper-fitted-speed.yaml').read_text()
-    assert 'Objective' in text and 'seed 2025' in text
+    variants = yaml.safe_load((tmp_path / 'paper-fitted-variants.yaml').read_text())
+    assert len(variants) == 2 and all('cue_misreading.direction_p' in v for v in variants)
+    # The design is reused without simulating again.
+    again = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer', '--bootstrap', '2',
+                            '--design', str(tmp_path / 'design.npz'), '--out', str(tmp_path / 'again')],
+                           capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert (tmp_path / 'again' / 'paper-fitted-speed.yaml').read_text() == \
+        (tmp_path / 'paper-fitted-speed.yaml').read_text()
 
 
 def test_the_fitted_speed_scene_reproduces_each_paper_mean_within_the_papers_se():

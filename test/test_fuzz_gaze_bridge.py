@@ -122,7 +122,9 @@ ITEMS = st.one_of(
 
 @pytest.fixture(scope='module')
 def bridge(tmp_path_factory):
-    yield from _running_bridge(tmp_path_factory.mktemp('fuzz_bridge'))
+    # Every datagram is judged by the model as sent: none may be dropped for the time it waited
+    # in a loaded machine's receive buffer (that bound is tested in test_node_gaze_bridge).
+    yield from _running_bridge(tmp_path_factory.mktemp('fuzz_bridge'), max_queue_delay_s=0.0)
 
 
 def test_the_bridge_survives_malformed_datagrams_and_publishes_only_valid_samples(bridge):

@@ -244,6 +244,58 @@ def test_lab_launch_comes_up_vented_and_honours_every_argument(lab_graph, lab_ar
 MANAGED = ('pressure_controller', 'plc_output')
 
 
+# ---------------------------------------------------------------------------- respawn:=true
+#: SIGKILL -> the new process active: respawn_delay, a cold start on a loaded machine, discovery.
+RESPAWN_DEADLINE_S = 45.0
+
+
+@launch_pytest.fixture
+def respawning_lab(lab_arguments):
+    watch, domain_id = Watch(), fresh_domain_id()
+    return _graph(watch, domain_id, _include('guidance.launch.py', respawn_delay='0.5', **lab_arguments)), \
+        watch, domain_id
+
+
+def _guidance_status(diagnostics, since: int):
+    """The controller's latest guidance status among diagnostics[since:], as (message, values)."""
+    for msg in reversed(diagnostics[since:]):
+        for st in msg.status:
+            if st.name == 'pressure_controller: guidance':
+                return st.message, {kv.key: kv.value for kv in st.values}
+    return None
+
+
+def _active_status(diagnostics, since: int):
+    status = _guidance_status(diagnostics, since)
+    return status if status and status[1].get('lifecycle state') == 'active' else None
+
+
+@pytest.mark.launch(fixture=respawning_lab)
+def test_lab_launch_respawns_a_killed_controller_vented_and_disabled_until_enable(respawning_lab, plc):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import SetBool
+    _, watch, domain_id = respawning_lab
+    with Probe(domain_id) as probe:
+        diagnostics = probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+        wait_until(lambda: _state(probe, 'pressure_controller') == 'active', 30.0, what='the controller active')
+        name = watch.name('pressure_controller')
+        first = watch.pids[name]
+        os.kill(first, signal.SIGKILL)
+        wait_until(lambda: watch.returncodes.get(name) == -signal.SIGKILL, 10.0, what='the controller killed')
+        wait_until(lambda: watch.pids[name] != first, RESPAWN_DEADLINE_S, what='the controller respawned')
+        since = len(diagnostics)
+        # Activated again by the launch's lifecycle events, and disabled: vented until enable.
+        wait_until(lambda: _state(probe, 'pressure_controller') == 'active', RESPAWN_DEADLINE_S,
+                   what='the respawned controller active')
+        status = wait_until(lambda: _active_status(diagnostics, since), 10.0, what='its diagnostics, active')
+        assert status[1]['enabled'] == 'False' and status[0] == 'vented: disabled', status
+        assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True)).success
+        since = len(diagnostics)
+        wait_until(lambda: (_guidance_status(diagnostics, since) or ('', {}))[1].get('enabled') == 'True', 10.0,
+                   what='enabled by the operator')
+    assert not any(plc.max_written_kpa().values())
+
+
 def _state(probe, node):
     from lifecycle_msgs.srv import GetState
     return probe.call(GetState, f'/{node}/get_state', GetState.Request(), attempts=3).current_state.label

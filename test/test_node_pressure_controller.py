@@ -233,6 +233,18 @@ def test_vent_and_enable_services(controller):
     wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding again')
 
 
+@pytest.mark.parametrize('controller', [{'start_enabled': False}], indirect=True)
+def test_start_enabled_false_stays_vented_until_the_operator_enables(controller):
+    graph, probe, upstream, commands = controller
+    f40 = SIM_CAL.laws[0].pressure(40.0)
+    upstream.activate('t1', 40.0)
+    # Gaze and target as when guiding: enough commands for guidance to have shown, none nonzero.
+    wait_until(lambda: len(commands) >= 60, 10.0, what='commands with gaze and target')
+    assert all(max(m.data) == 0.0 for m in commands), 'guided before the operator enabled'
+    assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
+    wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding once enabled')
+
+
 def test_sigterm_vents_before_exit(controller):
     graph, probe, upstream, commands = controller
     guide_to_left40(upstream, probe, 'guiding')

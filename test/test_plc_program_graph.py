@@ -19,7 +19,7 @@ import pytest
 
 from deadlines import DeadlineLog
 from fabric_guidance.plc.records import load_records, violations
-from faultproxy import FaultProxy, is_modbus_write_multiple
+from fabric_guidance.bench.faultproxy import FaultProxy, is_modbus_write_multiple
 from plc_program import PlcProgram, need_tools, wait_listening
 from rosgraph import Graph, free_port, wait_until
 from guided_lab import GUIDED, GuidedLab, guided_overrides, guided_until_closed

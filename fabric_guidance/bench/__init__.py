@@ -10,4 +10,7 @@ component costs, memory per node and simulation/replay throughput (`fabric-guida
 - headset:    capture to register with the compiled C# headset as the source
 - memory:     resident memory of every lab node beside a bare rclpy node
 - runner:     everything in order, bench/results.json and bench/results.md
+- faultproxy: a TCP proxy that drops, delays, holds or cuts the Modbus link at run time
+- chaos:      a seeded schedule of faults on the lab graph, held to the PLC register log's
+              invariants (`fabric-guidance chaos`)
 """

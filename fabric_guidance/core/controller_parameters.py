@@ -115,6 +115,9 @@ PARAMETERS: tuple[Parameter, ...] = (
               '(adjustment_gain) when it has one', setup=True, legacy=False),
     Parameter('follow_moving_target', False, 'beyond the paper: shift the pressure with f(theta_t) as a '
               '(live) target moves', setup=True, legacy=False),
+    Parameter('start_enabled', True, 'guide as soon as activated; false: vented and disabled until the operator '
+              'calls enable (the lab launch with respawn: a restarted controller waits for the operator)',
+              read_only=True),
     Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
               "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
               "paper's rate; false: the timer alone)", read_only=True),

@@ -1,28 +1,28 @@
-"""fit-wearer: fit the simulated wearer's free human parameters to the paper's speed results.
+"""fit-wearer: fit the simulated population to the paper's whole speed table, across seeds.
 
-The model (sim/effects/) has four human parameters nobody measured: how often the wearer
-misreads the suit's direction (cue_misreading.direction_p), how much resistance tells them a
-move is wrong (surface_resistance.threshold_kpa_deg), how long confirming a found target takes
-(hololens_view.confirm_s), and how long the synthesized speech takes per word
-(speech_latency.per_word_s). They are fitted to the paper's four per-condition mean numbers of
-identified targets and nothing else: the means of the columns of the paper's table
-(experiments/paper.py, transcribed from the paper; or a CSV given with --table). Computed from
-the table, never typed in.
+The model (sim/effects/) has human parameters nobody measured, and people differ in them. The
+fit gives each wearer their own values (population traits, sim.scene.TraitSpec) and fits the
+population's median and spread of four of them (experiments/population_fit.py: how often the
+suit's and the arm band's cue is misread, a person's search pace, their pace with speech) to
+eighteen numbers of the paper's per-subject table (experiments/paper.py, or a CSV given with
+--table): the four condition means, the four SDs of the subject means, the best-condition
+counts and the six correlations between conditions. Two more traits are assumed, not fitted.
 
-Objective: sum over the conditions of ((model mean - paper mean) / paper SE)^2, with
-SE = paper SD / sqrt(15). One evaluation is the full speed protocol of the scene (15 wearers,
-4 conditions, 6 repetitions) with the scene seed fixed (common random numbers), so the
-objective is a deterministic function of the parameters. The search runs in the unit cube of
-the parameters (threshold on a log scale): the nominal start and a seeded Latin hypercube of
-starting points (a fifth of --budget; the objective has local minima), then scipy's bounded
-Nelder-Mead from the best of them, for --budget evaluations in all. One line per evaluation:
-parameters, means, objective.
+The speed protocol runs once on a design population (--design-seeds, --wearers per seed; none
+of them a seed of the validation), then every candidate population is the design reweighted
+(importance weights): the fit itself takes seconds. A bootstrap (--bootstrap N: design wearers
+and the paper's subjects resampled, the fit repeated) gives each fitted number its interval and
+the variants file (paper-fitted-variants.yaml: one scene override set per bootstrap fit) that
+`tradeoff --scene-variants` runs. The design is saved (design.npz in --out) and --design reuses
+it.
 
-It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the
-paper scenes plus the new effects, the same human parameters in both) with comments saying
-what was fitted, to what, on which seed, and the objective reached.
+It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the paper
+scenes plus the model's effects at the fitted medians and the population's traits, the same in
+both) with comments saying what was fitted, to what, on which seeds, and the statistics reached.
+Validation on other seeds: `fabric-guidance compare-paper --seeds ...`.
 
-    fabric-guidance fit-wearer [--budget 60] [--out config/scenes] [--seed 2025] [--workers 2]
+    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,102,103] [--wearers 60]
+                               [--bootstrap 100] [--design FILE] [--workers 2] [--table CSV]
     python -m fabric_guidance.experiments.fit_wearer ...
 """
 from __future__ import annotations
@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-from dataclasses import dataclass
 from pathlib import Path
 import re
 import sys
@@ -42,53 +41,25 @@ from .. import subcommand
 from ..atomic import write_text
 from ..paths import config_path
 from . import paper
+from . import population_fit as pf
 
 #: Its columns, in condition order 1-4 (sim.protocols.CONDITION_NAMES).
 COLUMNS = tuple(paper.CONDITIONS[c] for c in sorted(paper.CONDITIONS))
 
-
-@dataclass(frozen=True)
-class Free:
-    """One fitted parameter: effect, parameter, bounds, start; log: searched on a log scale."""
-
-    effect: str
-    param: str
-    lo: float
-    hi: float
-    start: float
-    log: bool = False
-
-    def value(self, x: float) -> float:
-        x = min(max(float(x), 0.0), 1.0)
-        if self.log:
-            return float(math.exp(math.log(self.lo) + x * (math.log(self.hi) - math.log(self.lo))))
-        return float(self.lo + x * (self.hi - self.lo))
-
-    def unit(self, value: float) -> float:
-        if self.log:
-            return (math.log(value) - math.log(self.lo)) / (math.log(self.hi) - math.log(self.lo))
-        return (value - self.lo) / (self.hi - self.lo)
-
-
-FREE = (
-    Free('cue_misreading', 'direction_p', 0.0, 0.5, 0.2),
-    Free('surface_resistance', 'threshold_kpa_deg', 300.0, 30000.0, 3000.0, log=True),
-    Free('hololens_view', 'confirm_s', 0.0, 3.0, 0.8),
-    Free('speech_latency', 'per_word_s', 0.1, 1.2, 0.5),
-)
-
-#: The new effects with their fixed (not fitted) parameters: their defaults (sim/effects/).
+#: The effects the wearer model adds to the paper scenes.
 MODEL_EFFECTS = ('cue_misreading', 'surface_resistance', 'relative_perception', 'hololens_view')
+#: Fixed, not fitted: the resistance a wrong move meets before the wearer notices it, kPa/deg
+#: (the earlier four-parameter fit's value; at that size the mechanism rarely acts).
+FIXED = {('surface_resistance', 'threshold_kpa_deg'): 26603.9}
+#: The parameters the fit sets (their medians; sensitivity does not sweep them).
+FITTED_PARAMS: tuple[tuple[str, str], ...] = tuple(
+    tuple(q.split('.')) for t in pf.FITTED for q in t.params)
 
 
-def paper_targets(path: Path | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-    """(means, standard errors, subjects) of the paper's table (experiments.paper, or the CSV at
-    `path`), per condition 1-4."""
+def read_table(path: Path | None = None) -> np.ndarray:
+    """The per-subject table (subjects x conditions 1-4): the paper's, or the CSV at `path`."""
     if path is None:
-        means, ses = paper.speed_means(), paper.speed_standard_errors()
-        conditions = sorted(paper.CONDITIONS)
-        return (np.array([means[c] for c in conditions]), np.array([ses[c] for c in conditions]),
-                len(paper.SPEED_TABLE_ROWS))
+        return pf.paper_table()
     try:
         with open(path, newline='') as f:
             rows = list(csv.DictReader(f))
@@ -101,9 +72,15 @@ def paper_targets(path: Path | None = None) -> tuple[np.ndarray, np.ndarray, int
         table = np.array([[float(r[c]) for c in COLUMNS] for r in rows])
     except (TypeError, ValueError) as exc:
         raise SystemExit(f'{path}: a value is not a number: {exc}')
+    if table.shape[0] < 4:
+        raise SystemExit(f'{path}: need at least four subjects, got {table.shape[0]}')
+    return table
+
+
+def paper_targets(path: Path | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """(means, standard errors, subjects) of the table, per condition 1-4."""
+    table = read_table(path)
     n = table.shape[0]
-    if n < 2:
-        raise SystemExit(f'{path}: need at least two subjects, got {n}')
     return table.mean(axis=0), table.std(axis=0, ddof=1) / math.sqrt(n), n
 
 
@@ -122,64 +99,52 @@ def model_scene(base, values: dict[tuple[str, str], float], seed: int | None = N
     return scene if seed is None else scene.replace(seed=int(seed))
 
 
-def speed_means(scene, subjects=None, workers: int = 2) -> np.ndarray:
-    from ..sim.protocols import run_protocol, summarize
-    summary = summarize(run_protocol(scene, subjects, workers))
-    return np.array([summary.get(c, {}).get('identified', 0.0) for c in (1, 2, 3, 4)])
+def base_scene(protocol: str = 'speed'):
+    """paper-<protocol> with the model's effects listed and the fixed values."""
+    from ..sim.scene import load_scene
+    return model_scene(load_scene(f'paper-{protocol}'), FIXED)
 
 
-def objective(means: np.ndarray, target: np.ndarray, se: np.ndarray) -> float:
-    return float(np.sum(((means - target) / se) ** 2))
+def fitted_scene(phi, protocol: str = 'speed', seed: int | None = None, subjects: int | None = None):
+    """The fitted population phi on paper-<protocol> (what the written scene file holds)."""
+    values = pf.trait_values(phi)
+    medians = {q: v for m, _ in values.values() for q, v in m.items()}
+    return pf.population_scene(base_scene(protocol), medians, {k: sd for k, (_, sd) in values.items()},
+                               seed, subjects)
 
 
-def fit(base, budget: int, seed: int | None, workers: int, subjects=None, stream=sys.stdout,
-        table: Path | None = None):
-    """Nelder-Mead on the unit cube; returns (best values, best means, best objective, log)."""
-    from scipy.optimize import minimize
+# ---------------------------------------------------------------------------------------------
+# Reporting
 
-    target, se, _ = paper_targets(table)
-    cache: dict[tuple, tuple[float, np.ndarray]] = {}
-    log: list[tuple[dict, np.ndarray, float]] = []
-    best: list = [None, None, math.inf]
+STAT_NAMES = {'means': 'mean', 'sds': 'SD of subject means', 'best': 'best-condition count',
+              'corr': 'correlation'}
+PAIRS = ('1-2', '1-3', '1-4', '2-3', '2-4', '3-4')
 
-    def values_of(x) -> dict:
-        return {(f.effect, f.param): round(f.value(xi), 6) for f, xi in zip(FREE, x)}
 
-    def f(x) -> float:
-        values = values_of(x)
-        key = tuple(sorted(values.items()))
-        if key in cache:
-            return cache[key][0]
-        if len(cache) >= budget:
-            return best[2] + 1e6           # out of budget: refuse further points
-        start = time.perf_counter()
-        means = speed_means(model_scene(base, values, seed), subjects, workers)
-        obj = objective(means, target, se)
-        cache[key] = (obj, means)
-        log.append((values, means, obj))
-        if obj < best[2]:
-            best[:] = [values, means, obj]
-        shown = ' '.join(f'{p}={v:.4g}' for (_, p), v in values.items())
-        took = time.perf_counter() - start
-        print(f'eval {len(cache):3d}: {shown} | means {" ".join(f"{m:.2f}" for m in means)} | '
-              f'objective {obj:.2f} ({took:.1f} s)', file=stream, flush=True)
-        return obj
+def statistics_lines(model: dict, target: dict) -> list[str]:
+    lines = []
+    for key, label in STAT_NAMES.items():
+        names = PAIRS if key == 'corr' else [f'c{c}' for c in pf.CONDITIONS]
+        lines.append(f'{label}: ' + ', '.join(f'{nm} {m:.2f} vs {t:.2f}'
+                                              for nm, m, t in zip(names, model[key], target[key])))
+    return lines
 
-    # A seeded Latin hypercube of starting points (a fifth of the budget; the objective has
-    # local minima), then Nelder-Mead from the best of them and the nominal start.
-    from scipy.stats import qmc
-    x0 = np.array([fr.unit(fr.start) for fr in FREE])
-    n_design = min(max(budget // 5, 0), budget - 1)
-    design = [x0] + list(qmc.LatinHypercube(d=len(FREE), seed=int(seed or 0)).random(n_design))
-    scores = [f(x) for x in design[:budget]]
-    x_best = design[int(np.argmin(scores))]
-    simplex = [x_best] + [np.clip(x_best + 0.1 * np.eye(len(FREE))[i], 0.0, 1.0)
-                          for i in range(len(FREE))]
-    if len(cache) < budget:
-        minimize(f, x_best, method='Nelder-Mead', bounds=[(0.0, 1.0)] * len(FREE),
-                 options={'maxfev': budget, 'initial_simplex': np.array(simplex), 'xatol': 1e-3,
-                          'fatol': 0.05})
-    return best[0], best[1], best[2], log
+
+def phi_lines(phi, boot: np.ndarray | None) -> list[str]:
+    k = len(pf.FITTED)
+    lines = []
+    for i, t in enumerate(pf.FITTED):
+        medians = {q: pf.shifted(v, phi[i], t.scale) for q, v in zip(t.params, t.design_values)}
+        interval = ''
+        if boot is not None and len(boot):
+            lo_mu, hi_mu = np.percentile(boot[:, i], [2.5, 97.5])
+            lo_sd, hi_sd = np.percentile(boot[:, k + i], [2.5, 97.5])
+            q0, v0 = t.params[0], t.design_values[0]
+            interval = (f'; 95 % bootstrap: {q0} [{pf.shifted(v0, lo_mu, t.scale):.4g}, '
+                        f'{pf.shifted(v0, hi_mu, t.scale):.4g}], sd [{lo_sd:.3g}, {hi_sd:.3g}]')
+        lines.append(f'{t.name} ({t.scale}): ' + ', '.join(f'{q} = {v:.4g}' for q, v in medians.items())
+                     + f', sd {phi[k + i]:.3g}{interval}')
+    return lines
 
 
 # ---------------------------------------------------------------------------------------------
@@ -191,79 +156,111 @@ def _effect_line(name: str, params: dict, comment: str) -> str:
     return f'  - {name}: {{{inner}}}   # {comment}'
 
 
-def fitted_text(base_name: str, new_name: str, values: dict, means, target, se, obj: float,
-                seed: int, budget: int) -> str:
-    """The base scene file's text with the fitted model: a header, the new name, the speech
-    line's fitted per_word_s and the model's effects appended."""
+def fitted_text(base_name: str, new_name: str, phi, header: list[str]) -> str:
+    """The base scene file's text with the fitted population: a header, the new name, the
+    traits in the population section, the speech line's median per_word_s and the model's
+    effects appended."""
     from ..sim.effects import effect_class
+    values = pf.trait_values(phi)
+    medians = {tuple(q.split('.')): v for m, _ in values.values() for q, v in m.items()}
+    medians.update(FIXED)
     text = config_path(f'scenes/{base_name}.yaml').read_text()
-    fitted = ', '.join(f'{e}.{p} = {v:g}' for (e, p), v in values.items())
-    header = [
-        f'# {new_name}: {base_name} plus a wearer who can be wrong, its free human',
-        '# parameters fitted by `fabric-guidance fit-wearer` '
-        '(fabric_guidance/experiments/fit_wearer.py)',
-        "# to the paper's four per-condition mean numbers of identified targets (the means of its",
-        '# per-subject table) and nothing else, on the speed protocol with seed '
-        f'{seed} ({budget} evaluations',
-        '# at most: Latin hypercube, then Nelder-Mead). '
-        f'Objective: sum of ((model - paper) / SE)^2 = {obj:.2f}.',
-        f'# Fitted: {fitted}.',
-        '# Speed means (fitted seed) vs paper (SE): ' + ', '.join(
-            f'c{c} {m:.2f} vs {t:.2f} ({s:.2f})'
-            for c, m, t, s in zip((1, 2, 3, 4), means, target, se)),
-        '# Every other number is the base scene\'s or the effect\'s default (sim/effects/).',
-        '#',
-    ]
     text = re.sub(r'^name: .*$', f'name: {new_name}', text, count=1, flags=re.M)
-    per_word = values[('speech_latency', 'per_word_s')]
-    text, n = re.subn(r'(- speech_latency: \{[^}]*per_word_s: )[0-9.]+', rf'\g<1>{per_word:g}',
-                      text)
+    per_word = medians[('speech_latency', 'per_word_s')]
+    text, n = re.subn(r'(- speech_latency: \{[^}]*per_word_s: )[0-9.]+', rf'\g<1>{per_word:.6g}', text)
     if n != 1:
         raise ValueError(f'{base_name}: no speech_latency line with per_word_s to set')
-    text = re.sub(r'(- speech_latency: .*)$', r'\1 [per_word_s fitted]', text, count=1, flags=re.M)
+    text = re.sub(r'(- speech_latency: .*)$', r'\1 [per_word_s: fitted median]', text, count=1, flags=re.M)
+    traits = ['  # Between-person traits (fabric-guidance fit-wearer): each wearer draws u ~ N(0, sd) per',
+              "  # trait and every listed parameter moves by u on the trait's scale around the value",
+              '  # this scene gives it (the population median).',
+              '  traits:']
+    sds = {name: sd for name, (_, sd) in values.items()}
+    for t in pf.FITTED:
+        traits.append(f'    {t.name}: {{sd: {sds[t.name]:.4g}, scale: {t.scale}, params: [{", ".join(t.params)}], '
+                      f'source: "{t.source}"}}')
+    for t in pf.ASSUMED:
+        traits.append(f'    {t.name}: {{sd: {t.sd:g}, scale: {t.scale}, params: [{", ".join(t.params)}], '
+                      f'source: "{t.source}"}}')
+    text, n = re.subn(r'^(  arm_spread: .*)$', lambda m: m.group(1) + '\n' + '\n'.join(traits), text,
+                      count=1, flags=re.M)
+    if n != 1:
+        raise ValueError(f'{base_name}: no population.arm_spread line to put the traits after')
     lines = text.rstrip('\n').split('\n')
     for name in MODEL_EFFECTS:
         params = {p: v for p, (v, _) in effect_class(name).parameters().items()}
-        fitted_here = [p for (e, p) in values if e == name]
-        params.update({p: v for (e, p), v in values.items() if e == name})
-        note = (f'fitted: {", ".join(fitted_here)}; the rest defaults' if fitted_here
-                else 'defaults (sim/effects/)')
-        lines.append(_effect_line(name, params, note))
+        set_here = {p: v for (e, p), v in medians.items() if e == name}
+        params.update(set_here)
+        fitted_here = [p for p in set_here if (name, p) in FITTED_PARAMS]
+        fixed_here = [p for p in set_here if (name, p) in FIXED]
+        note = '; '.join(([f'fitted medians: {", ".join(fitted_here)}'] if fitted_here else [])
+                         + ([f'fixed: {", ".join(fixed_here)}'] if fixed_here else [])
+                         + ['the rest defaults (sim/effects/)'])
+        lines.append(_effect_line(name, {k: round(v, 6) if isinstance(v, float) else v
+                                         for k, v in params.items()}, note))
     return '\n'.join(header + lines) + '\n'
 
 
-def write_scenes(out: Path, values: dict, means, obj: float, seed: int, budget: int,
-                 table: Path | None = None) -> list[Path]:
+def _write(path: Path, text: str, check=None) -> Path:
+    """Atomically, after check(the written file) passed: never a scene that does not load."""
+    return write_text(path, text, check=check)
+
+
+def write_scenes(out: Path, phi, header: list[str]) -> list[Path]:
+    """paper-fitted-speed.yaml and paper-fitted-accuracy.yaml; `header` may name {name} and
+    {base}, the scene and its base."""
     from ..sim.scene import load_scene
-    target, se, _ = paper_targets(table)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
+    paths = []
     for protocol in ('speed', 'accuracy'):
-        name = f'paper-fitted-{protocol}'
-        text = fitted_text(f'paper-{protocol}', name, values, means, target, se, obj, seed, budget)
-        path = out / f'{name}.yaml'
-        write_text(path, text, check=load_scene)   # never write a scene that does not load
-        written.append(path)
-    return written
+        name, base = f'paper-fitted-{protocol}', f'paper-{protocol}'
+        head = [h.replace('{name}', name).replace('{base}', base) for h in header]
+        paths.append(_write(out / f'{name}.yaml', fitted_text(base, name, phi, head), load_scene))
+    return paths
+
+
+def variants_text(boot: np.ndarray) -> str:
+    """One override set per bootstrap fit: effect.parameter medians and population.traits sds."""
+    import yaml
+    rows = []
+    for phi in boot:
+        values = pf.trait_values(phi)
+        row = {q: round(v, 6) for m, _ in values.values() for q, v in m.items()}
+        row.update({f'population.traits.{name}.sd': round(sd, 6) for name, (_, sd) in values.items()})
+        rows.append(row)
+    return ('# Bootstrap fits of fabric-guidance fit-wearer: each entry is one plausible population\n'
+            '# (design wearers and paper subjects resampled, the fit repeated).\n'
+            + yaml.safe_dump(rows, sort_keys=True))
 
 
 # ---------------------------------------------------------------------------------------------
 # Command line
 
 PROG = 'fabric-guidance fit-wearer'
-HELP = "fit the simulated wearer's human parameters to the paper's speed means"
+HELP = "fit the simulated population to the paper's whole speed table across seeds"
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in str(text).split(',') if s.strip())
+    except ValueError:
+        raise SystemExit(f'--design-seeds must be whole numbers separated by commas, got {text!r}')
+    if not seeds or any(s < 0 for s in seeds):
+        raise SystemExit(f'--design-seeds must be whole numbers >= 0, got {text!r}')
+    return seeds
 
 
 def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    p.add_argument('--budget', type=int, default=60,
-                   help='objective evaluations at most (default 60)')
     p.add_argument('--out', type=Path, default=None,
-                   help='folder for the fitted scenes (default config/scenes)')
-    p.add_argument('--seed', type=int, default=None,
-                   help="the speed scene's seed (default: paper-speed's)")
-    p.add_argument('--workers', type=int, default=2, help='processes per evaluation (default 2)')
-    p.add_argument('--subjects', type=int, default=None,
-                   help='only the first N wearers (for a quick check)')
+                   help='folder for the fitted scenes and the variants file (default config/scenes)')
+    p.add_argument('--design-seeds', default=','.join(map(str, pf.DESIGN_SEEDS)),
+                   help='seeds of the design population (default %(default)s)')
+    p.add_argument('--wearers', type=int, default=pf.DESIGN_WEARERS,
+                   help='design wearers per seed (default %(default)s)')
+    p.add_argument('--design', type=Path, default=None,
+                   help='a design.npz of an earlier run to reuse (skips the simulation)')
+    p.add_argument('--bootstrap', type=int, default=100, help='bootstrap refits (default 100; 0: none)')
+    p.add_argument('--workers', type=int, default=2, help='processes for the design (default 2)')
     p.add_argument('--table', type=Path, default=None,
                    help="a per-subject table of identified targets (CSV; default: the paper's, "
                         "experiments/paper.py)")
@@ -274,36 +271,89 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return subcommand.add(subparsers, 'fit-wearer', HELP, __doc__, configure, run)
 
 
-def run(args) -> int:
-    from ..sim.scene import SceneError, load_scene
-    if args.budget < 1:
-        print(f'--budget must be >= 1, got {args.budget}', file=sys.stderr)
-        return 2
-    if args.workers < 1:
-        print(f'--workers must be >= 1, got {args.workers}', file=sys.stderr)
-        return 2
+def load_design(path: Path) -> pf.Design:
     try:
-        base = load_scene('paper-speed')
-    except SceneError as exc:
-        print(exc, file=sys.stderr)
+        design = pf.Design.load(path)
+    except (OSError, KeyError, ValueError) as exc:
+        raise SystemExit(f'{path}: not a design file of fit-wearer: {exc}')
+    if design.u.ndim != 2 or design.u.shape[1] != len(pf.FITTED) or design.y.shape != (len(design.u), 4):
+        raise SystemExit(f'{path}: a design of {design.u.shape} traits and {design.y.shape} means does not '
+                         f'match the {len(pf.FITTED)} fitted traits')
+    return design
+
+
+def run(args) -> int:
+    from ..sim.scene import SceneError
+    for name in ('wearers', 'workers'):
+        if getattr(args, name) < 1:
+            print(f'--{name} must be >= 1, got {getattr(args, name)}', file=sys.stderr)
+            return 2
+    if args.bootstrap < 0:
+        print(f'--bootstrap must be >= 0, got {args.bootstrap}', file=sys.stderr)
         return 2
-    seed = base.seed if args.seed is None else args.seed
-    if seed < 0:
-        print(f'--seed must be >= 0, got {seed}', file=sys.stderr)
-        return 2
-    target, se, n = paper_targets(args.table)
-    print(f'paper ({n} subjects): means {" ".join(f"{m:.2f}" for m in target)}, '
-          f'SE {" ".join(f"{s:.2f}" for s in se)}; seed {seed}, budget {args.budget}', flush=True)
-    values, means, obj, log = fit(base, args.budget, seed, args.workers, args.subjects,
-                                  table=args.table)
+    seeds = _seeds(args.design_seeds)
+    table = read_table(args.table)
+    n = table.shape[0]
+    target = pf.table_statistics(table)
     out = args.out if args.out is not None else config_path('scenes')
-    paths = write_scenes(out, values, means, obj, seed, args.budget, args.table)
-    print(f'best of {len(log)} evaluations: objective {obj:.2f}; '
-          + ', '.join(f'{p} = {v:g}' for (_, p), v in values.items()))
-    within = np.abs(means - target) <= se
-    for c in range(4):
-        print(f'  condition {c + 1}: model {means[c]:.2f}, paper {target[c]:.2f} '
-              f'+- {se[c]:.2f} (SE): {"within" if within[c] else "outside"}')
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    if args.design is not None:
+        design = load_design(args.design)
+        print(f'design: {len(design.y)} wearers from {args.design}', flush=True)
+    else:
+        try:
+            base = base_scene('speed')
+        except SceneError as exc:
+            print(exc, file=sys.stderr)
+            return 2
+
+        def say(s):
+            print(f'  {time.perf_counter() - start:6.0f} s  {s}', flush=True)
+
+        # Round 1: wide spreads around the design values; round 2: around round 1's fit, on
+        # other seeds, so that the fitted population has design wearers near it.
+        first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
+        print(f'design round 1: the speed protocol on {args.wearers} wearers of each seed '
+              f'{", ".join(map(str, first))}', flush=True)
+        design = pf.run_design(base, first, args.wearers, args.workers, say)
+        mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
+        print(f'design round 2, around the first fit: {args.wearers} wearers of each seed '
+              f'{", ".join(map(str, second))}', flush=True)
+        design = design.joined(pf.run_design(base, second, args.wearers, args.workers, say, mu, sd))
+        design.save(out / 'design.npz')
+    design_s = time.perf_counter() - start
+    t0 = time.perf_counter()
+    phi, obj = pf.fit_population(design, target, n)
+    w = pf.weights(design, phi)
+    ess = 1.0 / float(np.sum(w ** 2))
+    model = pf.weighted_statistics(design, w, n)
+    fit_s = time.perf_counter() - t0
+    print(f'fit: objective {obj:.2f} over 18 statistics, 8 parameters; effective design wearers {ess:.0f} '
+          f'({fit_s:.1f} s)')
+    boot = None
+    if args.bootstrap:
+        boot = pf.bootstrap(design, table, phi, args.bootstrap, seed=1,
+                            progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
+                            if r % 10 == 0 or r == k else None)
+        _write(out / 'paper-fitted-variants.yaml', variants_text(boot))
+    for line in phi_lines(phi, boot):
+        print('  ' + line)
+    for line in statistics_lines(model, target):
+        print('  ' + line)
+    header = [
+        '# {name}: {base} plus a wearer model with people who differ, fitted by `fabric-guidance',
+        "# fit-wearer` (fabric_guidance/experiments/fit_wearer.py, population_fit.py) to the paper's",
+        '# per-subject speed table: 4 means, 4 SDs of subject means, 4 best-condition counts, 6 correlations',
+        f'# between conditions (18 numbers, 8 fitted parameters), on a design of {len(design.y)} wearers from '
+        f'seeds {", ".join(map(str, sorted(set(int(s) for s in design.seeds))))}',
+        f'# (importance-weighted; effective wearers {ess:.0f}). Objective (sum of squared standardized',
+        f'# distances) {obj:.2f}. Validate on other seeds: fabric-guidance compare-paper --seeds ...',
+    ] + ['# ' + line for line in phi_lines(phi, boot)] + [
+        '# Reached, model vs paper:'] + ['#   ' + line for line in statistics_lines(model, target)] + [
+        "# Every other number is the base scene's or the effect's default (sim/effects/).", '#']
+    paths = write_scenes(out, phi, header)
+    print(f'design {design_s:.0f} s, fit {fit_s:.1f} s, total {time.perf_counter() - start:.0f} s')
     for path in paths:
         print(f'wrote {path}')
     return 0

@@ -17,7 +17,7 @@ from ..sim.population import calibrate_wearer, sample_wearer
 from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene
 from ..workers import WorkerPool
-from .fit_wearer import FREE
+from .fit_wearer import FITTED_PARAMS
 from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key
 from .tradeoff.settings import paired_scenes
 
@@ -25,7 +25,7 @@ from .tradeoff.settings import paired_scenes
 #: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. The four that
 #: fit-wearer fits to the paper's speed means are here; extend it (or pass --exclude, or give the
 #: scene a `measured`/`fitted` list) once a value is measured.
-MEASURED: set[tuple[str, str]] = {(f.effect, f.param) for f in FREE}
+MEASURED: set[tuple[str, str]] = set(FITTED_PARAMS)
 #: Scene attributes that may list measured or fitted parameters as 'effect.parameter'.
 SCENE_MEASURED_KEYS = ('measured', 'fitted')
 #: Where a scene's value is 0, x0.5 and x2 stay 0: the high side takes this value instead

@@ -1,7 +1,10 @@
 """gaze_bridge: the HoloLens gaze stream (UDP, docs/gaze_wire_format.md) into ROS.
 
 A receiver thread blocks on the UDP socket and, for every datagram, in this order:
-drops it when the sender is not in allowed_senders ('sender'); parses it with
+drops it when the sender is not in allowed_senders ('sender'); drops it when it waited in the
+PC's receive buffer longer than max_queue_delay_s ('late': after the thread was held up, or a
+flood, the backlog is old gaze that would otherwise pass for fresh and keep the suit guiding
+after the stream stopped; the kernel's arrival time says how long it waited); parses it with
 core.gaze_wire.parse_datagram, dropping it under the WireFormatError's reason; tracks its
 sequence number, dropping duplicates and reordered samples ('stale'); drops it when the
 HoloLens marks eye tracking as not valid and require_eye_tracking_valid is set
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import ipaddress
 import socket
+import struct
 import sys
 import threading
 import time
@@ -62,7 +66,11 @@ MAX_DELAY_S = 1.0
 #: One-way delays kept for the diagnostics percentiles (more than a period at 1 kHz).
 DELAY_BUFFER = 4096
 #: Drop reasons of the bridge besides WireFormatError.reason.
-BRIDGE_REASONS: tuple[str, ...] = ('sender', 'stale', 'eye_tracking_invalid', 'internal')
+BRIDGE_REASONS: tuple[str, ...] = ('sender', 'late', 'stale', 'eye_tracking_invalid', 'internal')
+#: Linux's SO_TIMESTAMPNS (Python has no name for it): each datagram carries its arrival time
+#: (CLOCK_REALTIME, struct timespec) as ancillary data.
+SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct('@qq')
 
 
 class GazeBridge(Node):
@@ -92,6 +100,10 @@ class GazeBridge(Node):
                               read_only=True)
         window = declare(self, 'clock_window_s', 30.0, 'clock exchanges the offset and drift are fitted over',
                          's', 1.0, 600.0, read_only=True)
+        self.max_queue_delay_s = declare(self, 'max_queue_delay_s', 0.2,
+                                         "drop a datagram that waited longer than this in the PC's receive "
+                                         'buffer (a backlog is old gaze); 0 = never', 's', 0.0, 10.0,
+                                         read_only=True)
         self.stamp_source = declare(self, 'stamp_source', 'capture',
                                     "'capture': the headset's capture time once the clock is estimated, "
                                     "receipt until then; 'receipt': always the receive time", read_only=True)
@@ -141,6 +153,11 @@ class GazeBridge(Node):
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
             self._sock.bind((self.bind_address, self.port))
             self._sock.settimeout(RECEIVE_TIMEOUT_S)
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._arrival_times = True
+            except OSError:   # not Linux: no arrival times, no datagram is judged late
+                self._arrival_times = False
         except OSError as exc:
             self._sock.close()
             raise OSError(f'cannot listen on {self.bind_address}:{self.port} '
@@ -181,9 +198,10 @@ class GazeBridge(Node):
         sock, stop = self._sock, self._stop
         bufsize = self.max_datagram_bytes + 1  # a longer datagram arrives truncated to this: 'oversize'
         mapped = sock.family == socket.AF_INET6  # an IPv6 socket reports IPv4 senders as ::ffff:a.b.c.d
+        ancillary = socket.CMSG_SPACE(_TIMESPEC.size) if self._arrival_times else 0
         while not stop.is_set():
             try:
-                data, address = sock.recvfrom(bufsize)
+                data, cmsgs, _flags, address = sock.recvmsg(bufsize, ancillary)
             except socket.timeout:
                 continue
             except OSError as exc:
@@ -195,15 +213,20 @@ class GazeBridge(Node):
             sender = address[0]
             if mapped and sender.startswith('::ffff:'):
                 sender = sender[7:]
+            waited_s = 0.0
+            for level, kind, cdata in cmsgs:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(cdata) >= _TIMESPEC.size:
+                    sec, nsec = _TIMESPEC.unpack_from(cdata)
+                    waited_s = time.time() - (sec + nsec * 1e-9)
             try:
-                self._handle(data, sender)
+                self._handle(data, sender, waited_s)
             except Exception as exc:  # noqa: BLE001 - the stream must survive anything
                 with self._lock:
                     self._dropped['internal'] += 1
                 self.get_logger().error(f'datagram dropped by an internal error: {exc!r}',
                                         throttle_duration_sec=5.0)
 
-    def _handle(self, data: bytes, sender: str) -> None:
+    def _handle(self, data: bytes, sender: str, waited_s: float = 0.0) -> None:
         received_mono = time.monotonic()
         now = self.get_clock().now()
         lock, dropped = self._lock, self._dropped
@@ -211,6 +234,11 @@ class GazeBridge(Node):
             with lock:
                 self._received += 1
                 dropped['sender'] += 1
+            return
+        if self.max_queue_delay_s and waited_s > self.max_queue_delay_s:
+            with lock:
+                self._received += 1
+                dropped['late'] += 1
             return
         try:
             sample = parse_uplink(data, self.max_datagram_bytes)

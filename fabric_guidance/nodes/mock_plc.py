@@ -11,9 +11,15 @@ Publishes: mock_plc/max_written_kpa (std_msgs/Float64MultiArray, kPa, channel or
 With write_log_file set (the benchmarks), every client write to the holding registers is also
 appended to that file as `<CLOCK_MONOTONIC ns> <first address> <values...>`, and every drain
 (20 Hz) ends with `# drained <ns>`: a reader knows every write before that time is in the file.
+
+With register_log_file set (the chaos run), the command registers as applied are appended to that
+file as JSON lines whenever they change (a client write, the watchdog's vent, a power-up) or a
+write sends more than p_max: `{"t_ns", "cause", "counts", "sent_max"}`, each drain ending with
+`{"drained_ns"}` (plc/register_log.py reads and checks it).
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -66,15 +72,24 @@ class MockPlc(Node):
                                  "append every holding-register write with its CLOCK_MONOTONIC time [ns] to this "
                                  "file (benchmarks); '' = off", read_only=True)
 
+        register_log_file = declare(self, 'register_log_file', '',
+                                    'append the command registers as applied, at every change, with their '
+                                    "CLOCK_MONOTONIC time [ns], to this file (JSON lines); '' = off", read_only=True)
+
         layout = PlcLayout.load(resolve(register_map_file, 'hardware/plc_register_map.yaml'))
         self.register_map = layout.endpoint(endpoint).map
         self.server = MockPlcServer(self.register_map, host, port, regulator_tau_s=tau_s, watchdog_s=watchdog_s,
                                     update_hz=update_hz, records_path=records_file or None,
-                                    time_writes=bool(write_log_file)).start()
+                                    time_writes=bool(write_log_file),
+                                    log_registers=bool(register_log_file)).start()
         self._write_log = None
         if write_log_file:
             self._write_log = open(write_log_file, 'a')
             self.create_timer(0.05, self._drain_write_log, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._register_log = None
+        if register_log_file:
+            self._register_log = open(register_log_file, 'a')
+            self.create_timer(0.05, self._drain_register_log, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.address = f'{host}:{self.server.port}'
         self._max_pub = self.create_publisher(Float64MultiArray, MAX_WRITTEN, COMMAND_QOS)
         self._max_layout = named_layout(self.register_map.names)
@@ -107,6 +122,14 @@ class MockPlc(Node):
         self._write_log.writelines(lines)
         self._write_log.flush()
 
+    def _drain_register_log(self) -> None:
+        drained_ns = time.monotonic_ns()
+        lines = [json.dumps({'t_ns': t, 'cause': cause, 'counts': list(counts), 'sent_max': sent_max}) + '\n'
+                 for t, cause, counts, sent_max in self.server.take_register_log()]
+        lines.append(json.dumps({'drained_ns': drained_ns}) + '\n')
+        self._register_log.writelines(lines)
+        self._register_log.flush()
+
     def safe_shutdown(self) -> None:
         if not self.server.wait_until_vented(self.shutdown_grace_s):
             self.get_logger().warning(
@@ -117,6 +140,9 @@ class MockPlc(Node):
         if self._write_log is not None:
             self._drain_write_log()
             self._write_log.close()
+        if self._register_log is not None:
+            self._drain_register_log()
+            self._register_log.close()
         self.get_logger().info(f'mock PLC on {self.address} stopped')
 
 

@@ -205,7 +205,7 @@ class PlcOutput(ManagedNode):
         self._links = []
 
     # ---------------------------------------------------------------- commands
-    def _on_command(self, msg: Float64MultiArray) -> None:
+    def _on_command(self, msg: Float64MultiArray, info) -> None:
         if not self.active:
             self._ignored_commands += 1
             return
@@ -225,7 +225,13 @@ class PlcOutput(ManagedNode):
                                       f'{self.p_max_kpa:g} kPa', throttle_duration_sec=LOG_THROTTLE_S)
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
-        self._command_s = time.monotonic()
+        # A command is as old as its arrival in this process (the middleware's receive time, on
+        # this host's clock), not as its turn on the executor: after the executor was held up (a
+        # Modbus timeout, a loaded machine), the queued commands of a controller that has died
+        # since must not count as fresh and pressurise the suit again.
+        received_ns = info.get('received_timestamp', 0) if info else 0
+        lag_s = (time.time_ns() - received_ns) * 1e-9 if received_ns > 0 else 0.0
+        self._command_s = time.monotonic() - max(0.0, lag_s)
         if self.write_on_command and self._all_up():
             self._write_now()
 

@@ -162,7 +162,7 @@ class PressureController(ManagedNode):
             f'calibration: {cal_file or "none"}')
 
     def activate(self) -> None:
-        self.enabled = True
+        self.enabled = self.v['start_enabled']
         self.vent_controller()     # Eq. 5 starts afresh from the gaze at activation
 
     def deactivate(self) -> None:
@@ -425,7 +425,7 @@ class PressureController(ManagedNode):
             level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
         values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
-                  **self.lifecycle_values()}
+                  'enabled': self.enabled, **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
 

@@ -65,6 +65,11 @@ class _Registers:
         #: (time.monotonic_ns(), first address, values) per client write, when timing is on
         #: (the benchmarks' landing times); None: off, nothing is recorded.
         self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
+        #: (time.monotonic_ns(), cause, command counts as applied, largest command count sent)
+        #: whenever the applied commands change or a write sends more than p_max, when the
+        #: register log is on (the chaos run's invariants); None: off.
+        self.register_log: list[tuple[int, str, tuple[int, ...], int]] | None = None
+        self._logged_state: tuple[int, ...] | None = None
         self.power_up()
 
     def power_up(self) -> None:
@@ -73,6 +78,18 @@ class _Registers:
             self.holding = dict.fromkeys(self.holding_addresses, 0)
             self.input = dict.fromkeys(self.input_addresses, 0)
             self.gate.reset()
+            self.log_state('power_up')
+
+    def log_state(self, cause: str, sent_max: int = 0) -> None:
+        """One register log entry if the applied commands changed or sent_max is above p_max
+        (called with the lock held)."""
+        if self.register_log is None:
+            return
+        state = tuple(self.holding[a] for a in self.commands)
+        if state == self._logged_state and sent_max <= self._map.p_max_counts:
+            return
+        self._logged_state = state
+        self.register_log.append((time.monotonic_ns(), cause, state, sent_max))
 
     # ---- one request (PDU in, PDU out; None: no answer)
     def handle(self, pdu: bytes) -> bytes:
@@ -135,6 +152,7 @@ class _Registers:
             self.version += 1
             landed_ns = time.monotonic_ns()
             before = dict(self.holding)
+            sent_max = max((v for a, v in enumerate(values, start) if a in self._channel_of), default=0)
             for a, v in enumerate(values, start):
                 name = self._channel_of.get(a)
                 if name is not None:
@@ -146,7 +164,9 @@ class _Registers:
                     v = min(v, m.p_max_counts)   # stored clamped: never reaches an output
                 self.holding[a] = v
             if self._undo_unless_sequenced(before, start, values):
+                self.log_state('stale write undone', sent_max)
                 return
+            self.log_state('write', sent_max)
             if self.write_times is not None:
                 # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
                 # process. Taken under the lock, so a take_write_times() never misses one.
@@ -178,6 +198,7 @@ class _Registers:
         with self.lock:
             for a in self.commands:
                 self.holding[a] = 0
+            self.log_state('watchdog')
 
 
 def _exception(fc: int, code: int) -> bytes:
@@ -198,7 +219,8 @@ class MockPlcServer:
 
     def __init__(self, register_map: RegisterMap, host: str = '127.0.0.1', port: int = 0,
                  regulator_tau_s: float = 0.15, watchdog_s: float = 0.5, update_hz: float = 100.0,
-                 records_path: str | Path | None = None, time_writes: bool = False):
+                 records_path: str | Path | None = None, time_writes: bool = False,
+                 log_registers: bool = False):
         if not update_hz > 0:
             raise ValueError(f'update_hz must be > 0, got {update_hz!r}')
         self.map = register_map
@@ -213,6 +235,8 @@ class MockPlcServer:
         self._holding = _Registers(register_map, self._lock)
         if time_writes:
             self._holding.write_times = []
+        if log_registers:
+            self._holding.register_log = []
         self._sim = RegulatorSim(len(register_map), register_map.p_max_kpa, regulator_tau_s, watchdog_s)
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -430,6 +454,17 @@ class MockPlcServer:
             if taken is None:
                 return []
             self._holding.write_times = []
+            return taken
+
+    def take_register_log(self) -> list[tuple[int, str, tuple[int, ...], int]]:
+        """The register log entries since the last call, oldest first (each: time.monotonic_ns(),
+        cause, command counts as applied, largest command count sent); [] unless started with
+        log_registers=True. A power-up entry is logged at every start."""
+        with self._lock:
+            taken = self._holding.register_log
+            if taken is None:
+                return []
+            self._holding.register_log = []
             return taken
 
     def heartbeat_value(self) -> int:

@@ -118,7 +118,7 @@ class ClosedLoop:
         self.dt = 1.0 / scene.sim_rate_hz
         self.run_key = tuple(int(x) for x in run)
         ctx = RunContext(self.dt, scene.seed, int(wearer.index), self.run_key)
-        self.effects, stages = start_effects(scene.effects, ctx)
+        self.effects, stages = start_effects(scene.effects, ctx, getattr(wearer, 'effect_params', None))
         self._gaze_fx = [e.gaze for e in stages['gaze']]
         body = stages['body'][0] if stages['body'] else None
 

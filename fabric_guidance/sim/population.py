@@ -9,13 +9,18 @@ multiplied by exp(arm_spread * z') per direction: the arm's muscles are never ca
 (the paper uses the suit's f_k in condition 3), so how far their sensation differs is a
 property of the wearer that the controller does not know.
 
+Traits (population.traits, sim.scene.TraitSpec): wearer i's value of a trait is u = sd * z,
+z ~ N(0, 1) from the trait's own stream (scene seed, 'trait.<name>', i), so adding a trait or
+changing one's sd leaves every other draw as it was; it moves each listed effect parameter on
+the trait's scale, and the effects of all the wearer's runs start with those values.
+
 calibrate_wearer() runs Algorithm 1 with the scene's effects (engine.run_calibration); a wearer
 whose calibration fails is not an error: the outcome records the reason and the protocol
 excludes the wearer.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 import math
 from typing import Iterable
 
@@ -24,7 +29,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
-from .effects import generator
+from .effects import effect_class, generator
 from .engine import run_calibration
 
 #: Angle range over which a fitted law is compared with the true one (the paper's +-60 deg).
@@ -42,6 +47,10 @@ class WearerSpec:
     suit_laws: tuple[PowerLaw, ...]
     arm_laws: tuple[PowerLaw, ...]
     error: str | None = None
+    #: trait name -> the wearer's u (on the trait's scale; 0 is the population's median)
+    traits: dict = field(default_factory=dict)
+    #: effect -> {parameter: this wearer's value}, from the traits
+    effect_params: dict = field(default_factory=dict)
 
 
 def wearer_name(index: int) -> str:
@@ -64,7 +73,36 @@ def sample_wearer(scene, index: int) -> WearerSpec:
         nominal_laws = tuple(pop.laws)
         return WearerSpec(index, wearer_name(index), nominal_laws, nominal_laws,
                           f'sampled power law is not usable: {exc}')
-    return WearerSpec(index, wearer_name(index), tuple(suit), tuple(arm))
+    traits, params = wearer_traits(scene, index)
+    return WearerSpec(index, wearer_name(index), tuple(suit), tuple(arm), None, traits, params)
+
+
+def wearer_traits(scene, index: int) -> tuple[dict, dict]:
+    """(trait -> u, effect -> {parameter: value}) of wearer `index` (see the module docstring)."""
+    traits, params = {}, {}
+    for tr in scene.population.traits:
+        u = tr.sd * float(generator(scene.seed, f'trait.{tr.name}', index).standard_normal())
+        traits[tr.name] = u
+        for q in tr.params:
+            effect, _, name = q.partition('.')
+            spec = scene.effect(effect)
+            if spec is None:        # an effect taken out of the scene (a sweep): nothing to vary
+                continue
+            median = spec.params_dict.get(name, spec.build().parameters()[name][0])
+            params.setdefault(effect, {})[name] = _within_range(effect, name, tr.apply(float(median), u))
+    return traits, params
+
+
+def _within_range(effect: str, name: str, value: float) -> float:
+    """A trait's value clipped to the effect parameter's valid range (direction_p at most 0.5:
+    someone who misreads more often than not reads the other way)."""
+    meta = next(f.metadata for f in fields(effect_class(effect)) if f.name == name)
+    lo, hi = meta.get('lo'), meta.get('hi')
+    if hi is not None and value > hi:
+        return float(hi)
+    if lo is not None and value < lo:
+        return float(lo)
+    return value
 
 
 def sample_population(scene, subjects: Iterable[int] | int | None = None) -> list[WearerSpec]:
@@ -134,4 +172,5 @@ def calibrate_wearer(scene, wearer: WearerSpec) -> CalibrationOutcome:
 
 
 __all__ = ['COMPARE_DEG', 'CalibrationOutcome', 'WearerSpec', 'calibrate_wearer', 'law_angle_error_deg',
-           'law_error_kpa', 'sample_population', 'sample_wearer', 'subject_indices', 'wearer_name']
+           'law_error_kpa', 'sample_population', 'sample_wearer', 'subject_indices', 'wearer_name',
+           'wearer_traits']

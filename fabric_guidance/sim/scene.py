@@ -20,6 +20,8 @@ dataclasses; every error is a SceneError naming the file and the field at fault.
         up: {a: 38.0, b: 0.58, c: 35.0}
       spread: {a: 0.3, b: 0.1, c: 0.3}  # relative lognormal sigma of each coefficient
       arm_spread: 0.0                   # the arm's own law vs the suit's (condition 3)
+      traits:                           # effect parameters that differ between people
+        movement: {sd: 0.2, scale: log, params: [body_dynamics.torso_tau_s, body_dynamics.head_tau_s]}
     controller: {gain: 0.05, control_rate_hz: 30, p_max_kpa: 375, gaze_timeout_s: 0.3}
     calibration: {steps: 10, dwell_s: 3.0, rest_s: 3.0, window_s: 0.5}
     sim_rate_hz: 60
@@ -33,7 +35,6 @@ from dataclasses import dataclass, field, fields, make_dataclass, replace
 import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
-
 
 from ..core.safe_input import excerpt, load_yaml
 from ..core.conditions import CONDITIONS
@@ -93,16 +94,49 @@ class AccuracyProtocol:
 PROTOCOLS = {cls.kind: cls for cls in (SpeedProtocol, AccuracyProtocol)}
 
 
+#: How a trait moves its parameters: on the log scale (a positive value times exp(u)) or on the
+#: logit scale (a probability, logit(p) + u).
+TRAIT_SCALES = ('log', 'logit')
+
+
+@dataclass(frozen=True)
+class TraitSpec:
+    """A way people differ, fixed for each wearer over all their trials: u ~ N(0, sd) per wearer
+    (its own random stream), added to every listed effect parameter on the trait's scale; the
+    scene's value is the population's median. `params` are 'effect.parameter' names."""
+
+    name: str
+    sd: float
+    scale: str
+    params: tuple[str, ...]
+    source: str = ''
+
+    def apply(self, value: float, u: float) -> float:
+        """One wearer's value of a parameter whose median is `value`. A value at the end of its
+        scale (0; a probability of 0 or 1: a sweep may set one) is the same for everyone."""
+        if self.scale == 'log':
+            return value * math.exp(u) if value > 0 else value
+        if not 0.0 < value < 1.0:
+            return value
+        z = math.log(value / (1.0 - value)) + u
+        return 1.0 / (1.0 + math.exp(-z))
+
+
 @dataclass(frozen=True)
 class PopulationSpec:
     """Simulated wearers: each direction's nominal law, sampled per wearer with a relative
     lognormal spread (median = nominal). arm_spread: the arm muscles' law (condition 3) is the
-    suit's law with a multiplied by exp(N(0, arm_spread)) per direction; 0 = the same law."""
+    suit's law with a multiplied by exp(N(0, arm_spread)) per direction; 0 = the same law.
+    traits: effect parameters that differ between people (TraitSpec)."""
 
     subjects: int = 15
     laws: tuple[PowerLaw, ...] = ()
     spread: tuple[float, float, float] = (0.0, 0.0, 0.0)
     arm_spread: float = 0.0
+    traits: tuple[TraitSpec, ...] = ()
+
+    def trait(self, name: str) -> TraitSpec | None:
+        return next((tr for tr in self.traits if tr.name == name), None)
 
     def law(self, direction: str) -> PowerLaw:
         return self.laws[DIRECTIONS.index(direction)]
@@ -150,8 +184,9 @@ class EffectSpec:
     def params_dict(self) -> dict:
         return dict(self.params)
 
-    def build(self) -> Effect:
-        return make_effect(self.name, self.params_dict)
+    def build(self, overrides: Mapping | None = None) -> Effect:
+        """The effect with the scene's parameters, `overrides` (one wearer's traits) over them."""
+        return make_effect(self.name, {**self.params_dict, **(overrides or {})})
 
 
 @dataclass(frozen=True)
@@ -307,7 +342,7 @@ def _parse_law(data, source: str, where: str) -> PowerLaw:
 
 def _parse_population(data, source: str) -> PopulationSpec:
     data = _mapping(data, source, 'population')
-    valid = ('subjects', 'laws', 'spread', 'arm_spread')
+    valid = ('subjects', 'laws', 'spread', 'arm_spread', 'traits')
     unknown = sorted(set(data) - set(valid))
     if unknown:
         _fail(source, f'population.{unknown[0]}', f'is not a parameter of population; valid: {", ".join(valid)}')
@@ -326,7 +361,54 @@ def _parse_population(data, source: str) -> PopulationSpec:
                            {'unit': '(log) -', 'lo': 0.0, 'hi': 3.0}) for k in 'abc')
     arm = _number(data.get('arm_spread', 0.0), source, 'population.arm_spread', {'unit': '(log) -', 'lo': 0.0,
                                                                                  'hi': 3.0})
-    return PopulationSpec(subjects, laws, spread, arm)
+    traits = _parse_traits(data.get('traits'), source)
+    return PopulationSpec(subjects, laws, spread, arm, traits)
+
+
+def _parse_traits(data, source: str) -> tuple[TraitSpec, ...]:
+    """population.traits: name -> {sd, scale, params: [effect.parameter, ...], source}. The
+    parameters are checked against the effects once those are read (_check_traits)."""
+    out = []
+    for name, entry in _mapping(data, source, 'population.traits').items():
+        where = f'population.traits.{name}'
+        entry = _mapping(entry, source, where)
+        unknown = sorted(set(entry) - {'sd', 'scale', 'params', 'source'})
+        if unknown:
+            _fail(source, f'{where}.{unknown[0]}', 'is not a field of a trait; valid: sd, scale, params, source')
+        sd = _number(entry.get('sd'), source, f'{where}.sd', {'unit': '-', 'lo': 0.0, 'hi': 5.0})
+        scale = entry.get('scale', 'log')
+        if scale not in TRAIT_SCALES:
+            _fail(source, f'{where}.scale', f'must be one of {", ".join(TRAIT_SCALES)}, got {excerpt(scale)}')
+        params = entry.get('params')
+        if (not isinstance(params, Sequence) or isinstance(params, str) or not params
+                or not all(isinstance(q, str) and q.count('.') == 1 for q in params)):
+            _fail(source, f'{where}.params', f'must list effect.parameter names, got {excerpt(params)}')
+        out.append(TraitSpec(str(name), float(sd), scale, tuple(params), str(entry.get('source', ''))))
+    return tuple(out)
+
+
+def _check_traits(traits, effects, source: str) -> None:
+    """Every trait parameter names a listed effect's number whose scene value suits the scale;
+    no parameter belongs to two traits."""
+    seen = {}
+    for tr in traits:
+        for q in tr.params:
+            where = f'population.traits.{tr.name}.params'
+            effect, _, param = q.partition('.')
+            spec = next((e for e in effects if e.name == effect), None)
+            if spec is None:
+                _fail(source, where, f'names {q!r}, but the scene lists no effect {effect!r}')
+            effect_obj = spec.build()
+            value = getattr(effect_obj, param) if param in effect_obj.parameters() else None
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                _fail(source, where, f'names {q!r}, which is not a number of {effect}')
+            ok = value > 0 if tr.scale == 'log' else 0 < value < 1
+            if not ok:
+                _fail(source, where, f'{q} = {value:g} cannot vary on the {tr.scale} scale '
+                                     f'({"> 0" if tr.scale == "log" else "0 < p < 1"} needed)')
+            if q in seen:
+                _fail(source, where, f'{q} is already varied by trait {seen[q]!r}')
+            seen[q] = tr.name
 
 
 def _parse_effects(data, source: str) -> tuple[EffectSpec, ...]:
@@ -404,6 +486,7 @@ def scene_from_dict(data, source: str = '<scene>') -> Scene:
     if controller.control_rate_hz > sim_rate:
         _fail(source, 'controller.control_rate_hz', f'must not exceed sim_rate_hz ({sim_rate:g} Hz)')
     effects = _parse_effects(data.get('effects'), source)
+    _check_traits(population.traits, effects, source)
     return Scene(name, seed, protocol, tuple(conds), reps, population, controller, calibration, sim_rate, effects,
                  source)
 

@@ -96,7 +96,7 @@ class SceneSide:
         self.layout = layout or self.cond.layout or 'suit'
         self.run_key = trial_run(self.cond.number, 0)
         ctx = RunContext(self.dt, scene.seed, int(wearer_index), self.run_key)
-        self.effects, stages = start_effects(scene.effects, ctx)
+        self.effects, stages = start_effects(scene.effects, ctx, spec.effect_params)
         self.gaze_fx = [e.gaze for e in stages['gaze']]
         body = stages['body'][0] if stages['body'] else None
         self.wearer = SceneWearer(spec.suit_laws, spec.arm_laws, scene.controller.p_max_kpa, body)

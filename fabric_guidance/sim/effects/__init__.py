@@ -81,11 +81,14 @@ def by_stage(effects) -> dict[str, list[Effect]]:
     return out
 
 
-def start_effects(specs, ctx: RunContext) -> tuple[list[Effect], dict[str, list[Effect]]]:
+def start_effects(specs, ctx: RunContext, wearer_params: dict | None = None
+                  ) -> tuple[list[Effect], dict[str, list[Effect]]]:
     """A run's effects built from the scene's specs and started with its context: (the effects
-    in the scene's order, by_stage() of them). The engine and the graph's wearer both start
-    them so, which keeps their seeding the same."""
-    effects = [spec.build() for spec in specs]
+    in the scene's order, by_stage() of them). wearer_params: effect -> {parameter: value} of
+    this wearer's own traits (population.WearerSpec.effect_params), over the scene's values.
+    The engine and the graph's wearer both start them so, which keeps their seeding the same."""
+    wearer_params = wearer_params or {}
+    effects = [spec.build(wearer_params.get(spec.name)) for spec in specs]
     for e in effects:
         e.start(ctx)
     return effects, by_stage(effects)

@@ -1,5 +1,5 @@
-"""A fault-injecting TCP proxy for tests: put it between a client (plc_output) and a server
-(mock_plc) and break the link on purpose, switching faults at run time.
+"""A fault-injecting TCP proxy for the fault tests and the chaos run: put it between a client
+(plc_output) and a server (mock_plc) and break the link on purpose, switching faults at run time.
 
 Faults (each counted, so a test can check that it really happened):
 

@@ -1,0 +1,344 @@
+"""The simulated population fitted to the paper's whole speed table, across people and seeds.
+
+People differ (sim.scene.TraitSpec): each wearer has their own value of every trait, u ~ N(mu,
+sd) on the trait's scale around the scene's value. Four traits are fitted, two are assumed:
+
+  misreading    cue_misreading.direction_p (logit): how often the suit's direction is misread
+  arm_reading   cue_misreading.arm_direction_p (logit): how often the arm band's is misread
+  pace          hololens_view search_base_s, search_per_item_s, confirm_s (log): how fast a
+                person searches among the dummies and confirms (common to all conditions)
+  speech_pace   speech_latency.per_word_s (log): how long a spoken direction takes to act on
+  reaction      reaction_delay.mean_s (log, sd 0.15, assumed): simple reaction times differ
+                between people by about that much of their mean
+  discrimination  weber_perception.fraction, relative_perception.fraction (log, sd 0.25,
+                assumed): pressure discrimination thresholds differ between people
+
+Each fitted trait has a median shift mu and a spread sd: eight numbers, fitted to eighteen of the
+paper's table (experiments/paper.py): the four condition means, the four SDs of the subject
+means, the four best-condition counts and the six correlations between conditions over
+subjects.
+
+How, in minutes on two cores: the speed protocol runs once on a *design* population (several
+seeds, many wearers each, every trait drawn with a wide spread around the design's values);
+each design wearer's four condition means (six 40 s trials each, as the paper's) are then
+reweighted to any population (mu, sd) by importance weights, the ratio of the population's and
+the design's trait densities. The statistics of fifteen people drawn from that population are
+computed from the weighted design, and scipy's Nelder-Mead minimizes their distance to the
+paper's. A population the design cannot represent (effective sample size under MIN_ESS) is
+penalized, so the fit stays where the design has wearers. The identifiability check is a
+bootstrap: the design's wearers and the paper's subjects resampled, the fit repeated.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+
+from . import paper
+
+CONDITIONS = (1, 2, 3, 4)
+#: Below this many effective design wearers a population is not represented (penalty).
+MIN_ESS = 40.0
+
+
+@dataclass(frozen=True)
+class FittedTrait:
+    """A trait the fit moves: its scene parameters, the design's value of each (the median
+    the design's spread is drawn around) and the design's spread (wider than any fitted one)."""
+
+    name: str
+    scale: str
+    params: tuple[str, ...]
+    design_values: tuple[float, ...]
+    design_sd: float
+    source: str
+
+
+@dataclass(frozen=True)
+class AssumedTrait:
+    name: str
+    scale: str
+    params: tuple[str, ...]
+    sd: float
+    source: str
+
+
+FITTED = (
+    FittedTrait('misreading', 'logit', ('cue_misreading.direction_p',), (0.3,), 1.2,
+                'fitted: how often a wearer misreads the direction of the suit\'s cue'),
+    FittedTrait('arm_reading', 'logit', ('cue_misreading.arm_direction_p',), (0.1,), 1.2,
+                'fitted: how often a wearer misreads the arm band\'s direction (condition 3)'),
+    FittedTrait('pace', 'log', ('hololens_view.search_base_s', 'hololens_view.search_per_item_s',
+                                'hololens_view.confirm_s'), (0.4, 0.025, 0.65), 0.45,
+                'fitted: how fast a wearer searches among the dummies and confirms a target'),
+    FittedTrait('speech_pace', 'log', ('speech_latency.per_word_s',), (0.5,), 0.4,
+                'fitted: how long a spoken direction takes a wearer to act on, per word'),
+)
+ASSUMED = (
+    AssumedTrait('reaction', 'log', ('reaction_delay.mean_s',), 0.15,
+                 'assumption: simple reaction times differ between people by about 15 % of the mean'),
+    AssumedTrait('discrimination', 'log', ('weber_perception.fraction', 'relative_perception.fraction'),
+                 0.25, 'assumption: pressure discrimination thresholds differ between people by about 25 %'),
+)
+#: The design: seeds (the first half for round 1, the rest for round 2) and wearers per seed;
+#: none of these seeds is used for validation.
+DESIGN_SEEDS = (101, 102, 103, 104, 105, 106)
+DESIGN_WEARERS = 60
+
+
+# ---------------------------------------------------------------------------------------------
+# The paper's statistics
+
+def table_statistics(table: np.ndarray) -> dict[str, np.ndarray]:
+    """means, sds (of subject means, ddof 1), best counts (ties count for each), corr (6 pairs:
+    12 13 14 23 24 34) of a subjects x 4 table."""
+    best = (table == table.max(axis=1, keepdims=True)).sum(axis=0).astype(float)
+    c = np.corrcoef(table.T)
+    return {'means': table.mean(axis=0), 'sds': table.std(axis=0, ddof=1), 'best': best,
+            'corr': c[np.triu_indices(4, 1)]}
+
+
+def paper_table() -> np.ndarray:
+    return paper.speed_table().to_numpy(dtype=float)
+
+
+# ---------------------------------------------------------------------------------------------
+# The design and its weights
+
+@dataclass
+class Design:
+    """Per design wearer: u (wearers x fitted traits, on each trait's scale, relative to the
+    traits' design_values), y (wearers x 4 condition means of identified targets), the seed, and
+    the round of the design it came from; `rounds` holds each round's proposal (mu, sd) per
+    trait and its share of the wearers."""
+
+    u: np.ndarray
+    y: np.ndarray
+    seeds: np.ndarray
+    round: np.ndarray | None = None
+    rounds: tuple = ()
+
+    def __post_init__(self):
+        if self.round is None:
+            self.round = np.zeros(len(self.y), dtype=int)
+        if not self.rounds:
+            k = self.u.shape[1]
+            self.rounds = ((np.zeros(k), np.array([t.design_sd for t in FITTED][:k])),)
+
+    def subset(self, idx) -> 'Design':
+        return Design(self.u[idx], self.y[idx], self.seeds[idx], self.round[idx], self.rounds)
+
+    def joined(self, other: 'Design') -> 'Design':
+        return Design(np.vstack([self.u, other.u]), np.vstack([self.y, other.y]),
+                      np.concatenate([self.seeds, other.seeds]),
+                      np.concatenate([self.round, other.round + len(self.rounds)]), self.rounds + other.rounds)
+
+    def save(self, path) -> None:
+        np.savez(path, u=self.u, y=self.y, seeds=self.seeds, round=self.round,
+                 mus=np.array([mu for mu, _ in self.rounds]), sds=np.array([sd for _, sd in self.rounds]))
+
+    @classmethod
+    def load(cls, path) -> 'Design':
+        with np.load(path) as d:
+            return cls(d['u'], d['y'], d['seeds'], d['round'], tuple(zip(d['mus'], d['sds'])))
+
+    def log_proposal(self) -> np.ndarray:
+        """log density of each wearer's u under the mixture of the rounds' proposals (weighted by
+        their shares of the wearers: the balance heuristic of multiple importance sampling)."""
+        share = np.bincount(self.round, minlength=len(self.rounds)) / len(self.round)
+        dens = [np.log(max(s, 1e-300)) + _normal_logpdf(self.u, mu, sd).sum(axis=1)
+                for s, (mu, sd) in zip(share, self.rounds)]
+        return np.logaddexp.reduce(np.array(dens), axis=0)
+
+
+def _normal_logpdf(x, mu, sd):
+    return -0.5 * ((x - mu) / sd) ** 2 - np.log(sd)
+
+
+def weights(design: Design, phi: np.ndarray) -> np.ndarray:
+    """Normalized importance weights of the design's wearers for the population phi (mu_1..k,
+    sd_1..k, on the fitted traits' scales, mu relative to the design values)."""
+    k = len(FITTED)
+    mu, sd = phi[:k], phi[k:]
+    logw = _normal_logpdf(design.u, mu, sd).sum(axis=1) - design.log_proposal()
+    logw -= logw.max()
+    w = np.exp(logw)
+    return w / w.sum()
+
+
+def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.ndarray]:
+    """The statistics of n people drawn from the weighted design: means, sds, expected best
+    counts, corr."""
+    y = design.y
+    means = w @ y
+    d = y - means
+    cov = (w[:, None] * d).T @ d
+    sds = np.sqrt(np.diag(cov))
+    best = n * (w @ (y == y.max(axis=1, keepdims=True)).astype(float))
+    corr = (cov / np.outer(sds, sds))[np.triu_indices(4, 1)]
+    return {'means': means, 'sds': sds, 'best': best, 'corr': corr}
+
+
+def discrepancy(stats: dict, target: dict, n: int) -> dict[str, np.ndarray]:
+    """Each statistic's standardized distance from the target (the paper's): means by their SE,
+    SDs by the SE of an SD, best counts by a binomial SD, correlations by Fisher's z."""
+    se_mean = target['sds'] / math.sqrt(n)
+    se_sd = target['sds'] / math.sqrt(2 * (n - 1))
+    p = np.clip(target['best'] / n, 0.5 / n, 1 - 0.5 / n)
+    se_best = np.sqrt(n * p * (1 - p))
+    z = np.arctanh(np.clip(stats['corr'], -0.99, 0.99)) - np.arctanh(np.clip(target['corr'], -0.99, 0.99))
+    return {'means': (stats['means'] - target['means']) / se_mean,
+            'sds': (stats['sds'] - target['sds']) / se_sd,
+            'best': (stats['best'] - target['best']) / se_best,
+            'corr': z * math.sqrt(n - 3)}
+
+
+def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
+    w = weights(design, phi)
+    ess = 1.0 / float(np.sum(w ** 2))
+    d = discrepancy(weighted_statistics(design, w, n), target, n)
+    total = sum(float(np.sum(v ** 2)) for v in d.values())
+    if ess < MIN_ESS:
+        total += 10.0 * (MIN_ESS - ess)
+    return total
+
+
+def bounds() -> list[tuple[float, float]]:
+    sd0 = [t.design_sd for t in FITTED]
+    return [(-1.5 * s, 1.5 * s) for s in sd0] + [(0.02, 0.95 * s) for s in sd0]
+
+
+def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
+                   x0: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
+    hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
+    as the bootstrap refits)."""
+    from scipy.optimize import minimize
+    from scipy.stats import qmc
+    b = np.array(bounds())
+    k = len(FITTED)
+
+    def f(phi):
+        return objective(design, phi, target, n)
+
+    if x0 is not None:
+        firsts = [np.asarray(x0, dtype=float)]
+    else:
+        own = np.concatenate([np.zeros(k), 0.5 * b[k:, 1]])
+        points = [own] + list(qmc.scale(qmc.LatinHypercube(d=2 * k, seed=seed).random(starts), b[:, 0], b[:, 1]))
+        firsts = sorted(points, key=f)[:3]
+    best_x, best_f = None, math.inf
+    for x in firsts:
+        r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+        if r.fun < best_f:
+            best_x, best_f = r.x, float(r.fun)
+    return best_x, best_f
+
+
+def bootstrap(design: Design, table: np.ndarray, phi: np.ndarray, reps: int, seed: int,
+              progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """reps refits, each on resampled design wearers and resampled paper subjects: reps x phi."""
+    rng = np.random.default_rng(seed)
+    n = table.shape[0]
+    out = []
+    for r in range(reps):
+        d = design.subset(rng.integers(0, len(design.y), len(design.y)))
+        t = table_statistics(table[rng.integers(0, n, n)])
+        x, _ = fit_population(d, t, n, x0=phi)
+        out.append(x)
+        if progress is not None:
+            progress(r + 1, reps)
+    return np.array(out)
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenes
+
+def trait_values(phi: np.ndarray) -> dict[str, tuple[dict[str, float], float]]:
+    """trait -> ({effect.parameter: population median}, sd) for the fitted population phi."""
+    k = len(FITTED)
+    out = {}
+    for i, t in enumerate(FITTED):
+        mu, sd = float(phi[i]), float(phi[k + i])
+        medians = {}
+        for q, v in zip(t.params, t.design_values):
+            medians[q] = shifted(v, mu, t.scale)
+        out[t.name] = (medians, sd)
+    return out
+
+
+def shifted(value: float, u: float, scale: str) -> float:
+    if scale == 'log':
+        return value * math.exp(u)
+    z = math.log(value / (1 - value)) + u
+    return 1 / (1 + math.exp(-z))
+
+
+def population_scene(base, medians: dict[str, float], sds: dict[str, float], seed: int | None = None,
+                     subjects: int | None = None):
+    """The base scene (with the model's effects listed) with the trait parameters at `medians`
+    and the traits (fitted with `sds`, and the assumed ones)."""
+    from dataclasses import replace
+    from ..sim.scene import TraitSpec
+    scene = base
+    for q, v in medians.items():
+        scene = scene.with_value(q, float(v))
+    traits = tuple(TraitSpec(t.name, float(sds[t.name]), t.scale, t.params, t.source) for t in FITTED) + tuple(
+        TraitSpec(t.name, t.sd, t.scale, t.params, t.source) for t in ASSUMED)
+    pop = replace(scene.population, traits=traits,
+                  subjects=subjects if subjects is not None else scene.population.subjects)
+    scene = scene.replace(population=pop)
+    return scene if seed is None else scene.replace(seed=int(seed))
+
+
+def design_scene(base, seed: int, wearers: int = DESIGN_WEARERS, mu=None, sd=None):
+    """The design population of one round: trait medians shifted by mu from the design values,
+    spreads sd (default: no shift, the traits' design_sd)."""
+    k = len(FITTED)
+    mu = np.zeros(k) if mu is None else np.asarray(mu, dtype=float)
+    sd = np.array([t.design_sd for t in FITTED]) if sd is None else np.asarray(sd, dtype=float)
+    medians = {q: shifted(v, mu[i], t.scale)
+               for i, t in enumerate(FITTED) for q, v in zip(t.params, t.design_values)}
+    return population_scene(base, medians, {t.name: float(sd[i]) for i, t in enumerate(FITTED)}, seed, wearers)
+
+
+def run_design(base, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_WEARERS, workers: int = 2,
+               progress: Callable[[str], None] | None = None, mu=None, sd=None) -> Design:
+    """The speed protocol on the design population of each seed (one round, proposal mu, sd):
+    the design's u (relative to the design values) and y."""
+    from ..sim.population import sample_wearer
+    from ..sim.protocols import run_protocol
+    k = len(FITTED)
+    mu = np.zeros(k) if mu is None else np.asarray(mu, dtype=float)
+    sd = np.array([t.design_sd for t in FITTED]) if sd is None else np.asarray(sd, dtype=float)
+    us, ys, ss = [], [], []
+    for seed in seeds:
+        scene = design_scene(base, seed, wearers, mu, sd)
+        report = (lambda done, total, s, seed=seed: progress(f'design seed {seed}: wearer {done}/{total}'))
+        results = run_protocol(scene, None, workers, report if progress else None)
+        by = {}
+        for r in results:
+            by.setdefault(r.subject, {}).setdefault(r.condition, []).append(r.identified)
+        for subject, conds in sorted(by.items()):
+            if set(conds) != set(CONDITIONS):
+                continue
+            spec = sample_wearer(scene, subject)
+            us.append([mu[i] + spec.traits[t.name] for i, t in enumerate(FITTED)])
+            ys.append([float(np.mean(conds[c])) for c in CONDITIONS])
+            ss.append(seed)
+    return Design(np.array(us), np.array(ys), np.array(ss), None, ((mu, sd),))
+
+
+def focused(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The proposal of a second round around a fit: its medians, spreads 1.5 times the fitted ones
+    (at least 0.15, at most the first round's)."""
+    k = len(FITTED)
+    sd0 = np.array([t.design_sd for t in FITTED])
+    return np.asarray(phi[:k], dtype=float), np.clip(1.5 * np.asarray(phi[k:]), 0.15, sd0)
+
+
+__all__ = ['ASSUMED', 'CONDITIONS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design', 'FITTED', 'MIN_ESS', 'bootstrap',
+           'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective', 'paper_table',
+           'population_scene', 'run_design', 'table_statistics', 'trait_values', 'weighted_statistics', 'weights']
