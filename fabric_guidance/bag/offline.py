@@ -129,6 +129,9 @@ def load(path, namespace: str = '/') -> Recording:
     undecodable = Counter()
     for topic, msgtype, stamp, data in raw_messages(path, topics, problems, recovered):
         kind = topics[topic]
+        if not 0 <= stamp < 2 ** 63:     # a ROS time is an int64: a damaged timestamp (no chunk CRC)
+            undecodable[topic] += 1
+            continue
         try:
             if kind == 'par':
                 d = parse_yaml(store.deserialize_cdr(data, msgtype).data, f'{topic} message')
