@@ -24,6 +24,7 @@ setup(
         (os.path.join('share', package_name, 'config', 'hardware'), glob('config/hardware/*.yaml')),
         (os.path.join('share', package_name, 'config', 'calibrations'), glob('config/calibrations/*.yaml')),
         (os.path.join('share', package_name, 'config', 'scenes'), glob('config/scenes/*.yaml')),
+        (os.path.join('share', package_name, 'config', 'scenes', 'fit'), glob('config/scenes/fit/*')),
         (os.path.join('share', package_name, 'config', 'rviz'), glob('config/rviz/*.rviz')),
         (os.path.join('share', package_name, 'config', 'foxglove'), glob('config/foxglove/*.json')),
     ],

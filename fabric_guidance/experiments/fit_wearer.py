@@ -12,9 +12,9 @@ The speed protocol runs once on a design population (--design-seeds, --wearers p
 of them a seed of the validation), then every candidate population is the design reweighted
 (importance weights): the fit itself takes seconds. A bootstrap (--bootstrap N: design wearers
 and the paper's subjects resampled, the fit repeated) gives each fitted number its interval and
-the variants file (paper-fitted-variants.yaml: one scene override set per bootstrap fit) that
-`tradeoff --scene-variants` runs. The design is saved (design.npz in --out) and --design reuses
-it.
+the variants file (fit/variants.yaml in --out: one scene override set per bootstrap fit) that
+`tradeoff --scene-variants` runs. The design is saved (fit/design.npz) and --design reuses it:
+the shipped scenes are reproduced from the shipped design in seconds.
 
 It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the paper
 scenes plus the model's effects at the fitted medians and the population's traits, the same in
@@ -296,7 +296,7 @@ def run(args) -> int:
     n = table.shape[0]
     target = pf.table_statistics(table)
     out = args.out if args.out is not None else config_path('scenes')
-    out.mkdir(parents=True, exist_ok=True)
+    (out / 'fit').mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     if args.design is not None:
         design = load_design(args.design)
@@ -321,7 +321,7 @@ def run(args) -> int:
         print(f'design round 2, around the first fit: {args.wearers} wearers of each seed '
               f'{", ".join(map(str, second))}', flush=True)
         design = design.joined(pf.run_design(base, second, args.wearers, args.workers, say, mu, sd))
-        design.save(out / 'design.npz')
+        design.save(out / 'fit' / 'design.npz')
     design_s = time.perf_counter() - start
     t0 = time.perf_counter()
     phi, obj = pf.fit_population(design, target, n)
@@ -336,7 +336,7 @@ def run(args) -> int:
         boot = pf.bootstrap(design, table, phi, args.bootstrap, seed=1,
                             progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
                             if r % 10 == 0 or r == k else None)
-        _write(out / 'paper-fitted-variants.yaml', variants_text(boot))
+        _write(out / 'fit' / 'variants.yaml', variants_text(boot))
     for line in phi_lines(phi, boot):
         print('  ' + line)
     for line in statistics_lines(model, target):

@@ -22,8 +22,8 @@ from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_k
 from .tradeoff.settings import paired_scenes
 
 
-#: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. The four that
-#: fit-wearer fits to the paper's speed means are here; extend it (or pass --exclude, or give the
+#: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. The medians that
+#: fit-wearer fits to the paper's speed table are here; extend it (or pass --exclude, or give the
 #: scene a `measured`/`fitted` list) once a value is measured.
 MEASURED: set[tuple[str, str]] = set(FITTED_PARAMS)
 #: Scene attributes that may list measured or fitted parameters as 'effect.parameter'.
