@@ -29,7 +29,8 @@ import sys
 import numpy as np
 
 from . import subcommand
-from .core.calibration import Calibration, CalibrationFileError, atomic_write
+from .atomic import atomic_write, write_text
+from .core.calibration import Calibration, CalibrationFileError
 from .core.geometry import DIRECTIONS
 from .core.power_law import THETA_MAX
 from .core.safe_input import check_wearer
@@ -199,7 +200,7 @@ def write_fit_report(calibration: Calibration, folder: str | Path, source: str |
     fig = draw_fit_figure(calibration)
     FigureCanvasAgg(fig)
     atomic_write(png_path, lambda f: fig.savefig(f, format='png', dpi=100))
-    atomic_write(txt_path, lambda f: f.write(text.encode()))
+    write_text(txt_path, text)
     return txt_path, png_path
 
 

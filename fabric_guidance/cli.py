@@ -2,6 +2,7 @@
 
   demo      the simulated ROS graph, a guided session, what happened (`make demo`)
   replay    a recorded session: through the graph with /clock, or --offline against the controller
+  recover   a complete bag (summary, metadata.yaml) from the intact part of a cut-off recording
   calibration-report  a calibration file's fit per direction, as text and a PNG
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
@@ -31,6 +32,8 @@ SUBCOMMANDS = {
              'run the simulated ROS graph for a short guided session and report it'),
     'replay': ('fabric_guidance.replay', 'replay a recorded session: offline through the '
                'controller, or republished with /clock for the graph'),
+    'recover': ('fabric_guidance.recover', 'write a complete bag (summary, metadata.yaml) from the intact '
+                'part of a cut-off recording'),
     'calibration-report': ('fabric_guidance.calibration_report',
                            "write the fit report (text and PNG) of a wearer's calibration file"),
     'analyze': ('fabric_guidance.experiments.analyze', 'Friedman test + Dunn-Bonferroni post-hoc '

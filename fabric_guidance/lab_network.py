@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
-import os
 from pathlib import Path
 import socket
 import sys
-import tempfile
 import xml.etree.ElementTree as ET
 
 from . import subcommand
+from .atomic import write_text
 
 PROG = 'fabric-guidance dds-profile'
 HELP = 'write (or check) a Fast DDS profile that keeps DDS on one network interface of the lab PC'
@@ -148,15 +147,7 @@ def write_profile(path: str | Path, interface: str) -> Path:
     validate_profile(text)
     path = Path(path).expanduser()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    try:
-        with os.fdopen(fd, 'w') as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text(path, text)
 
 
 def process_env(profile: str | Path) -> dict[str, str]:

@@ -13,6 +13,10 @@
       for nodes started with use_sim_time:=true (pressure_controller reruns live on the bag's
       time); --loop plays again from the start, the clock jumping back. A damaged bag is not
       republished (exit 2, naming the damage).
+
+A recording cut off before it was closed (no summary section, no or a stale metadata.yaml) is
+replayed, both ways, up to its last intact chunk, after one line saying what was recovered and
+what was lost; `fabric-guidance recover BAG` makes it a complete bag.
 """
 from __future__ import annotations
 

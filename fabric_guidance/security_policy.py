@@ -37,6 +37,7 @@ import sys
 import xml.etree.ElementTree as ET
 
 from . import interface, subcommand
+from .atomic import write_text
 
 PROG = 'fabric-guidance security-policy'
 HELP = 'write the SROS2 permissions policy of the lab graph, generated from the interface table'
@@ -234,7 +235,7 @@ def write_policy(path: str | Path, operator: bool = True) -> Path:
     text = policy_xml(operator)
     read_policy(text)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
+    write_text(path, text)
     return path
 
 

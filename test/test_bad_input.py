@@ -618,7 +618,8 @@ def test_bag_reader_refuses_mutated_bags_in_one_line(session_bag, tmp_path_facto
     tracemalloc.start()
     try:
         rec = load(bag)
-        assert rec.problems or content == original or len(rec.inputs) == 4000, 'damage not reported'
+        # damage is reported, or (the summary damaged) the file was read from its start and says so
+        assert rec.problems or rec.recovered or content == original or len(rec.inputs) == 4000, 'damage not reported'
     except ValueError as exc:
         assert '\n' not in str(exc) and len(str(exc)) < 2000, str(exc)[:3000]
     finally:

@@ -2,8 +2,8 @@
 
 From the bottom up (docs/architecture.md):
 
-    0  paths, interface, subcommand,      where files are; topic names, types, QoS; the CLI pattern;
-       workers                            the process pool of the simulations
+    0  paths, atomic, interface,          where files are; writing a file whole or not at all; topic
+       subcommand, workers                names, types, QoS; the CLI pattern; the simulations' pool
     1  core                               the paper's algorithms, no ROS
     2  plc, calibration_report, views,   the PLC link; a calibration's report (core data only);
        lab_network, discovery_server,     the operator's Foxglove layout; the lab network's DDS
@@ -12,7 +12,7 @@ From the bottom up (docs/architecture.md):
     4  experiments                        the paper's experiments and studies on sim
     5  nodes                              the ROS nodes: thin wiring over the layers below
     6  process_graph, launch_support      starting the nodes as processes, launch files' helpers
-    7  bench, demo, replay                what a person runs: measurements, the demo, replay
+    7  bench, demo, replay, recover       what a person runs: measurements, the demo, replay, recover
     8  cli, demo_command, example_command the entry point and its argument wiring (cli imports
                                           a subcommand's module by name, when it is chosen)
 
@@ -27,14 +27,14 @@ import pytest
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1] / 'fabric_guidance'
 LAYERS = {
-    'paths': 0, 'interface': 0, 'subcommand': 0, 'workers': 0,
+    'paths': 0, 'atomic': 0, 'interface': 0, 'subcommand': 0, 'workers': 0,
     'core': 1,
     'plc': 2, 'calibration_report': 2, 'views': 2, 'lab_network': 2, 'discovery_server': 2, 'security_policy': 2,
     'sim': 3, 'bag': 3,
     'experiments': 4,
     'nodes': 5,
     'process_graph': 6, 'launch_support': 6,
-    'bench': 7, 'demo': 7, 'replay': 7,
+    'bench': 7, 'demo': 7, 'replay': 7, 'recover': 7,
     'cli': 8, 'demo_command': 8, 'example_command': 8,
 }
 

@@ -5,6 +5,7 @@ controller_io  pressure_controller's step as data (controller_input layout, para
 topics         the recorded topics, their types and QoS (from fabric_guidance/interface.py)
 writer         BagWriter: serialized messages into a rosbag2/MCAP bag with definitions and QoS
 reader         the messages of a bag, raw or decoded
+recovery       the intact part of an MCAP file cut off before its summary (a killed recorder)
 offline        rerun the controller over recorded inputs, compare with recorded commands
 player         republish recorded inputs with /clock (replay through the graph)
 """

@@ -42,6 +42,7 @@ class Recording:
     offset: int                           # command index - position in `commands`
     read_s: float                         # wall time spent reading and decoding
     problems: list[str] = field(default_factory=list)   # what of the bag could not be read
+    recovered: list[str] = field(default_factory=list)  # a cut-off file: what was recovered, what lost
 
 
 @dataclass
@@ -61,6 +62,7 @@ class ReplayResult:
     read_s: float = 0.0
     run_s: float = 0.0
     problems: list[str] = field(default_factory=list)   # the bag's damage: the comparison is partial
+    recovered: list[str] = field(default_factory=list)  # cut-off files read up to their last intact chunk
 
     @property
     def largest(self) -> float:
@@ -123,10 +125,13 @@ def load(path, namespace: str = '/') -> Recording:
     t0 = time.perf_counter()
     topics = {bag_topic(CONTROLLER_INPUT, namespace): 'in', bag_topic(CONTROLLER_PARAMETERS, namespace): 'par',
               bag_topic(PRESSURE_COMMAND, namespace): 'cmd'}
-    setups, inputs, commands, input_ts, command_ts, problems = [], [], [], [], [], []
+    setups, inputs, commands, input_ts, command_ts, problems, recovered = [], [], [], [], [], [], []
     undecodable = Counter()
-    for topic, msgtype, stamp, data in raw_messages(path, topics, problems):
+    for topic, msgtype, stamp, data in raw_messages(path, topics, problems, recovered):
         kind = topics[topic]
+        if not 0 <= stamp < 2 ** 63:     # a ROS time is an int64: a damaged timestamp (no chunk CRC)
+            undecodable[topic] += 1
+            continue
         try:
             if kind == 'par':
                 d = parse_yaml(store.deserialize_cdr(data, msgtype).data, f'{topic} message')
@@ -160,7 +165,7 @@ def load(path, namespace: str = '/') -> Recording:
     inputs.sort(key=lambda i: i.step)
     setups.sort(key=lambda s: s[0])
     rec = Recording(setups, inputs, commands, pairing_offset(inputs_by_time, input_ts, command_ts), 0.0,
-                    problems)
+                    problems, [r.describe() for r in recovered])
     rec.read_s = time.perf_counter() - t0
     return rec
 
@@ -205,7 +210,7 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
         raise ValueError(f'{CONTROLLER_PARAMETERS}: unusable parameters ({type(exc).__name__}: '
                          f'{excerpt(str(exc))})') from None
     result = ReplayResult(first.channel_map.channels, max_diff=np.zeros(len(first.channel_map.channels)),
-                          read_s=rec.read_s, problems=list(rec.problems))
+                          read_s=rec.read_s, problems=list(rec.problems), recovered=list(rec.recovered))
     setups = [(s, with_overrides(setup_from_dict(d), overrides or {})) for s, d in rec.setups]
     k = -1
     setup = controller = None
@@ -267,6 +272,8 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
 
 def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> None:
     changed = ', '.join(f'{k}={v}' for k, v in (overrides or {}).items()) or 'none (the recorded parameters)'
+    for line in result.recovered:
+        say(line)
     say(f'offline replay: {result.steps} control steps rerun, {result.compared} compared with the recorded '
         f'pressure_command; parameters changed: {changed}')
     if result.calibrating or result.unmatched or result.step_gaps or result.unsynced or result.after_last_command:
@@ -284,7 +291,8 @@ def report(result: ReplayResult, overrides: Mapping[str, Any] | None, say) -> No
             'exact')
     if result.largest == 0.0:
         say('  largest difference: 0 kPa: every compared command reproduced exactly (bit for bit)'
-            + (' (of the readable part only)' if result.problems else ''))
+            + (' (of the readable part only)' if result.problems else
+               ' (of the recovered part)' if result.recovered else ''))
     else:
         w = result.worst
         say(f"  largest difference: {w['diff']:.6g} kPa on {w['channel']} at step {w['step']} (t = {w['t']:.3f} s): "

@@ -32,7 +32,10 @@ def play(path, topics: Sequence[str] = REPLAYED_INPUTS, rate: float = 1.0, loop:
     if rate <= 0:
         raise ValueError(f'rate must be > 0, got {rate}')
     wanted = {t if t.startswith('/') else '/' + t for t in topics}
-    msgs = [(ts, topic, msgtype, data) for topic, msgtype, ts, data in raw_messages(path, wanted)]
+    recovered = []
+    msgs = [(ts, topic, msgtype, data) for topic, msgtype, ts, data in raw_messages(path, wanted, None, recovered)]
+    for r in recovered:
+        say(r.describe())
     if not msgs:
         raise ValueError(f'{path}: none of {sorted(wanted)} recorded')
     msgs.sort(key=lambda m: m[0])

@@ -3,6 +3,7 @@ storage) with rosbags, each topic with its message definition (ros2msg schema, R
 what Foxglove and `ros2 bag play` decode with) and its offered QoS profiles."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Iterable
 
@@ -53,6 +54,24 @@ class BagWriter:
         """One serialized (CDR) message received at timestamp_ns (ns since the epoch, or sim time)."""
         self._writer.write(self._connections[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
+
+    def flush(self, fsync: bool = True) -> bool:
+        """Put what was written so far on disk as a complete chunk, so that a writer killed
+        later (SIGKILL, power loss) leaves it readable (recovery.py); True when a chunk was
+        written. rosbags' MCAP writer closes a chunk only at 1 MiB or on close: this closes the
+        pending one early through its storage (rosbags 0.11's McapWriter: chunk, close_chunk,
+        bio), and does nothing with a writer that has none of them."""
+        storage = getattr(self._writer, 'storage', None) if self._writer is not None else None
+        chunk = getattr(storage, 'chunk', None)
+        if chunk is None or not hasattr(storage, 'close_chunk') or not hasattr(storage, 'bio'):
+            return False
+        if not chunk.msgs:           # nothing new (schemas and channels wait for their messages)
+            return False
+        storage.close_chunk()
+        storage.bio.flush()
+        if fsync:
+            os.fsync(storage.bio.fileno())
+        return True
 
     def set_custom_data(self, key: str, value: str) -> None:
         self._writer.set_custom_data(key, value)

@@ -39,6 +39,7 @@ import threading
 import time
 
 from .. import subcommand
+from ..atomic import write_text
 from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
 from ..process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
@@ -462,8 +463,8 @@ def run_chaos(seed: int, faults: int, out: Path, say) -> tuple[list[dict], list[
                                'recovery_s': o.recovery_s,
                                'enabled_after_s': (o.t_enable - o.t) if o.t_enable else None}
                               for o in outcomes]}
-    (out / 'chaos.json').write_text(json.dumps(summary, indent=1) + '\n')
-    (out / 'chaos.md').write_text(markdown(rows, seed, faults, violations))
+    write_text(out / 'chaos.json', json.dumps(summary, indent=1) + '\n')
+    write_text(out / 'chaos.md', markdown(rows, seed, faults, violations))
     return rows, violations
 
 

@@ -21,6 +21,7 @@ import tempfile
 import time
 
 from .. import subcommand
+from ..atomic import write_text
 from ..paths import share_dir
 
 
@@ -307,9 +308,9 @@ def run(args, stream=sys.stdout) -> int:
             results = run_all(plan, Path(tmp), say)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2) + '\n')
+    write_text(out, json.dumps(results, indent=2) + '\n')
     table = markdown(results)
-    out.with_suffix('.md').write_text(table)
+    write_text(out.with_suffix('.md'), table)
     say()
     say(table)
     say(f'written: {out}, {out.with_suffix(".md")}')

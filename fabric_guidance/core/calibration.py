@@ -21,14 +21,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 import math
-import os
 from pathlib import Path
-import tempfile
 from typing import Mapping, Sequence
 
 import numpy as np
 import yaml
 
+from ..atomic import write_text
 from .feedback import FRONT, PAPER_P_MAX
 from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
@@ -37,25 +36,6 @@ from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 SCHEMA_VERSION = 1
 #: The paper's 10 steps per direction.
 PAPER_STEPS = 10
-
-
-def atomic_write(path: str | Path, write) -> Path:
-    """write(binary file object) into a temporary file beside `path`, fsync it, then rename it
-    over `path`: a reader sees the old file or the new one, never a partial one; on any error
-    the old file stays and the temporary one is removed."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 #: Bounds of a calibration file's values: the controller's own p_max_kpa range, and a gaze angle
@@ -222,7 +202,7 @@ class Calibration:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         text = yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
-        return atomic_write(path, lambda f: f.write(text.encode('utf-8')))
+        return write_text(path, text)
 
     @classmethod
     def from_dict(cls, data, source: str = 'calibration') -> 'Calibration':

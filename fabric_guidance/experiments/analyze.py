@@ -13,6 +13,7 @@ from pathlib import Path
 import sys
 
 from .. import subcommand
+from ..atomic import write_text
 from .stats import analyze_blocks, format_analysis, load_table
 
 PROG = 'fabric-guidance analyze'
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
             text = markdown_report(f'Statistics of {args.table.name}', {label: analysis},
                                    {label: plot} if plot is not None else {},
                                    notes=[f'Source: {args.table}'], relative_to=args.report.parent)
-            args.report.write_text(text)
+            write_text(args.report, text)
             print(f'report: {args.report}')
     except OSError as exc:
         subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')

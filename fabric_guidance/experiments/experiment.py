@@ -19,6 +19,8 @@ from pathlib import Path
 import sys
 import time
 
+from ..atomic import write_csv, write_text
+
 #: Per protocol: (measure column, label, higher is better), the paper's figures.
 MEASURES = {
     'speed': [('identified', 'identified target objects per 40 s trial', True)],
@@ -72,7 +74,7 @@ def run(args) -> int:
     summary = format_summary(scene, results)
     print(summary)
     frame = trials_frame(results)
-    frame.to_csv(out / 'trials.csv', index=False)
+    write_csv(out / 'trials.csv', frame)
     if len(frame):
         frame['subject'] = frame['wearer']   # statistics and plots name wearers (S01, ...)
     if len(frame) == 0:
@@ -90,7 +92,7 @@ def run(args) -> int:
         texts.append(f'== {label} ==\n{format_analysis(analysis)}')
         plots[label] = violin_plot(frame, label, out / f'{measure}.png', significance=analysis, measure=measure,
                                    title=f'{scene.name}: {label}')
-    (out / 'statistics.txt').write_text('\n\n'.join(texts) + '\n')
+    write_text(out / 'statistics.txt', '\n\n'.join(texts) + '\n')
     notes = [f'Scene `{scene.name}`; effects: {", ".join(scene.effect_names) or "none (ideal wearer)"}.',
              f'{len({r.subject for r in results})} wearers analysed, {len(results.exclusions)} excluded.',
              *[f'Excluded {e.wearer}: {e.reason}' for e in results.exclusions],
@@ -98,7 +100,7 @@ def run(args) -> int:
              'Simulated wearers, not people: the numbers show what the model implies, not what a lab will measure.']
     report = markdown_report(f'{scene.protocol.kind.capitalize()} experiment in simulation: {scene.name}',
                              analyses, plots, notes, relative_to=out)
-    (out / 'report.md').write_text(report)
+    write_text(out / 'report.md', report)
     print('\n\n'.join(texts))
     print(f'\nwrote {out / "trials.csv"}, {out / "statistics.txt"}, {out / "report.md"} and '
           f'{len(plots)} plot(s) in {time.monotonic() - started:.1f} s')

@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from .. import subcommand
+from ..atomic import write_text
 from ..paths import config_path
 from . import paper
 from . import population_fit as pf
@@ -201,12 +202,8 @@ def fitted_text(base_name: str, new_name: str, phi, header: list[str]) -> str:
 
 
 def _write(path: Path, text: str, check=None) -> Path:
-    tmp = path.with_suffix(path.suffix + '.tmp')
-    tmp.write_text(text)
-    if check is not None:
-        check(tmp)                         # never write a scene that does not load
-    tmp.replace(path)
-    return path
+    """Atomically, after check(the written file) passed: never a scene that does not load."""
+    return write_text(path, text, check=check)
 
 
 def write_scenes(out: Path, phi, header: list[str]) -> list[Path]:

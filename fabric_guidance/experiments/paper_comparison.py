@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .. import subcommand
+from ..atomic import atomic_write, write_csv, write_text
 from . import paper
 from .paper import ACCURACY_CLAIMS, CONDITIONS, SPEED_CLAIMS, Claim
 from .analysis_report import md_table
@@ -79,7 +80,7 @@ def run_seed(speed_scene, accuracy_scene, seed: int, workers: int = 2, subjects:
             progress(f'seed {seed}: {scene.name} ({scene.protocol.kind}) done in {results.wall_s:.1f} s')
         frame = trials_frame(results)
         if out is not None:
-            frame.to_csv(out / f'trials-{scene.protocol.kind}-{seed}.csv', index=False)
+            write_csv(out / f'trials-{scene.protocol.kind}-{seed}.csv', frame)
         if scene.protocol.kind == 'speed':
             speed = analyze_trials(frame, 'identified', higher_is_better=True)
         else:
@@ -299,7 +300,7 @@ def plot_comparison(results: Sequence[SeedResult], path: Path, dpi: int = 120) -
     ax.set_ylabel('absolute error at the key press (deg)')
     ax.set_title('Accuracy experiment: model mean +- SD over wearers')
     ax.grid(axis='y', alpha=0.3)
-    fig.savefig(path, dpi=dpi)
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format=Path(path).suffix.lstrip('.') or 'png'))
     plt.close(fig)
     return path
 
@@ -378,7 +379,7 @@ def run(args: argparse.Namespace) -> int:
     image = plot_comparison(results, out / 'comparison.png')
     text = comparison_markdown(results, args.speed_scene if scenes['speed'] else None,
                                args.accuracy_scene if scenes['accuracy'] else None, image.name)
-    (out / 'comparison.md').write_text(text)
+    write_text(out / 'comparison.md', text)
     print(text)
     print(f'wrote {out / "comparison.md"} and {image} in {time.monotonic() - started:.1f} s', file=sys.stderr)
     return 0

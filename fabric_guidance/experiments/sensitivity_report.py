@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_write, write_csv, write_text
 from .analysis_report import image_path, md_table
 from .sensitivity_runs import HEADLINE_TITLES, HEADLINES, MEASURED, NOISE_SDS, SensitivityResult
 
@@ -91,7 +92,7 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
                         Patch(color='0.85', label=f'baseline +-{NOISE_SDS:g} seed SD')],
                loc='outside lower center', ncol=3, fontsize=8, frameon=False)
     path = Path(path)
-    fig.savefig(path, dpi=dpi, format='png')
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path
 
 
@@ -100,7 +101,7 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     paths = {'csv': out / 'sensitivity.csv', 'png': out / 'sensitivity.png',
              'md': out / 'sensitivity.md'}
-    result.frame().to_csv(paths['csv'], index=False)
+    write_csv(paths['csv'], result.frame())
     plot_tornado(result, paths['png'])
     s = result.settings
     spd, acc = result.scenes
@@ -144,5 +145,5 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
         lines += ['Not swept (measured, fitted or excluded): '
                   + ', '.join(f'`{k}`' for k in skipped) + '.', '']
     lines += ['## Tornado plot', '', f'![sensitivity]({image_path(paths["png"], out)})', '']
-    paths['md'].write_text('\n'.join(lines))
+    write_text(paths['md'], '\n'.join(lines))
     return paths

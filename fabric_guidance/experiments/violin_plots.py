@@ -14,6 +14,8 @@ from matplotlib.figure import Figure
 import numpy as np
 import pandas as pd
 
+from ..atomic import atomic_write
+
 from .stats import BlockAnalysis, condition_label, format_p, paper_order, stars
 
 SIGNIFICANCE_NOTE = '* p < 0.05   ** p < 0.01   *** p < 0.001 (Friedman, Dunn-Bonferroni)'
@@ -123,5 +125,5 @@ def violin_plot(table_or_trials, measure_label: str, path: str | Path, significa
     if significance is not None:
         ax.set_xlabel(SIGNIFICANCE_NOTE, fontsize=7, color='0.3')  # a label, so the layout makes room
     path = Path(path)
-    fig.savefig(path, dpi=dpi, format='png')
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path

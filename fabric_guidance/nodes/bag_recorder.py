@@ -11,7 +11,9 @@ Publishes   /diagnostics (diagnostic_msgs/DiagnosticArray) every diagnostics_per
             'bag_recorder: recording' with the bag path and the messages written per topic
             (a session script waits on it to know the recorder hears the controller)
 Writes      <output> (or <output_dir>/session_<UTC time>), closed with its metadata.yaml on
-            SIGINT/SIGTERM
+            SIGINT/SIGTERM; every flush_period_s what it received is put on disk as a complete
+            MCAP chunk, so a recorder killed without warning (SIGKILL, power loss) loses at most
+            that last period (`fabric-guidance recover` makes the rest a complete bag)
 
 Messages are stored as received (serialized CDR, no decoding), stamped with the receive time
 on the node clock (sim time under use_sim_time), as `ros2 bag record` does.
@@ -65,6 +67,8 @@ class BagRecorder(Node):
         output_dir = declare(self, 'output_dir', '~/.fabric_guidance/bags', 'where unnamed bags go')
         topics = declare(self, 'topics', list(TOPICS), 'topics to record (of the package\'s, see bag/topics.py)')
         period = declare(self, 'diagnostics_period_s', 0.5, 'period of the recorder\'s /diagnostics', 's', 0.05, 60.0)
+        flush_period = declare(self, 'flush_period_s', 1.0, 'how often what was received goes to disk as a '
+                               'complete chunk (at most this much is lost if the recorder is killed)', 's', 0.05, 60.0)
         unknown = [t for t in topics if t not in TOPICS]
         if unknown:
             raise ValueError(f'cannot record {unknown}: not topics of the package ({list(TOPICS)})')
@@ -82,6 +86,8 @@ class BagRecorder(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         # Steady clock: a recorder under use_sim_time reports before the first /clock too.
         self.create_timer(period, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # Same callback group as the subscriptions: a flush never runs during a write.
+        self.create_timer(flush_period, self.flush, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'recording {len(topics)} topics to {path}')
 
     def publish_diagnostics(self) -> None:
@@ -92,6 +98,10 @@ class BagRecorder(Node):
         publish_diagnostics(self, self.diag_pub, [status(
             self, STATUS_SUFFIX[2:], DiagnosticStatus.OK, f'{total} messages to {self.path}',
             {'bag': str(self.path), **{count_key(name): n for name, n in counts.items()}})])
+
+    def flush(self) -> None:
+        if not self.closed:
+            self.bag.flush()
 
     def _writer_for(self, name: str):
         topic = bag_topic(name, self.get_namespace())

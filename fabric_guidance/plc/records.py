@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
-import tempfile
+
+from ..atomic import write_text
 
 #: Entries kept per list in the file (the counts are always complete).
 MAX_LISTED = 100
@@ -30,15 +30,7 @@ MAX_LISTED = 100
 
 def write_records(path: str | Path, records: dict) -> None:
     """Write atomically: a reader sees the previous file or this one, never half of one."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'w') as f:
-            json.dump(records, f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, json.dumps(records))
 
 
 def load_records(path: str | Path) -> dict:

@@ -40,6 +40,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from ..atomic import write_csv
 from ..core.conditions import condition as condition_of
 from ..core.geometry import wrap_deg
 from ..workers import WorkerPool
@@ -409,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     results = run_protocol(scene, args.subjects, args.workers, progress)
     print(format_summary(scene, results))
     if args.csv is not None:
-        trials_frame(results, condition_names=False).to_csv(args.csv, index=False)
+        write_csv(args.csv, trials_frame(results, condition_names=False))
         print(f'trials: {args.csv}')
     if args.stats:
         print(f'statistics: fabric-guidance experiment --scene {args.scene} --out DIR')

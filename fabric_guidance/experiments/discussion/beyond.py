@@ -25,6 +25,7 @@ from pathlib import Path
 import sys
 
 from ... import subcommand
+from ...atomic import write_csv, write_text
 from .moving_targets import analyze_moving, moving_plots, moving_report, moving_summary
 from .per_wearer_gain import analyze_gain, gain_plots, gain_report, gain_summary
 
@@ -147,12 +148,10 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     try:
         out.mkdir(parents=True, exist_ok=True)
-        parts['gain_grid'].to_csv(out / 'gain_grid.csv', index=False)
-        parts['gain_trials'].to_csv(out / 'gain_trials.csv', index=False)
-        parts['gain_choice'].to_csv(out / 'gain_choice.csv', index=False)
-        parts['moving_trials'].to_csv(out / 'moving_trials.csv', index=False)
+        for name in ('gain_grid', 'gain_trials', 'gain_choice', 'moving_trials'):
+            write_csv(out / f'{name}.csv', parts[name])
         plots = make_plots(parts, out)
-        (out / 'beyond.md').write_text(report_text(results, parts, plots, out))
+        write_text(out / 'beyond.md', report_text(results, parts, plots, out))
     except OSError as exc:
         _error(f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ...atomic import atomic_write
+
 from .reading import _value_text, pareto_front
 from .rows import Row
 from .settings import CONDITION_LABELS, KNOBS, KNOB_SYMBOLS, KNOB_TITLES, METRICS, REFERENCE
@@ -67,7 +69,7 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
     for ax, knob, rows, x, y in labels:
         _label_points(ax, renderer, knob, rows, x, y)
     path = Path(path)
-    fig.savefig(path, dpi=dpi, format='png')
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path
 
 
@@ -279,5 +281,5 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     _place_labels(zoom, renderer, items, obstacles(zoom,
                                                    [r for r in cond_rows if int(r.value) == cond]))
     path = Path(path)
-    fig.savefig(path, dpi=dpi, format='png')
+    atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path

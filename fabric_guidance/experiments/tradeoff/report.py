@@ -5,6 +5,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from ...atomic import write_csv, write_text
+
 from ..analysis_report import image_path, md_table
 from .plots import _is_plane_only, plane_curves, plot_knob, plot_plane
 from .reading import gain_rate_reading, read_curve
@@ -55,7 +57,7 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     frame = result.frame()
     paths = {'csv': out / 'tradeoff.csv'}
-    frame.to_csv(paths['csv'], index=False)
+    write_csv(paths['csv'], frame)
     curves = result.curves()
     readings = {c: read_curve(rows) for c, rows in curves.items()}
     for knob in result.settings.knobs:
@@ -117,6 +119,6 @@ def write_outputs(result: SweepResult, out: Path) -> dict[str, Path]:
     for knob in s.knobs:
         lines += [f'![{knob}]({image_path(paths[knob], out)})', '']
     paths['md'] = out / 'tradeoff.md'
-    paths['md'].write_text('\n'.join(lines).rstrip() + '\n')
+    write_text(paths['md'], '\n'.join(lines).rstrip() + '\n')
     result.readings = readings
     return paths
