@@ -199,7 +199,8 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     assert str(txt) in done and str(png) in done       # the status says where the report goes
     wait_until(lambda: png.exists() and txt.exists(), 15.0, what='the fit report next to alice.yaml')
     assert txt.read_text() == format_fit_report(cal, source=str(folder / 'alice.yaml'))
-    assert 'fit report written' in graph.log('pressure_controller')
+    # The node logs once both files are in place: the line may follow them by a moment.
+    wait_until(lambda: 'fit report written' in graph.log('pressure_controller'), 10.0, what='the log line')
     # Progress said which direction, which step, which pressure and how far along.
     assert any(m.data.startswith('apply down step 2/5') and 'kPa' in m.data and m.data.endswith('%')
                for m in status)
