@@ -65,7 +65,7 @@ from pathlib import Path
 import sys
 
 from ... import subcommand
-from .intervals import parse_seeds, read_variants, run_seeds, run_variants
+from .intervals import check_variants, parse_seeds, read_variants, run_seeds, run_variants
 from .reading import headline_lines
 from .report import markdown_table, variants_table, write_outputs, write_variant_outputs
 from .settings import (DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, KNOBS, Settings, base_scenes,
@@ -141,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError('--scene-variants runs every variant at one seed; give --seeds one seed '
                                  '(e.g. --seeds 7,)')
             variants = read_variants(args.scene_variants)
+            try:
+                check_variants(settings, variants, seeds[0])
+            except ValueError as exc:
+                raise ValueError(f'{args.scene_variants}: {exc}') from None
     except (ValueError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 2
@@ -148,11 +152,7 @@ def run(args: argparse.Namespace) -> int:
     if variants is not None:
         print(f'{PROG}: conditions 1-4 on {len(variants)} variant(s) of {args.scene_variants}, seed {seeds[0]}, '
               f'{settings.subjects} wearers, {settings.workers} worker(s)', file=sys.stderr, flush=True)
-        try:
-            result = run_variants(settings, variants, seeds[0], say)
-        except ValueError as exc:
-            subcommand.error(PROG, f'{args.scene_variants}: {exc}')
-            return 2
+        result = run_variants(settings, variants, seeds[0], say)
         try:
             paths = write_variant_outputs(result, args.out)
         except OSError as exc:

@@ -292,20 +292,26 @@ def run_seeds(settings: Settings, seeds: Sequence[int],
     return combine(settings, list(seeds), sweeps, time.perf_counter() - start)
 
 
-def run_variants(settings: Settings, variants: list[dict], seed: int | None = None,
-                 progress: Callable[[str], None] | None = None) -> SeedSweep:
-    """The headline configuration (conditions 1-4 at the package defaults, both protocols) on
-    each variant of the scenes' values, all at one seed (the same wearers: the variants differ
-    by their values only)."""
-    say = progress or (lambda line: None)
+def check_variants(settings: Settings, variants: list[dict], seed: int | None = None) -> Settings:
+    """The settings the variants run with; ValueError naming the first variant whose values the
+    scenes do not have or do not accept."""
     base = replace(settings, knobs=(), plane=True, seed=seed)
-    # every variant's values are checked before any runs
     for i, v in enumerate(variants, start=1):
         try:
             base_scenes(replace(base, overrides=tuple(v.items())))
         except ValueError as exc:
             raise ValueError(f'variant {i}: {exc}') from None
     check_settings(base, base_scenes(base)[0])
+    return base
+
+
+def run_variants(settings: Settings, variants: list[dict], seed: int | None = None,
+                 progress: Callable[[str], None] | None = None) -> SeedSweep:
+    """The headline configuration (conditions 1-4 at the package defaults, both protocols) on
+    each variant of the scenes' values, all at one seed (the same wearers: the variants differ
+    by their values only)."""
+    say = progress or (lambda line: None)
+    base = check_variants(settings, variants, seed)
     start = time.perf_counter()
     sweeps = []
     for i, v in enumerate(variants, start=1):
