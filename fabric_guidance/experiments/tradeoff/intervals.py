@@ -169,14 +169,28 @@ class SeedRow:
             return math.nan, 0
         return float(np.mean([s for s, _ in ses])), int(round(np.mean([n for _, n in ses])))
 
+    def _distinct(self, texts: list[str]) -> list[str]:
+        return list(dict.fromkeys(t for t in texts if t))
+
     @property
     def note(self) -> str:
-        notes = list(dict.fromkeys(r.note for r in self.runs if r.note))
-        return notes[0] if len(notes) == 1 else ' | '.join(notes)
+        """The runs' note when they agree, else the first run's (every run's own is in the
+        per-run table)."""
+        notes = [r.note for r in self.runs]
+        if len(self._distinct(notes)) <= 1:
+            return (self._distinct(notes) or [''])[0]
+        return f'first {self.axis}: {notes[0] or "none"} (the {self.axis}s differ; each in the per-{self.axis} table)'
 
     @property
     def caveat(self) -> str:
-        return '; '.join(dict.fromkeys(r.caveat for r in self.runs if r.caveat))
+        """The runs' caveat when they agree, else in how many runs there is one, and the first."""
+        caveats = [r.caveat for r in self.runs]
+        distinct = self._distinct(caveats)
+        if len(distinct) <= 1 and all(caveats):
+            return (distinct or [''])[0]
+        if not distinct:
+            return ''
+        return f'in {sum(1 for c in caveats if c)} of {len(caveats)} {self.axis}s, e.g. {distinct[0]}'
 
     def as_record(self, labels: Sequence, axis: str = 'seed') -> dict:
         a, t = self.stats('accuracy'), self.stats('time')
