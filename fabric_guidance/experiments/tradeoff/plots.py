@@ -175,7 +175,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
     """The one plane: x = mean time to find a target (speed protocol, s), y = guidance error
     at the key press (accuracy protocol, deg; acceptance tolerance: the error when a target
     counts). Conditions 1-4 at the package defaults, one polyline per knob through its values
-    in the sweep's condition; whiskers +-1 SE over wearer means. Left: the whole plane; right:
+    in the sweep's condition; whiskers +-1 SE over wearer means (over several seeds or variants:
+    the 95 % interval over them). Left: the whole plane; right:
     the same axes zoomed on the knobs other than the tolerance (they crowd round the condition
     point), where their end values are labelled."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
