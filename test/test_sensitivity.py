@@ -136,6 +136,12 @@ def test_a_longer_reaction_delay_costs_targets_and_accuracy():
     assert high['c1_targets'] < base['c1_targets'] and high['c4_targets'] < base['c4_targets']
     assert high['c1_error_deg'] > base['c1_error_deg']
     assert low['c1_targets'] >= base['c1_targets'] and low['c4_targets'] >= base['c4_targets']
+    # one baseline seed: no interval over seeds, so no move is called beyond noise, and the
+    # table says so
+    assert math.isnan(result.noise_sds()) and not result.beyond(runs['high'])
+    assert all(math.isnan(lo) for _, lo, _, _ in result.seed_interval().values())
+    table = S.markdown_table(result)
+    assert 'one seed: no interval' in table and '**beyond noise**' not in table
 
 
 # ------------------------------------------------------------------------------- the files
@@ -160,9 +166,10 @@ def test_quick_run_writes_table_report_and_tornado(quick_run):
     assert not [k for k in swept if k.startswith('speech_latency')]    # cannot matter: absent
     assert {'reaction_delay.mean_s', 'population.spread.a', 'protocol.dwell_s'} <= swept
     assert (frame['side'] == 'baseline').sum() == S.quick_settings().seeds
+    runs = frame[frame['seed'].notna()]
     for h in S.HEADLINES:
-        assert frame[h].notna().all()
-        moved = frame[frame['side'] != 'baseline']
+        assert runs[h].notna().all()
+        moved = runs[runs['side'] != 'baseline']
         assert (moved[f'd_{h}'] == moved[h] - frame[frame['side'] == 'baseline'][h].iloc[0]).all()
     md = (out / 'sensitivity.md').read_text()
     # no row of a speech_latency parameter (the fitted one may be named among the skipped)
@@ -176,9 +183,42 @@ def test_quick_run_writes_table_report_and_tornado(quick_run):
     png = out / 'sensitivity.png'
     assert png.read_bytes()[:8] == PNG_SIGNATURE
     assert image.imread(png).std() > 0.05
-    runs = [ln for ln in stderr.splitlines() if ln.startswith('[')]
-    assert len(runs) == len(frame)                                      # one progress line per run
+    lines = [ln for ln in stderr.splitlines() if ln.startswith('[')]
+    assert len(lines) == len(runs)                                      # one progress line per run
     assert '| parameter |' in stdout
+
+
+def test_the_baseline_interval_over_seeds_is_explicit_and_moves_are_judged_against_it(quick_run):
+    """The table's baseline row gives the mean over the seeds with its 95 % t interval and the
+    seed count; the CSV has them as rows; a move is beyond noise exactly when it exceeds one
+    seed's 95 % prediction interval, t(0.975, k-1) x sqrt(1 + 1/k) seed SDs."""
+    from scipy import stats as ss
+    out = quick_run[0]
+    frame = pd.read_csv(out / 'sensitivity.csv')
+    k = S.quick_settings().seeds
+    base = frame[frame['side'] == 'baseline']
+    mean, lo, hi = (frame[frame['side'] == side].iloc[0] for side in ('seeds_mean', 'seeds_lo', 'seeds_hi'))
+    factor = ss.t.ppf(0.975, k - 1) * math.sqrt(1 + 1 / k)
+    for h in S.HEADLINES:
+        assert mean[h] == pytest.approx(base[h].mean())
+        sd = base[h].std(ddof=1)
+        half = ss.t.ppf(0.975, k - 1) * sd / math.sqrt(k)
+        assert (lo[h], hi[h]) == pytest.approx((mean[h] - half, mean[h] + half))
+        assert lo[h] <= mean[h] <= hi[h]
+    assert (frame['seeds'] == k).all()
+    md = (out / 'sensitivity.md').read_text()
+    row = next(ln for ln in md.splitlines() if ln.startswith('| baseline |'))
+    assert f'{k} seed(s)' in row and row.count(f'mean over {k} seeds') == len(S.HEADLINES)
+    assert f't(0.975, {k - 1}) x sqrt(1 + 1/{k}) = {factor:.2f} seed SDs' in md
+    # the runs marked beyond noise are those whose move exceeds that many seed SDs (or the
+    # figure's resolution, when the seeds happen to agree)
+    moved = frame[frame['side'].isin(['low', 'high'])]
+    resolution = {h: 0.01 if h.endswith('_deg') else 40.0 / 20.0 / 2 for h in S.HEADLINES}
+    for _, r in moved.iterrows():
+        expect = [h for h in S.HEADLINES
+                  if abs(r[f'd_{h}']) > factor * max(base[h].std(ddof=1), resolution[h])]
+        got = r['beyond_noise'].split(',') if isinstance(r['beyond_noise'], str) else []
+        assert got == expect, r['parameter']
 
 
 def test_central_field_moves_the_speed_figures_beyond_noise(quick_run):

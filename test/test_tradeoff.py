@@ -14,6 +14,9 @@ import yaml
 from fabric_guidance.experiments import tradeoff
 from fabric_guidance.experiments.tradeoff import (CSV_COLUMNS, KNOBS, Row, calibrate_measured, diff_se, pareto_front,
                                                   quick_settings, read_curve, run_sweep, speed_trial_detail)
+from fabric_guidance.experiments.tradeoff.intervals import (
+    INTERVAL_FIGURES, Headline, SeedRow, excludes_zero, parse_seeds, read_variants, t_interval)
+from fabric_guidance.experiments.tradeoff.reading import read_curve_interval
 from fabric_guidance.experiments.tradeoff.settings import KNOB, base_scenes
 from fabric_guidance.paths import config_path
 from fabric_guidance.sim.population import calibrate_wearer, sample_wearer
@@ -48,7 +51,12 @@ def test_quick_sweep_writes_every_file(quick_run):
 def test_csv_has_the_columns_every_knob_and_finite_values(quick_run):
     out = quick_run[0]
     frame = pd.read_csv(out / 'tradeoff.csv')
-    assert tuple(frame.columns) == CSV_COLUMNS
+    assert tuple(frame.columns[:len(CSV_COLUMNS)]) == CSV_COLUMNS
+    # one seed: no interval over seeds (the columns are there, empty), and the report says so
+    assert (frame['seeds'] == 1).all()
+    assert frame['accuracy_mean_lo'].isna().all() and frame['time_mean_hi'].isna().all()
+    assert 'a run on one seed has no interval over seeds' in (out / 'tradeoff.md').read_text()
+    assert not (out / 'tradeoff_per_seed.csv').exists()
     assert set(frame['knob']) == set(KNOBS) | {'condition'}
     numeric = [c for c in CSV_COLUMNS if c not in ('knob', 'accuracy_metric', 'time_metric', 'note')]
     values = frame[numeric].to_numpy(float)
@@ -296,3 +304,190 @@ def test_docs_name_every_knob_and_what_it_changes():
         assert f'| `{knob.name}`: ' in docs, knob.name
         if knob.key:
             assert f'`{knob.key}`' in docs, knob.key
+
+
+# ---------------------------------------------------------------- over seeds: intervals
+
+def _run_main(argv):
+    import contextlib
+    import io
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = tradeoff.main(argv)
+    return code, stdout.getvalue(), stderr.getvalue()
+
+
+@pytest.fixture(scope='module')
+def seeds_run(tmp_path_factory):
+    """A quick sweep of two knobs on two values each, and the conditions, on two seeds (2 wearers
+    each)."""
+    out = tmp_path_factory.mktemp('tradeoff-seeds')
+    settings = quick_settings(knobs=('gain', 'calibration_steps'), workers=2,
+                              grids={'gain': (0.0, 0.05), 'calibration_steps': (3, 4)})
+    seed = load_scene(tradeoff.DEFAULT_SPEED_SCENE).seed
+    lines = []
+    result = tradeoff.run_seeds(settings, parse_seeds('2', seed), lines.append)
+    tradeoff.write_outputs(result, out)
+    return out, 0, '', '\n'.join(lines)
+
+
+def test_seeds_every_figure_has_an_interval_that_contains_the_mean_of_the_seeds(seeds_run):
+    out, code, stdout, stderr = seeds_run
+    assert code == 0, stderr
+    scene_seed = load_scene(tradeoff.DEFAULT_SPEED_SCENE).seed
+    seeds = (scene_seed, scene_seed + 1)
+    frame = pd.read_csv(out / 'tradeoff.csv')
+    per_seed = pd.read_csv(out / 'tradeoff_per_seed.csv')
+    assert (frame['seeds'] == 2).all() and sorted(set(per_seed['seed'])) == list(seeds)
+    for fig in INTERVAL_FIGURES:
+        lo, mean, hi = frame[f'{fig}_lo'], frame[fig], frame[f'{fig}_hi']
+        assert (lo <= mean + 1e-9).all() and (mean <= hi + 1e-9).all(), fig
+    # the mean is the mean of the seeds' means, kept per seed in the CSV, and each is that seed's own
+    cols = [f'accuracy_mean_seed{s}' for s in seeds]
+    assert np.allclose(frame['accuracy_mean'], frame[cols].mean(axis=1))
+    key = ['knob', 'value', 'accuracy_metric', 'time_metric', 'plane']
+    for s in seeds:
+        own = per_seed[per_seed['seed'] == s].merge(frame, on=key, suffixes=('', '_all'))
+        assert len(own) == len(frame)
+        assert np.allclose(own['accuracy_mean'], own[f'accuracy_mean_seed{s}'])
+        assert np.allclose(own['time_mean'], own[f'time_mean_seed{s}'])
+    # the t interval of two values: mean +- t(0.975, 1) x SD / sqrt(2)
+    a = frame[cols].to_numpy(float)
+    half = 12.7062 * a.std(axis=1, ddof=1) / math.sqrt(2)
+    assert np.allclose(frame['accuracy_mean_hi'] - frame['accuracy_mean'], half, rtol=1e-4)
+    # a figure that does not vary with the seed (Algorithm 1's simulated time) has a zero-width one
+    cal = frame[frame['time_metric'] == 'calibration_time_s']
+    assert len(cal) and np.allclose(cal['time_mean_lo'], cal['time_mean_hi'])
+
+
+def test_seeds_report_reads_on_the_interval_and_checks_the_headlines(seeds_run):
+    out, _, _, stderr = seeds_run
+    md = (out / 'tradeoff.md').read_text()
+    assert '## Headline findings across the seeds' in md
+    head = md.split('## Headline findings across the seeds', 1)[1].split('## Grids', 1)[0]
+    lines = [ln for ln in head.splitlines() if ln[:3] in ('1. ', '2. ', '3. ')]
+    assert len(lines) == 3 and all('hold' in ln for ln in lines)
+    assert 'G = 0 minus G = 0.05' in lines[1]
+    reading = md.split('## Reading', 1)[1]
+    assert 'Over 2 seeds (mean [95 % t interval over the seeds])' in reading
+    assert 'read_curve_interval' in md and '| 2025' not in md
+    # progress lines name the seed; the plots exist and show something
+    assert any(ln.startswith('seed ') and '[gain' in ln for ln in stderr.splitlines())
+    for name in ('plane', 'gain', 'calibration_steps'):
+        assert image.imread(out / f'{name}.png').std() > 0.05
+
+
+def test_parse_seeds_and_bad_seeds_exit_2(tmp_path):
+    assert parse_seeds('3', 2025) == (2025, 2026, 2027)
+    assert parse_seeds('2025,7,11', 0) == (2025, 7, 11)
+    assert parse_seeds('7,', 0) == (7,)
+    for text, words in (('two', 'a count N or a comma-separated list'), ('0', 'within 1..'),
+                        ('3,3', 'listed twice'), ('-1,2', 'must be >= 0')):
+        code, _, err = _run_main(['--out', str(tmp_path / 'o'), '--quick', f'--seeds={text}'])
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, (text, err)
+    assert not (tmp_path / 'o').exists()
+
+
+def test_t_interval_one_value_has_none_equal_values_zero_width_more_spread_wider():
+    from scipy import stats as ss
+    mean, lo, hi, k = t_interval([3.0])
+    assert (mean, k) == (3.0, 1) and math.isnan(lo) and math.isnan(hi)
+    assert t_interval([2.0, 2.0, 2.0])[1:3] == (2.0, 2.0)
+    v = np.array([1.0, 2.5, 2.0, 4.0])
+    expect = ss.t.interval(0.95, len(v) - 1, loc=v.mean(), scale=ss.sem(v))
+    assert t_interval(v)[1:3] == pytest.approx(expect)
+    # the same seed means, spread three times as far: an interval three times as wide
+    noisy = t_interval(v.mean() + 3 * (v - v.mean()))
+    assert noisy[2] - noisy[1] == pytest.approx(3 * (expect[1] - expect[0]))
+
+
+def _seed_rows(per_seed: dict, knob='gain', metric=('guidance_error_deg', 'time_to_key_press_s')):
+    """SeedRows of one curve: value -> [(accuracy, time) mean per seed], each seed a Row of
+    20 trials around that mean."""
+    rows = []
+    for value, means in per_seed.items():
+        runs = []
+        for a, t in means:
+            runs.append(_row(value, a + np.linspace(-1, 1, 20), np.full(20, t), knob, metric))
+        rows.append(SeedRow(runs))
+    return rows
+
+
+def test_reading_over_seeds_states_only_differences_whose_interval_excludes_zero():
+    # G = 0 is worse than the paper's 0.05 in every seed; G = 0.5 is better in one seed and
+    # worse in the others: its interval crosses zero, so it is no finding
+    rows = _seed_rows({0.0: [(15.0, 3.0), (16.0, 3.1), (15.5, 2.9)],
+                       0.05: [(10.0, 3.0), (10.5, 3.1), (10.0, 2.9)],
+                       0.5: [(11.0, 3.0), (9.5, 3.1), (10.5, 2.9)]})
+    text = read_curve_interval(rows)
+    findings = text.split('excludes zero: ', 1)[1].split(' No finding', 1)[0]
+    assert findings.startswith('G = 0: +5.33 deg [')
+    assert 'G = 0.5' not in findings
+    assert 'No finding (the interval of the difference from 0.05 crosses zero): guidance error at 0.5; ' \
+        'time to the key press at 0, 0.5.' in text
+    # its interval does cross zero
+    d = [11.0 - 10.0, 9.5 - 10.5, 10.5 - 10.0]
+    assert not excludes_zero(*t_interval(d)[1:3])
+    # one seed: no interval, said so, and the one-sweep reading
+    one = _seed_rows({0.0: [(15.0, 3.0)], 0.05: [(10.0, 3.0)], 0.5: [(11.0, 3.0)]})
+    assert read_curve_interval(one).startswith('One seed: no interval over seeds')
+
+
+def test_a_headline_holds_only_when_every_interval_lies_above_zero():
+    part = lambda d: ('x', 'deg', d, t_interval(d))  # noqa: E731
+    assert Headline('h', 'c', [part([2.0, 2.5, 3.0])]).holds is True
+    assert Headline('h', 'c', [part([2.0, 2.5, 3.0]), part([1.0, -2.0, 2.0])]).holds is False
+    assert Headline('h', 'c', [part([-2.0, -2.5, -3.0])]).holds is False      # the other way round
+    assert Headline('h', 'c', [part([2.0])]).holds is None                     # one run: no interval
+    assert Headline('h', 'c', [], ran=False).holds is None
+
+
+# ------------------------------------------------------------------- over scene variants
+
+def test_scene_variants_run_the_conditions_on_each_variant(tmp_path):
+    variants = tmp_path / 'variants.yaml'
+    variants.write_text('# two draws of fitted values and one of an assumed one\n'
+                        '- speech_latency.per_word_s: 0.2\n'
+                        '- speech_latency.per_word_s: 1.5\n'
+                        '  regulator_lag.tau_s: 0.3\n'
+                        '- variants_are_read_in_order.x: 1\n')
+    code, _, err = _run_main(['--quick', '--out', str(tmp_path / 'bad'), '--scene-variants', str(variants)])
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert 'variant 3: variants_are_read_in_order.x: the scene lists no effect' in err
+    assert str(variants) in err and not (tmp_path / 'bad').exists()
+    variants.write_text('\n'.join(variants.read_text().splitlines()[:4]) + '\n')
+    out = tmp_path / 'out'
+    code, stdout, err = _run_main(['--quick', '--out', str(out), '--workers', '2', '--scene-variants',
+                                   str(variants)])
+    assert code == 0, err
+    frame = pd.read_csv(out / 'variants.csv')
+    assert sorted(frame['value']) == [1, 2, 3, 4] and (frame['variants'] == 2).all()
+    assert ((frame['time_mean_lo'] <= frame['time_mean']) & (frame['time_mean'] <= frame['time_mean_hi'])).all()
+    per = pd.read_csv(out / 'variants_per_run.csv')
+    assert set(per['variant']) == {1, 2}
+    assert 'speech_latency.per_word_s = 1.5, regulator_lag.tau_s = 0.3' in set(per['values'])
+    # the variants' values reach the simulation: a slower speech voice finds targets later
+    speech = frame[frame['value'] == 4].iloc[0]
+    assert speech['time_mean_variant2'] > speech['time_mean_variant1']
+    md = (out / 'variants.md').read_text()
+    assert '| 4 speech |' in md and '## Headline findings across the variants' in md
+    assert 'not checked (this run did not measure it)' in md          # no gain sweep here
+    assert image.imread(out / 'variants.png').std() > 0.05
+
+
+@pytest.mark.parametrize('text, words', [
+    ('[]', 'must be a non-empty list of variants'),
+    ('- 3\n', 'variant 1 must be a non-empty mapping'),
+    ('- {regulator_lag.tau_s: fast}\n', 'variant 1: regulator_lag.tau_s must be a finite number'),
+    ('- {tau: 1}\n', 'must be a scene path like'),
+    ('variants: [{regulator_lag.tau_s: 0.2}]\n', None),
+])
+def test_read_variants_names_the_file_the_variant_and_the_reason(tmp_path, text, words):
+    path = tmp_path / 'v.yaml'
+    path.write_text(text)
+    if words is None:
+        assert read_variants(path) == [{'regulator_lag.tau_s': 0.2}]
+        return
+    with pytest.raises(ValueError, match=words) as info:
+        read_variants(path)
+    assert str(path) in str(info.value)

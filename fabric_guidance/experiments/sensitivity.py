@@ -14,9 +14,12 @@ each run the headline figures:
                    hypot of h and v; before any visual capture)
   c4_error_deg     condition 4: the same
 
-The baseline is also run with further seeds (other wearers, targets and noise): the SD of a
-figure over those seeds is the noise a move is compared with in the table (a move of less than
-2 seed SDs is not a finding on this many wearers).
+The baseline is also run with further seeds (--seeds k: other wearers, targets and noise): the
+table gives each figure's mean over the k seeds with the 95 % t interval of that mean, and the
+seed SD. A move is beyond noise when it exceeds the half-width of the 95 % prediction interval of
+one seed's figure, t(0.975, k-1) x sqrt(1 + 1/k) seed SDs (4.97 for 3 seeds, 3.04 for 5): less
+is not a finding on this many wearers. One seed has no interval, and no move is called beyond
+noise.
 
 An effect the scenes do not list cannot matter and is not swept. A parameter the scene marks
 as measured or fitted is not an assumption and is not swept either: the scene's `measured` or
@@ -24,9 +27,11 @@ as measured or fitted is not an assumption and is not swept either: the scene's 
 module-level MEASURED set, and --exclude.
 
 Outputs in DIR: sensitivity.csv (one row per parameter and side: parameter, unit, scene value,
-value run, the five figures and their change from the baseline; plus the baseline rows, one
-per seed), sensitivity.md (the table sorted by the largest move in seed SDs, with the baseline
-and its seed spread), sensitivity.png (a tornado plot per figure). One progress line per run
+value run, the five figures and their change from the baseline, seeds, the figures it moves
+beyond noise; the baseline rows first, one per seed, and last the baseline's mean over the
+seeds and its interval, sides seeds_mean, seeds_lo, seeds_hi), sensitivity.md (the table sorted
+by the largest move in seed SDs, with the baseline's interval over seeds), sensitivity.png (a
+tornado plot per figure, the noise band and the interval drawn). One progress line per run
 goes to stderr.
 
 Also runs alone: python -m fabric_guidance.experiments.sensitivity --out DIR [--quick]

@@ -1,5 +1,6 @@
 """The outputs of `fabric-guidance sensitivity` (sensitivity.py): the CSV, the Markdown table
-sorted by the largest move in seed SDs, and the tornado plot per headline figure."""
+sorted by the largest move in seed SDs against the baseline's interval over seeds, and the
+tornado plot per headline figure."""
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ import numpy as np
 
 from ..atomic import atomic_write, write_csv, write_text
 from .analysis_report import image_path, md_table
-from .sensitivity_runs import HEADLINE_TITLES, HEADLINES, MEASURED, NOISE_SDS, SensitivityResult
+from .sensitivity_runs import HEADLINE_TITLES, HEADLINES, MEASURED, SensitivityResult
 
 
 def _fmt(x) -> str:
@@ -30,8 +31,16 @@ def markdown_table(result: SensitivityResult) -> str:
     header = ['parameter', 'scene value',
               'low / high run'] + [f'{h}: low / high' for h in HEADLINES] + \
         ['largest move (seed SDs)']
-    rows = [['baseline', '', f'{len(result.baselines)} seeds']
-            + [f'{_fmt(base[h])} (seed SD {_fmt(sd[h])})' for h in HEADLINES] + ['']]
+    iv = result.seed_interval()
+    k = len(result.baselines)
+    seed0 = result.baselines[0].seed
+
+    def base_cell(h):
+        if k < 2:
+            return f'{_fmt(base[h])} (one seed: no interval)'
+        return (f'{_fmt(base[h])} at seed {seed0}; mean over {k} seeds {_fmt(iv[h][0])} '
+                f'[{_fmt(iv[h][1])}, {_fmt(iv[h][2])}], seed SD {_fmt(sd[h])}; noise +-{_fmt(result.noise(h, sd))}')
+    rows = [['baseline', '', f'{k} seed(s)'] + [base_cell(h) for h in HEADLINES] + ['']]
     for key, z, h in result.ranking():
         p = params[key]
         lo, hi = by.get((key, 'low')), by.get((key, 'high'))
@@ -40,7 +49,11 @@ def markdown_table(result: SensitivityResult) -> str:
         for name in HEADLINES:
             cells.append(' / '.join(_signed(r.figures[name] - base[name]) if r else '-'
                                     for r in (lo, hi)))
-        mark = ' **beyond noise**' if z >= NOISE_SDS else ''
+        moved = set()
+        for r in (lo, hi):
+            if r is not None:
+                moved.update(result.beyond(r, sd))
+        mark = ' **beyond noise**' if moved else ''
         unit = f' {p.unit}' if p.unit and p.unit != '-' else ''
         rows.append([key, f'{_fmt(p.value)}{unit}', vals] + cells + [f'{z:.1f} ({h}){mark}'])
     return '\n'.join(md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
@@ -60,12 +73,16 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
     FigureCanvasAgg(fig)
     by = {(r.parameter, r.side): r for r in result.runs}
     base, sd = result.baseline, result.seed_sd()
+    iv = result.seed_interval()
     axes = fig.subplots(1, len(HEADLINES), sharey=True)
     ypos = {k: n - 1 - i for i, k in enumerate(ranking)}
     for ax, h in zip(np.atleast_1d(axes), HEADLINES):
         b = base[h]
-        noise = NOISE_SDS * result.scale(h, sd)
-        ax.axvspan(b - noise, b + noise, color='0.85', zorder=0)
+        noise = result.noise(h, sd)
+        if math.isfinite(noise):
+            ax.axvspan(b - noise, b + noise, color='0.85', zorder=0)
+        if math.isfinite(iv[h][1]):
+            ax.axvspan(iv[h][1], iv[h][2], fill=False, hatch='///', ec='0.45', lw=0, zorder=0)
         ax.axvline(b, color='black', lw=1.0, zorder=1)
         for key in ranking:
             y = ypos[key]
@@ -80,17 +97,21 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
     first.set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=8)
     first.set_ylim(-0.7, n - 0.3)
     s = result.settings
+    k = len(result.baselines)
+    band = (f'grey band: the noise, +-{result.noise_sds():.2f} seed SDs (95 % prediction interval of one '
+            f'seed from {k})' if k > 1 else 'one seed: no interval, no noise band')
     fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters '
                  f'(x{s.low:g} blue, x{s.high:g} '
-                 f'orange; black line: baseline, grey band: +-{NOISE_SDS:g} SD over '
-                 f'{len(result.baselines)} '
-                 f'seeds)\n{s.subjects} wearers, scenes {result.scenes[0].name} / '
+                 f'orange; black line: baseline at seed {result.baselines[0].seed}; {band})\n'
+                 f'{s.subjects} wearers, scenes {result.scenes[0].name} / '
                  f'{result.scenes[1].name}; '
                  'sorted by the largest move in seed SDs', fontsize=10)
     fig.legend(handles=[Patch(color='tab:blue', label=f'low (x{s.low:g})'),
                         Patch(color='tab:orange', label=f'high (x{s.high:g})'),
-                        Patch(color='0.85', label=f'baseline +-{NOISE_SDS:g} seed SD')],
-               loc='outside lower center', ncol=3, fontsize=8, frameon=False)
+                        Patch(color='0.85', label='baseline +- noise (one seed\'s 95 % prediction interval)'),
+                        Patch(fill=False, hatch='///', ec='0.45',
+                              label=f'95 % interval of the mean over {k} seeds')],
+               loc='outside lower center', ncol=4, fontsize=8, frameon=False)
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path
@@ -105,7 +126,12 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
     plot_tornado(result, paths['png'])
     s = result.settings
     spd, acc = result.scenes
-    beyond = [(k, z, h) for k, z, h in result.ranking() if z >= NOISE_SDS]
+    sd = result.seed_sd()
+    moved = {}
+    for r in result.runs:
+        moved.setdefault(r.parameter, set()).update(result.beyond(r, sd))
+    beyond = [(k, z, h) for k, z, h in result.ranking() if moved.get(k)]
+    nk = len(result.baselines)
     lines = ['# Which figures rest on which assumptions', '',
              f'Scenes `{spd.name}` (speed protocol, conditions '
              f'{", ".join(map(str, spd.conditions))}, '
@@ -126,20 +152,22 @@ def write_outputs(result: SensitivityResult, out: Path) -> dict[str, Path]:
              + '. Targets are scaled '
              'to 40 s; errors are the true gaze\'s at the key press (hypot of h and v).', '',
              '## Table', '',
-             f'Moves from the baseline (first row: the baseline at seed {spd.seed} and the SD of '
-             'each figure over '
-             f'{len(result.baselines)} seeds, i.e. other wearers and targets). Sorted by the '
-             'largest move in seed SDs; '
-             f'**beyond noise**: at least {NOISE_SDS:g} seed SDs (a paired move can be real '
-             'below that, but is '
-             'not shown to matter on this many wearers).', '',
+             f'Moves from the baseline (first row: the baseline at seed {spd.seed}, its mean over '
+             f'{nk} seed(s) (other wearers and targets) with the 95 % t interval of that mean, the seed SD, '
+             'and the noise). Sorted by the largest move in seed SDs. '
+             + (f'**beyond noise**: a move larger than the noise, the half-width of the 95 % prediction interval '
+                f'of one seed\'s figure from the {nk} baseline seeds: t(0.975, {nk - 1}) x sqrt(1 + 1/{nk}) = '
+                f'{result.noise_sds():.2f} seed SDs (a seed SD below the figure\'s resolution is raised to it). '
+                'A paired move can be real below that, but is not shown to matter on this many wearers.'
+                if nk > 1 else '**One baseline seed: no interval over seeds, so no move is called beyond '
+                'noise** (run --seeds 3 or more).'), '',
              markdown_table(result), '']
     if beyond:
         lines += [f'{len(beyond)} of {len(result.ranking())} parameters move a figure beyond '
                   'noise: '
                   + ', '.join(f'`{k}` ({h}, {z:.1f} SD)' for k, z, h in beyond) + '.', '']
     else:
-        lines += ['No parameter moves a figure by 2 seed SDs or more.', '']
+        lines += ['No parameter moves a figure beyond noise.', '']
     skipped = sorted({f'{e}.{p}' for e, p in MEASURED} | set(s.exclude))
     if skipped:
         lines += ['Not swept (measured, fitted or excluded): '

@@ -10,6 +10,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
+from scipy import stats as ss
 
 from ..sim.effects import REGISTRY
 from ..sim.engine import package_channel_map
@@ -18,7 +19,7 @@ from ..sim.protocols import accuracy_trial, speed_trial
 from ..sim.scene import Scene
 from ..workers import WorkerPool
 from .fit_wearer import FITTED_PARAMS
-from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key
+from .tradeoff import DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, calibration_key, t_interval
 from .tradeoff.settings import paired_scenes
 
 
@@ -41,8 +42,10 @@ HEADLINE_TITLES = {'c1_targets': 'condition 1: targets per 40 s',
                    'c4_error_deg': 'condition 4: key-press error (deg)'}
 SPEED_CONDITIONS = (1, 2, 4)
 ACCURACY_CONDITIONS = (1, 4)
-#: Moves beyond this many seed SDs are called beyond noise in the report.
-NOISE_SDS = 2.0
+#: A move is beyond noise when it exceeds the half-width of this prediction interval of one
+#: seed's figure from the baseline's k seeds: t(0.975, k-1) x sqrt(1 + 1/k) seed SDs
+#: (SensitivityResult.noise_sds; 4.97 for 3 seeds, 3.04 for 5, near 2 for many).
+CONFIDENCE = 0.95
 
 
 # ---------------------------------------------------------------------------------------------
@@ -283,9 +286,36 @@ class SensitivityResult:
             out[h] = float(np.std(vals, ddof=1)) if len(vals) > 1 else math.nan
         return out
 
+    def seed_interval(self) -> dict:
+        """Per figure (mean, lo, hi, k): the baseline's mean over its k seeds with the 95 % t
+        interval of that mean (lo = hi = nan with one seed: no interval)."""
+        return {h: t_interval([b.figures[h] for b in self.baselines], CONFIDENCE) for h in HEADLINES}
+
+    def noise_sds(self) -> float:
+        """How many seed SDs a move must exceed to be beyond noise: the half-width of the 95 %
+        prediction interval of one more seed's figure, t(0.975, k-1) x sqrt(1 + 1/k), from the k
+        baseline seeds; nan with one seed (no interval: no move is called beyond noise)."""
+        k = len(self.baselines)
+        if k < 2:
+            return math.nan
+        return float(ss.t.ppf(0.5 + CONFIDENCE / 2, k - 1) * math.sqrt(1.0 + 1.0 / k))
+
+    def noise(self, h: str, sd: dict | None = None) -> float:
+        """The half-width of that prediction interval for figure h (its units)."""
+        return self.noise_sds() * self.scale(h, sd)
+
+    def beyond(self, run: 'Run', sd: dict | None = None) -> list[str]:
+        """The figures a run moves beyond noise (none with one seed)."""
+        base = self.baseline
+        return [h for h in HEADLINES if math.isfinite(run.figures[h] - base[h])
+                and abs(run.figures[h] - base[h]) > self.noise(h, sd)]
+
     def frame(self) -> pd.DataFrame:
+        """One row per run (the baselines first, one per seed), then the baseline's mean over the
+        seeds and its 95 % interval (side seeds_mean, seeds_lo, seeds_hi)."""
         params = {p.key: p for p in self.parameters}
         base = self.baseline
+        sd = self.seed_sd()
         recs = []
         for r in self.baselines + self.runs:
             p = params.get(r.parameter)
@@ -297,6 +327,16 @@ class SensitivityResult:
             for h in HEADLINES:
                 rec[f'd_{h}'] = r.figures[h] - base[h] if r.side != 'baseline' else math.nan
             rec['excluded'] = len(r.excluded)
+            rec['seeds'] = len(self.baselines)
+            rec['beyond_noise'] = ','.join(self.beyond(r, sd)) if r.side != 'baseline' else ''
+            recs.append(rec)
+        iv = self.seed_interval()
+        for side, j in (('seeds_mean', 0), ('seeds_lo', 1), ('seeds_hi', 2)):
+            rec = dict(parameter='baseline', side=side, unit='', scene_value=math.nan, value=math.nan,
+                       seed=math.nan)
+            rec.update({h: iv[h][j] for h in HEADLINES})
+            rec.update({f'd_{h}': math.nan for h in HEADLINES})
+            rec.update(excluded=math.nan, seeds=len(self.baselines), beyond_noise='')
             recs.append(rec)
         return pd.DataFrame(recs)
 

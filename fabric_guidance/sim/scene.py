@@ -223,7 +223,8 @@ class Scene:
     def with_value(self, key: str, value) -> 'Scene':
         """The same scene with one number changed, named by its path in a scene file:
         'controller.gain', 'calibration.steps', 'protocol.acceptance_deg',
-        'population.spread.a', 'population.arm_spread' or '<effect>.<parameter>' (an effect the
+        'population.spread.a', 'population.arm_spread', 'population.traits.<trait>.sd' or
+        '<effect>.<parameter>' (an effect the
         scene lists). The knobs of the trade-off and the sensitivity analysis change scenes
         through this. KeyError for a path the scene has not."""
         section, _, name = key.partition('.')
@@ -239,6 +240,12 @@ class Scene:
             pop = self.population
             if name == 'arm_spread':
                 return replace(self, population=replace(pop, arm_spread=value))
+            if name.startswith('traits.') and name.endswith('.sd'):
+                trait = name[len('traits.'):-len('.sd')]
+                if pop.trait(trait) is None:
+                    raise KeyError(f'{key}: the population has no trait {trait!r}')
+                traits = tuple(replace(tr, sd=float(value)) if tr.name == trait else tr for tr in pop.traits)
+                return replace(self, population=replace(pop, traits=traits))
             coef = name.rpartition('.')[2]
             if not name.startswith('spread.') or coef not in 'abc' or len(coef) != 1:
                 raise KeyError(f'{key}: population has spread.a, spread.b, spread.c and arm_spread')

@@ -41,6 +41,19 @@ numbers by the rules of read_curve(), the plots), <knob>.png (accuracy against t
 +-SD bars, p10-p90 shading, each point labelled with its value, the Pareto front drawn). The
 markdown table is printed; progress goes to stderr, one line per knob value.
 
+Over seeds (--seeds N: the scene's seed and the N-1 after it; --seeds 2025,7,11: those): the
+whole sweep runs on each seed (new wearers, targets and noise), and every figure of the table
+and CSV is the mean over the seeds with its 95 % t interval over the seeds (columns <figure>_lo,
+<figure>_hi; each seed's mean in accuracy_mean_seed<S>, time_mean_seed<S>; every seed's own
+table in tradeoff_per_seed.csv); the plots draw the intervals, and the reading states a
+difference only where its interval excludes zero and says which headline finding holds
+across the seeds. One seed (the default) has no interval over seeds.
+
+Over the fitted parameters (--scene-variants FILE, a YAML list of mappings `effect.param:
+value`, e.g. bootstrap draws of a fit): conditions 1-4 at the package defaults run on each
+variant at one seed (the first of --seeds), written to variants.csv, variants_per_run.csv,
+variants.md and variants.png, with the same means and intervals over the variants.
+
 Also runs alone: python -m fabric_guidance.experiments.tradeoff --out DIR [--quick]
 """
 from __future__ import annotations
@@ -52,10 +65,11 @@ from pathlib import Path
 import sys
 
 from ... import subcommand
-from .report import markdown_table, write_outputs
+from .intervals import check_variants, parse_seeds, read_variants, run_seeds, run_variants
+from .reading import headline_lines
+from .report import markdown_table, variants_table, write_outputs, write_variant_outputs
 from .settings import (DEFAULT_ACCURACY_SCENE, DEFAULT_SPEED_SCENE, KNOBS, Settings, base_scenes,
                        check_settings, quick_settings)
-from .sweep import run_sweep
 
 
 PROG = 'fabric-guidance tradeoff'
@@ -84,6 +98,14 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes')
     parser.add_argument('--quick', action='store_true',
                         help='a tiny sweep: 2 wearers, 3 values per knob, 20 s speed trials (seconds, for a check)')
+    parser.add_argument('--seeds', default=None, metavar='N|S1,S2,...',
+                        help='run the whole sweep on N seeds (the scene\'s and the next ones) or on the listed '
+                             'seeds; every figure then has a 95 %% t interval over the seeds (default: the scene\'s '
+                             'seed alone, no interval)')
+    parser.add_argument('--scene-variants', type=Path, default=None, metavar='FILE',
+                        help='YAML list of scene-value overrides ("effect.param: value" per variant, e.g. bootstrap '
+                             'draws of the fitted parameters): run conditions 1-4 at the package defaults on each '
+                             'variant (at the first seed) instead of the knob sweep')
     parser.add_argument('--no-plane', action='store_true',
                         help='only the per-knob curves: no conditions 1-4, no plane.png (faster)')
     return parser
@@ -107,17 +129,42 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
 
 
 def run(args: argparse.Namespace) -> int:
-    """0 done, 2 bad arguments or scene, 1 an output could not be written."""
+    """0 done, 2 bad arguments, scene or variants file, 1 an output could not be written."""
+    variants = None
     try:
         settings = settings_from_args(args)
-        acc, _ = base_scenes(settings)
+        acc, spd = base_scenes(settings)
         check_settings(settings, acc)
+        seeds = (spd.seed,) if args.seeds is None else parse_seeds(args.seeds, spd.seed)
+        if args.scene_variants is not None:
+            if len(seeds) > 1:
+                raise ValueError('--scene-variants runs every variant at one seed; give --seeds one seed '
+                                 '(e.g. --seeds 7,)')
+            variants = read_variants(args.scene_variants)
+            try:
+                check_variants(settings, variants, seeds[0])
+            except ValueError as exc:
+                raise ValueError(f'{args.scene_variants}: {exc}') from None
     except (ValueError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 2
-    print(f'{PROG}: {len(settings.knobs)} knob(s), {settings.subjects} wearers, {settings.workers} worker(s)',
-          file=sys.stderr, flush=True)
-    result = run_sweep(settings, progress=lambda line: print(line, file=sys.stderr, flush=True))
+    say = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    if variants is not None:
+        print(f'{PROG}: conditions 1-4 on {len(variants)} variant(s) of {args.scene_variants}, seed {seeds[0]}, '
+              f'{settings.subjects} wearers, {settings.workers} worker(s)', file=sys.stderr, flush=True)
+        result = run_variants(settings, variants, seeds[0], say)
+        try:
+            paths = write_variant_outputs(result, args.out)
+        except OSError as exc:
+            subcommand.error(PROG, f'cannot write {exc.filename or args.out}: {exc.strerror or exc}')
+            return 1
+        print(variants_table(result))
+        print(f'\nvariants: {result.wall_s:.1f} s wall\ntable: {paths["csv"]}\nreport: {paths["md"]}\n'
+              f'plot: {paths["png"]}')
+        return 0
+    print(f'{PROG}: {len(settings.knobs)} knob(s), {settings.subjects} wearers, {len(seeds)} seed(s), '
+          f'{settings.workers} worker(s)', file=sys.stderr, flush=True)
+    result = run_seeds(settings, seeds, progress=say)
     try:
         paths = write_outputs(result, args.out)
     except OSError as exc:
@@ -127,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
     print()
     for (knob, am, tm), text in result.readings.items():
         print(f'{knob} ({am} vs {tm}): {text}\n')
+    if result.runs > 1:
+        print('\n'.join(['headline findings across the seeds:'] + headline_lines(result)) + '\n')
     print(f'sweep: {result.wall_s:.1f} s wall; ' + ', '.join(f'{k} {v:.1f} s' for k, v in result.knob_wall_s.items()))
     print(f'table: {paths["csv"]}\nreport: {paths["md"]}\nplots: '
           + ', '.join(str(paths[k]) for k in ('plane',) + settings.knobs if k in paths))

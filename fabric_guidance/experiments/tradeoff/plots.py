@@ -7,16 +7,22 @@ from pathlib import Path
 import numpy as np
 
 from ...atomic import atomic_write
-
+from .intervals import SeedRow
 from .reading import _value_text, pareto_front
 from .rows import Row
 from .settings import CONDITION_LABELS, KNOBS, KNOB_SYMBOLS, KNOB_TITLES, METRICS, REFERENCE
 from .sweep import SweepResult
 
 
+def _runs(rows) -> int:
+    return len(rows[0].runs) if rows and isinstance(rows[0], SeedRow) else 1
+
+
 def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
     """One panel per curve of a knob: accuracy (y) against time (x), means with +-SD bars, the
-    p10-p90 box shaded, each point labelled with its value, the Pareto front dashed."""
+    p10-p90 box shaded, each point labelled with its value, the Pareto front dashed. Rows over
+    several seeds or variants (SeedRow): the means over the runs, black bars for their 95 %
+    intervals on both axes, and each run's own curve in thin grey."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
@@ -42,9 +48,21 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
                 ax.add_patch(Rectangle((s_t['p10'], s_a['p10']), w, h, color=colour, alpha=0.10, lw=0))
             else:
                 ax.vlines(s_t['p10'], s_a['p10'], s_a['p90'], color=colour, alpha=0.25, lw=8)
-        ax.plot(x, y, color='0.6', lw=0.8, zorder=2)
+        k = _runs(rows)
+        if k > 1:
+            for j in range(k):
+                ax.plot([r.values('time')[j] for r in rows], [r.values('accuracy')[j] for r in rows],
+                        color='0.75', lw=0.6, marker='.', ms=3, zorder=1,
+                        label=f'each {_axis(rows)} ({k})' if j == 0 else None)
+        else:
+            ax.plot(x, y, color='0.6', lw=0.8, zorder=2)
         ax.errorbar(x, y, xerr=[s['sd'] for s in T], yerr=[s['sd'] for s in A], fmt='none', ecolor=colour,
                     elinewidth=1.2, capsize=3, zorder=3)
+        if k > 1:
+            xi = np.array([r.interval('time')[1:3] for r in rows])
+            yi = np.array([r.interval('accuracy')[1:3] for r in rows])
+            ax.errorbar(x, y, xerr=np.abs(xi.T - x), yerr=np.abs(yi.T - y), fmt='none', ecolor='black',
+                        elinewidth=1.8, capsize=4, zorder=6, label=f'95 % interval over {k} {_axis(rows)}s')
         front = pareto_front(list(x), list(y))
         dom = [i for i in range(len(rows)) if i not in front]
         ax.scatter(x[front], y[front], s=42, color=colour, edgecolor='black', zorder=5, label='Pareto front')
@@ -53,7 +71,8 @@ def plot_knob(curves: list[list[Row]], path: Path, dpi: int = 120) -> Path:
                        label='dominated')
         ax.plot(x[front], y[front], color='black', ls='--', lw=1.0, zorder=4)
         labels.append((ax, knob, rows, x, y))
-        ax.errorbar([], [], xerr=[], yerr=[], fmt='none', ecolor=colour, capsize=3, label='mean +- SD')
+        ax.errorbar([], [], xerr=[], yerr=[], fmt='none', ecolor=colour, capsize=3,
+                    label='mean +- SD' + (' (mean over runs)' if k > 1 else ''))
         ax.add_patch(Rectangle((0, 0), 0, 0, color=colour, alpha=0.2, lw=0, label='p10-p90'))
         if x.min() > 0 and x.max() / x.min() > 30:
             ax.set_xscale('log')
@@ -103,6 +122,10 @@ def _label_points(ax, renderer, knob: str, rows: list[Row], x, y) -> None:
                 transform=ax.transAxes, fontsize=7, va='bottom', ha='left', color='0.3')
 
 
+def _axis(rows) -> str:
+    return getattr(rows[0], 'axis', 'seed')
+
+
 def _is_plane_only(curve: tuple[str, str, str]) -> bool:
     """A curve that exists only for the plane (one protocol's error, the other's time)."""
     return curve[1] == 'guidance_error_deg' and curve[2] == 'time_to_find_s'
@@ -145,11 +168,16 @@ def _place_labels(ax, renderer, items, placed=None):
     return dropped
 
 
-def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
+def _whisker(row, which: str) -> float:
+    return row.whisker(which) if isinstance(row, SeedRow) else row.wearer_se(which)[0]
+
+
+def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | None = None) -> Path:
     """The one plane: x = mean time to find a target (speed protocol, s), y = guidance error
     at the key press (accuracy protocol, deg; acceptance tolerance: the error when a target
     counts). Conditions 1-4 at the package defaults, one polyline per knob through its values
-    in the sweep's condition; whiskers +-1 SE over wearer means. Left: the whole plane; right:
+    in the sweep's condition; whiskers +-1 SE over wearer means (over several seeds or variants:
+    the 95 % interval over them). Left: the whole plane; right:
     the same axes zoomed on the knobs other than the tolerance (they crowd round the condition
     point), where their end values are labelled."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -160,6 +188,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
 
     curves = plane_curves(result)
     cond = result.settings.condition
+    k = getattr(result, 'runs', 1)
+    whiskers = (f'whiskers: 95 % interval over {k} {getattr(result, "axis", "seed")}s' if k > 1 else
+                'whiskers +-1 SE over wearer means')
     fig = Figure(figsize=(14.0, 8.6), layout='constrained')
     canvas = FigureCanvasAgg(fig)
     whole, zoom = fig.subplots(1, 2, width_ratios=(1.0, 1.0))
@@ -167,8 +198,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     def stats(rows):
         t = np.array([r.stats('time')['mean'] for r in rows])
         a = np.array([r.stats('accuracy')['mean'] for r in rows])
-        tse = np.nan_to_num([r.wearer_se('time')[0] for r in rows])
-        ase = np.nan_to_num([r.wearer_se('accuracy')[0] for r in rows])
+        tse = np.nan_to_num([_whisker(r, 'time') for r in rows])
+        ase = np.nan_to_num([_whisker(r, 'accuracy') for r in rows])
         return t, a, tse, ase
 
     knobs = [k for k in KNOBS if k in curves]
@@ -207,6 +238,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
         # the sweep's own condition last and smaller: another at the same point stays visible
         for row in sorted(cond_rows, key=lambda r: int(r.value) == cond):
             c = int(row.value)
+            if isinstance(row, SeedRow) and len(row.runs) > 1:     # each run's own point
+                ax.scatter(row.values('time'), row.values('accuracy'), s=14, marker=markers.get(c, 'o'),
+                           facecolor='0.6', edgecolor='none', alpha=0.8, zorder=4)
             x, y, xe, ye = stats([row])
             ax.errorbar(x, y, xerr=xe, yerr=ye, fmt='none', ecolor='black', elinewidth=1.2,
                         capsize=3, zorder=5)
@@ -239,10 +273,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130) -> Path:
     zoom.set_title(f'zoom: the knobs swept in condition {cond} '
                    '(package values at the filled point)',
                    fontsize=10)
-    fig.suptitle('What accuracy costs in time: conditions 1-4 at the package defaults and '
-                 'every knob; '
-                 f'{s.subjects} wearers, whiskers +-1 SE over wearer means; lower and to the '
-                 'left is better',
+    fig.suptitle((title or 'What accuracy costs in time: conditions 1-4 at the package defaults and '
+                  'every knob') + f';\n{s.subjects} wearers, {whiskers}'
+                 + ('; grey: each run\'s own point' if k > 1 else '') + '; lower and to the left is better',
                  fontsize=11)
     fig.legend(handles, labels, loc='outside lower center', ncol=2, fontsize=8.5, frameon=False)
     canvas.draw()

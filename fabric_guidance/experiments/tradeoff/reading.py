@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from .intervals import SeedRow, SeedSweep, excludes_zero, headlines, t_interval
 from .rows import Row
 from .settings import KNOB_SYMBOLS, METRICS, REFERENCE
 from .sweep import SweepResult, _fmt
@@ -209,3 +210,103 @@ def gain_rate_reading(result: SweepResult) -> str:
     if not pairs:
         text += ' No value of the two grids gives the same product, so the sweeps cannot be compared point to point.'
     return text
+
+
+# ------------------------------------------------------------- over seeds or variants: intervals
+
+def interval_text(mean: float, lo: float, hi: float, unit: str = '', signed: bool = False) -> str:
+    """'13.2 deg [12.1, 14.3]' (the 95 % interval), or without brackets when there is none."""
+    f = (lambda x: ('+' if x > 0 else '') + _fmt(x)) if signed else _fmt    # noqa: E731
+    u = f' {unit}' if unit and unit != '-' else ''
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return f'{f(mean)}{u}'
+    return f'{f(mean)}{u} [{f(lo)}, {f(hi)}]'
+
+
+def read_curve_interval(rows: list[SeedRow], reference: float | None = None, axis: str = 'seed') -> str:
+    """One curve over k runs (seeds or variants), lower is better on both axes:
+
+    1. the curve's ends and its best value, each as the mean over the runs with its 95 % t
+       interval;
+    2. every other value against the reference (the package's value; `reference` or the
+       grid's first value when the grid lacks it): the difference of the accuracy and of the
+       time, paired within each run, stated as a finding only where its interval excludes zero;
+    3. the values whose differences cross zero, named as no finding.
+
+    One run has no interval: the reading is then the one-sweep reading (read_curve) of that
+    run, and says so."""
+    rows = [r for r in rows if r.stats('accuracy')['n'] and r.stats('time')['n']]
+    if not rows:
+        return 'No value produced a sample: nothing to read.'
+    k = len(rows[0].runs)
+    if k < 2:
+        return (f'One {axis}: no interval over {axis}s (the spread below is over this {axis}\'s '
+                'wearers and trials). ' + read_curve([r.runs[0] for r in rows]))
+    knob = rows[0].knob
+    sym = KNOB_SYMBOLS[knob]
+    a_name, t_name = METRICS[rows[0].accuracy_metric][0], METRICS[rows[0].time_metric][0].split(' (')[0]
+    au, tu = METRICS[rows[0].accuracy_metric][1], METRICS[rows[0].time_metric][1]
+    vals = [r.value for r in rows]
+    A = [r.interval('accuracy') for r in rows]
+    T = [r.interval('time') for r in rows]
+    best = int(np.argmin([a[0] for a in A]))
+    s1 = (f'Over {k} {axis}s (mean [95 % t interval over the {axis}s]): {a_name} goes from '
+          f'{interval_text(*A[0][:3], au)} at {sym} = {vals[0]:g} to {interval_text(*A[-1][:3], au)} at '
+          f'{vals[-1]:g} (best mean {interval_text(*A[best][:3], au)} at {vals[best]:g}); the {t_name} from '
+          f'{interval_text(*T[0][:3], tu)} to {interval_text(*T[-1][:3], tu)}.')
+    if len(rows) == 1:
+        return s1
+    if reference is None:
+        reference = REFERENCE.get(knob, (math.nan, ''))[0]
+    ref_i = next((i for i, v in enumerate(vals) if math.isclose(float(v), float(reference), rel_tol=1e-9)), 0)
+    ref = rows[ref_i]
+    ref_text = _value_text(knob, vals[ref_i]) if knob != 'condition' else f'condition {vals[ref_i]:g}'
+    label = (lambda v: f'condition {v:g}') if knob == 'condition' else (lambda v: f'{sym} = {v:g}')  # noqa: E731
+    findings, none_a, none_t = [], [], []
+    for i, r in enumerate(rows):
+        if i == ref_i:
+            continue
+        parts = []
+        for which, unit, short, misses in (('accuracy', au, a_name.split(' (')[0], none_a),
+                                           ('time', tu, t_name, none_t)):
+            d = [x - y for x, y in zip(r.values(which), ref.values(which))]
+            mean, lo, hi, n = t_interval(d)
+            if n >= 2 and excludes_zero(lo, hi):
+                parts.append(f'{interval_text(mean, lo, hi, unit, signed=True)} {short}')
+            else:
+                misses.append(f'{vals[i]:g}')
+        if parts:
+            findings.append(f'{label(vals[i])}: {" and ".join(parts)}')
+    s2 = (f'Against {ref_text}, paired within each {axis}, the differences whose interval excludes zero: '
+          + ('; '.join(findings) + '.' if findings else 'none.'))
+    s3 = []
+    if none_a:
+        s3.append(f'{a_name.split(" (")[0]} at {", ".join(none_a)}')
+    if none_t:
+        s3.append(f'{t_name} at {", ".join(none_t)}')
+    text = f'{s1} {s2}'
+    if s3:
+        text += (f' No finding (the interval of the difference from {vals[ref_i]:g} crosses zero): '
+                 + '; '.join(s3) + '.')
+    caveats = [f'{sym} = {r.value:g}: {r.caveat}' for r in rows if r.caveat]
+    if caveats:
+        text += ' Caveats (in some runs): ' + '; '.join(caveats) + '.'
+    return text
+
+
+def headline_lines(result: SeedSweep) -> list[str]:
+    """A line per headline finding (intervals.headlines): whether it holds on the interval over
+    the runs, with the differences that make it."""
+    axis, k = result.axis, result.runs
+    out = []
+    for i, h in enumerate(headlines(result), start=1):
+        if not h.ran:
+            out.append(f'{i}. **{h.claim}**: not checked (this run did not measure it).')
+            continue
+        figs = '; '.join(f'{what} {interval_text(*iv[:3], unit, signed=True)} '
+                         f'(> 0 in {sum(1 for x in d if x > 0)} of {len(d)} {axis}s)'
+                         for what, unit, d, iv in h.parts)
+        verdict = {True: f'**holds across {k} {axis}s**', False: f'**does not hold on the interval over {k} '
+                   f'{axis}s**', None: f'one {axis}: no interval, not checked across {axis}s'}[h.holds]
+        out.append(f'{i}. *{h.claim}*: {verdict}: {figs}.')
+    return out

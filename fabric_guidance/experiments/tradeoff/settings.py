@@ -118,6 +118,10 @@ class Settings:
     trial_s: float | None = None        # speed trials' length; None: the scene's (the paper: 40 s)
     quick: bool = False
     plane: bool = True                  # run conditions 1-4 and both protocols per knob value
+    seed: int | None = None             # the wearers, targets and noise; None: the speed scene's
+    #: (scene path, value) pairs set in both scenes where they apply (a variant of the fitted
+    #: parameters, intervals.read_variants)
+    overrides: tuple = ()
 
     def __post_init__(self):
         # An old knob name (in knobs or grids) is read as its new one, with one warning each.
@@ -169,16 +173,40 @@ def paired_scenes(speed_scene: str, accuracy_scene: str, speed_conditions, accur
 
 
 def base_scenes(settings: Settings) -> tuple[Scene, Scene]:
-    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions."""
+    """(accuracy scene, speed scene) restricted to the sweep's condition and repetitions, at the
+    settings' seed and with its overrides."""
     spd, acc = paired_scenes(settings.speed_scene, settings.accuracy_scene, (settings.condition,),
                              (settings.condition,), settings.speed_repetitions, settings.repetitions,
                              settings.trial_s, settings.subjects)
+    if settings.seed is not None:
+        spd, acc = spd.replace(seed=settings.seed), acc.replace(seed=settings.seed)
+    spd, acc = override(spd, acc, settings.overrides)
     return acc, spd
+
+
+def override(spd: Scene, acc: Scene, overrides) -> tuple[Scene, Scene]:
+    """Both scenes with every (path, value) of `overrides` set where the scene has the path (an
+    effect or a protocol field only one scene has is set there); ValueError naming the path
+    when neither scene has it or the value is not valid there."""
+    for key, value in overrides:
+        scenes, missing = [], []
+        for scene in (spd, acc):
+            try:
+                scene = scene.with_value(key, value)
+            except KeyError as exc:
+                missing.append(str(exc.args[0] if exc.args else exc))
+            except ValueError as exc:
+                raise ValueError(f'{key} = {value!r}: {exc}') from None
+            scenes.append(scene)
+        if len(missing) == 2:
+            raise ValueError(f'{missing[0]} (nor does {acc.name})')
+        spd, acc = scenes
+    return spd, acc
 
 
 def check_settings(settings: Settings, acc: Scene) -> None:
     unknown = [k for k in settings.knobs if k not in KNOBS]
-    if unknown or not settings.knobs:
+    if unknown or not (settings.knobs or settings.plane):
         raise ValueError(f'unknown knob(s) {unknown}; valid: {", ".join(KNOBS)}')
     if settings.condition not in (1, 2, 3):
         raise ValueError(f'condition must be 1, 2 or 3 (a haptic condition), got {settings.condition}')
