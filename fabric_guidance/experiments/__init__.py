@@ -8,7 +8,8 @@
   analyze           `fabric-guidance analyze`: the statistics of a CSV table
   paper             the paper's figures as data (means, SDs, per-subject tables, significance)
   experiment        `fabric-guidance experiment`: one protocol on simulated wearers, with report
-  fit_wearer        `fabric-guidance fit-wearer`: the wearer model's human parameters fitted
+  fit_wearer        `fabric-guidance fit-wearer`: the population fitted to the paper's table
+  population_fit    the fit itself: a design population reweighted (importance weights), bootstrap
   paper_comparison  `fabric-guidance compare-paper`: every figure of the paper beside the model's
   tradeoff/         `fabric-guidance tradeoff`: what accuracy costs in time, one module per job
   sensitivity       `fabric-guidance sensitivity`: the headline figures against each assumed parameter
