@@ -286,13 +286,14 @@ def markdown(r: dict) -> str:
     for name, v in r.get('diagnostics_us', {}).items():
         rows.append((f"diagnostics publish, {name} ({v['keys']} values, {v['rate_hz']:g} Hz): p50 / p99 [us]",
                      f"{_fmt(v['p50'], 1)} / {_fmt(v['p99'], 1)}", '', ''))
-    m = r.get('modbus_write_us')
-    if m:
-        rows.append((f"Modbus write of {m['registers']} registers to the mock PLC, loopback: p50 / p99 [us], "
+    mb = r.get('modbus_write_us')
+    if mb:
+        rows.append((f"Modbus write of {mb['registers']} registers to the mock PLC, loopback: p50 / p99 [us], "
                      'CPU per write [us]',
-                     f"{_fmt(m['p50'], 0)} / {_fmt(m['p99'], 0)}, {_fmt(m['cpu_us_per_write'], 0)}", '', ''))
+                     f"{_fmt(mb['p50'], 0)} / {_fmt(mb['p99'], 0)}, {_fmt(mb['cpu_us_per_write'], 0)}", '', ''))
         rows.append(('  own time shares: pymodbus / socket calls / package',
-                     f"{_fmt(m['pymodbus_share'])} / {_fmt(m['socket_share'])} / {_fmt(m['package_share'])}", '', ''))
+                     f"{_fmt(mb['pymodbus_share'])} / {_fmt(mb['socket_share'])} / {_fmt(mb['package_share'])}",
+                     '', ''))
     rows += [
         ('headless simulation [x real time]', _fmt(r['headless_speedup'], 0), '>= 1000',
          ok(r['headless_speedup'] >= 1000.0)),
