@@ -74,6 +74,16 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     assert all(finite(v) and 10 < v < 4000 for v in r['node_rss_mb'].values()), r['node_rss_mb']
     for key in ('controller_step_us', 'gaze_parse_us', 'fit_ms'):
         assert 0 < r[key]['p50'] <= r[key]['p99'] and finite(r[key]['p99'])
+    # The per-sample work beside the control law: allocations, log calls, diagnostics, a Modbus write.
+    for name in ('gaze_bridge', 'pressure_controller'):
+        a = r['allocations'][name]
+        assert 0 < a['peak_bytes_p50'] <= a['peak_bytes_max'] and finite(a['retained_bytes_per_call'])
+    assert set(r['logging_us']) == {'filtered', 'throttled', 'throttled_first', 'emitted'}
+    assert set(r['diagnostics_us']) == {'gaze_bridge', 'pressure_controller', 'plc_output', 'bag_recorder'}
+    for v in (*r['logging_us'].values(), *r['diagnostics_us'].values(), r['modbus_write_us']):
+        assert 0 < v['p50'] <= v['p99'] and finite(v['p99'])
+    m = r['modbus_write_us']
+    assert m['registers'] > 1 and m['top'] and 0 < m['pymodbus_share'] < 1 and 0 < m['socket_share'] < 1
     assert set(r['rss_mb']) == {'gaze_bridge', 'pressure_controller', 'plc_output', 'mock_plc'}
     assert all(finite(v) and 10 < v < 4000 for v in r['rss_mb'].values())
     assert finite(r['headless_speedup']) and r['headless_speedup'] > 1
@@ -92,4 +102,6 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     assert 'capture to register, C# headset' in table
     assert '| figure | value | goal | met |' in table and 'gaze to register, 90 Hz' in table
     assert 'resident memory idle, bare rclpy node' in table and 'over 2 rounds' in table
+    assert 'log call on a bare node, throttled' in table and 'diagnostics publish, bag_recorder' in table
+    assert 'Modbus write of' in table and 'allocated per sample, gaze_bridge' in table
     assert 'gaze to register, 90 Hz' in run.stdout

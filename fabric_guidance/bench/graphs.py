@@ -87,7 +87,9 @@ class Rig:
         while True:
             samples = self._send(6, 30.0)
             start_ns = self.sender.sent_ns[samples[0]]
-            self.log.wait_drained(time.monotonic_ns() + int(0.1e9))
+            # Until the prime's own deadline: on a loaded machine the mock PLC may take longer
+            # than the drain's usual 10 s to start writing its log at all.
+            self.log.wait_drained(time.monotonic_ns() + int(0.1e9), max(10.0, deadline - time.monotonic()))
             if any(i in samples for i in self._landed(start_ns)):
                 return
             self._check_alive()

@@ -55,23 +55,27 @@ def _steady_rss(pid: int, timeout_s: float = 30.0) -> float | None:
     return last
 
 
-def node_rss(work: Path, say: Callable[[str], None]) -> dict[str, float | None]:
-    """{name: MB} for the bare node and every lab node, started together and idle."""
+def node_rss(work: Path, say: Callable[[str], None], nodes: tuple[str, ...] = LAB_NODES) -> dict[str, float | None]:
+    """{name: MB} for the bare node and every lab node of `nodes`, started together and idle."""
     graph = Graph(Path(work) / 'memory_logs')
     bare = None
+    overrides = {
+        'gaze_bridge': lambda: {'port': free_port(socket.SOCK_DGRAM)},
+        'target_selector': dict,
+        'pressure_controller': lambda: {'calibration_file': str(SIM_CALIBRATION),
+                                        'calibration_dir': str(Path(work) / 'calibrations')},
+        'plc_output': lambda: {'plc_port': free_port()},      # nobody listens: it retries
+        'headset_display': lambda: {'display_port': free_port(socket.SOCK_DGRAM)},
+        'bag_recorder': lambda: {'output': str(Path(work) / 'memory_bag')},
+    }
     try:
         bare = subprocess.Popen([sys.executable, '-c', BARE_NODE], env=graph.env, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.STDOUT)
-        graph.start('gaze_bridge', FILES, port=free_port(socket.SOCK_DGRAM))
-        graph.start('target_selector', FILES)
-        graph.start('pressure_controller', FILES, calibration_file=str(SIM_CALIBRATION),
-                    calibration_dir=str(Path(work) / 'calibrations'))
-        graph.start('plc_output', FILES, plc_port=free_port())      # nobody listens: it retries
-        graph.start('headset_display', FILES, display_port=free_port(socket.SOCK_DGRAM))
-        graph.start('bag_recorder', FILES, output=str(Path(work) / 'memory_bag'))
-        say(f'  resident memory of {len(LAB_NODES)} idle lab nodes and a bare rclpy node ...')
+        for name in nodes:
+            graph.start(name, FILES, **overrides[name]())
+        say(f'  resident memory of {len(nodes)} idle lab nodes and a bare rclpy node ...')
         out = {BARE: _steady_rss(bare.pid)}
-        for name in LAB_NODES:
+        for name in nodes:
             proc = graph.processes[name]
             out[name] = _steady_rss(proc.pid) if proc.poll() is None else None
         return out

@@ -36,6 +36,11 @@ class Plan:
     steps: int = 20000
     parses: int = 20000
     fits: int = 1000
+    allocations: int = 5000
+    log_calls: int = 20000
+    diagnostics: int = 2000
+    modbus_writes: int = 2000
+    modbus_profile: int = 2000
     replay_s: float = 5.0
     headless_repetitions: int | None = None
     blocks: int = 4
@@ -45,7 +50,8 @@ class Plan:
 
 FULL = Plan()
 QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
-             fits=30, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60)
+             fits=30, allocations=300, log_calls=1000, diagnostics=200,
+             modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60)
 
 #: Goals, read off the figures (never asserted): the package's p99 within RATIO_GOAL of its
 #: transports' floor at both rates, 1 kHz p99 within P99_1000_GOAL_MS, and the nodes that run
@@ -92,6 +98,12 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     results['fit_ms'] = components.fit_ms(plan.fits)
     say(f"  controller step p50 {results['controller_step_us']['p50']:.1f} us, gaze datagram p50 "
         f"{results['gaze_parse_us']['p50']:.1f} us, fit p50 {results['fit_ms']['p50']:.2f} ms")
+    say('components beside the control law: allocations per sample, logging, diagnostics, a Modbus write ...')
+    results['allocations'] = components.allocations(plan.allocations)
+    results['logging_us'] = components.logging_us(plan.log_calls)
+    results['diagnostics_us'] = components.diagnostics_us(plan.diagnostics)
+    results['modbus_write_us'] = components.modbus_write_us(plan.modbus_writes, plan.modbus_profile)
+    say('  ' + _components_line(results))
 
     say('headless simulation of the speed protocol (one wearer, one core) ...')
     headless = throughput.headless_speedup(1, plan.headless_repetitions)
@@ -170,6 +182,14 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     results['ratio_p99_1000'] = _ratio(results['e2e_latency_ms']['1000'], results.get('floor_latency_1000_ms', {}))
     results['wall_s'] = time.monotonic() - t_all
     return results
+
+
+def _components_line(r: dict) -> str:
+    a, lg, m = r['allocations'], r['logging_us'], r['modbus_write_us']
+    return (f"peak allocated per sample: gaze_bridge {a['gaze_bridge']['peak_bytes_p50']:.0f} B, "
+            f"pressure_controller {a['pressure_controller']['peak_bytes_p50']:.0f} B; log call p50 filtered "
+            f"{lg['filtered']['p50']:.1f} us, throttled {lg['throttled']['p50']:.1f} us, emitted "
+            f"{lg['emitted']['p50']:.1f} us; Modbus write p50 {m['p50']:.0f} us")
 
 
 def _ratio(package: dict, floor: dict) -> float | None:
@@ -256,6 +276,26 @@ def markdown(r: dict) -> str:
          ok(c['p50'] < 50.0)),
         ('gaze datagram parse and convert p50 / p99 [us]', f"{_fmt(g['p50'], 1)} / {_fmt(g['p99'], 1)}", '', ''),
         ('calibration fit p50 / p99 [ms]', f"{_fmt(f['p50'])} / {_fmt(f['p99'])}", 'p50 < 5', ok(f['p50'] < 5.0)),
+    ]
+    for name, a in r.get('allocations', {}).items():
+        rows.append((f'allocated per sample, {name}: peak p50 / max [B]; retained per sample [blocks, B]',
+                     f"{_fmt(a['peak_bytes_p50'], 0)} / {_fmt(a['peak_bytes_max'], 0)}; "
+                     f"{_fmt(a['retained_blocks_per_call'], 3)}, {_fmt(a['retained_bytes_per_call'], 1)}", '', ''))
+    for kind, v in r.get('logging_us', {}).items():
+        rows.append((f'log call on a bare node, {kind}: p50 / p99 [us]', f"{_fmt(v['p50'], 1)} / {_fmt(v['p99'], 1)}",
+                     '', ''))
+    for name, v in r.get('diagnostics_us', {}).items():
+        rows.append((f"diagnostics publish, {name} ({v['keys']} values, {v['rate_hz']:g} Hz): p50 / p99 [us]",
+                     f"{_fmt(v['p50'], 1)} / {_fmt(v['p99'], 1)}", '', ''))
+    mb = r.get('modbus_write_us')
+    if mb:
+        rows.append((f"Modbus write of {mb['registers']} registers to the mock PLC, loopback: p50 / p99 [us], "
+                     'CPU per write [us]',
+                     f"{_fmt(mb['p50'], 0)} / {_fmt(mb['p99'], 0)}, {_fmt(mb['cpu_us_per_write'], 0)}", '', ''))
+        rows.append(('  own time shares: pymodbus / socket calls / package',
+                     f"{_fmt(mb['pymodbus_share'])} / {_fmt(mb['socket_share'])} / {_fmt(mb['package_share'])}",
+                     '', ''))
+    rows += [
         ('headless simulation [x real time]', _fmt(r['headless_speedup'], 0), '>= 1000',
          ok(r['headless_speedup'] >= 1000.0)),
         ('offline replay [x real time]', _fmt(r['replay_speedup'], 0) if r['replay_speedup'] is not None

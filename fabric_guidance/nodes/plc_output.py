@@ -41,6 +41,7 @@ from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.log_throttle import LogThrottle
 from fabric_guidance.nodes.managed import ManagedNode
 from fabric_guidance.nodes.parameters import declare, declare_config_file
 from fabric_guidance.nodes.qos import COMMAND_QOS
@@ -122,6 +123,8 @@ class PlcOutput(ManagedNode):
         self._write_timer = self._command_sub = None
         self._heartbeat = 0
         self._writes = self._invalid_commands = self._ignored_commands = 0
+        # Per-command warnings (a controller gone wrong sends one per message): decided before rclpy.
+        self._log_throttle = LogThrottle(LOG_THROTTLE_S)
         self._forget_command()
         self._measured_pub = self.create_publisher(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
@@ -215,14 +218,14 @@ class PlcOutput(ManagedNode):
                    else f'non-finite values on channels {[int(i) for i in np.flatnonzero(~np.isfinite(p))]}')
             self._invalid_commands += 1
             self._invalid, self._command = True, self._zeros
-            self.get_logger().error(f'invalid pressure_command ({why}): venting all channels',
-                                    throttle_duration_sec=LOG_THROTTLE_S)
+            if self._log_throttle.due('invalid'):
+                self.get_logger().error(f'invalid pressure_command ({why}): venting all channels')
             if self.write_on_command and self._all_up():
                 self._write_now()
             return
-        if np.any(p > self.p_max_kpa):
+        if np.any(p > self.p_max_kpa) and self._log_throttle.due('above p_max'):
             self.get_logger().warning(f'pressure_command above p_max ({p.max():g} kPa): clamped to '
-                                      f'{self.p_max_kpa:g} kPa', throttle_duration_sec=LOG_THROTTLE_S)
+                                      f'{self.p_max_kpa:g} kPa')
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
         # A command is as old as its arrival in this process (the middleware's receive time, on

@@ -68,6 +68,8 @@ class PlcClient:
         self.map = register_map
         self.host, self.port, self.timeout_s = host, port, timeout_s
         self._client = compat.make_client(host, port, timeout_s)
+        # The map is frozen: its blocks are worked out once, not on every command write.
+        self._sequenced, self._block = register_map.sequenced_block(), register_map.command_block()
         self._seq: int | None = None  # last sequence number sent (kept across reconnects)
         self._synced = False          # the PLC's last applied number read on this connection
         self._answered = False        # the PLC has answered this unit id at least once
@@ -127,7 +129,7 @@ class PlcClient:
         self._write_commands(list(counts))
 
     def _write_commands(self, counts: list[int]) -> None:
-        sequenced = self.map.sequenced_block()
+        sequenced = self._sequenced
         if sequenced is not None:
             if not self._synced:
                 # A fresh connection: start ahead of whatever may still be in flight.
@@ -139,7 +141,7 @@ class PlcClient:
             self._seq = (self._seq + 1) % SEQ_MODULUS
             self._call('write pressures', 'write_registers', sequenced[0], counts + [self._seq])
             return
-        block = self.map.command_block()
+        block = self._block
         if block is not None:
             self._call('write pressures', 'write_registers', block[0], counts)
             return
