@@ -28,6 +28,7 @@ import math
 from typing import Sequence
 
 import numpy as np
+from transforms3d import quaternions
 
 #: The paper's directions in index order k-1: left twist, right twist, forward bend, backward bend.
 DIRECTIONS: tuple[str, ...] = ('left', 'right', 'down', 'up')
@@ -128,10 +129,10 @@ def unity_to_ros_quaternion(q_xyzw: Sequence[float]) -> np.ndarray:
     if q.shape != (4,) or not np.all(np.isfinite(q)):
         raise GeometryError(f'quaternion must be 4 finite numbers (x, y, z, w), got {q.tolist()}')
     x, y, z, w = _unit(q, 'quaternion')
-    # The rotation conjugated by _UNITY_TO_ROS, a reflection (det -1): the axis turns as an
-    # axial vector, -M @ (x, y, z), and w stays. Closed form: no matrix round trip per datagram
-    # (and no transforms3d, whose import pulls numpy.random into every node).
-    out = np.array([-z, x, -y, w])
+    rot_unity = quaternions.quat2mat([w, x, y, z])
+    rot_ros = _UNITY_TO_ROS @ rot_unity @ _UNITY_TO_ROS.T
+    w2, x2, y2, z2 = quaternions.mat2quat(rot_ros)
+    out = np.array([x2, y2, z2, w2])
     # One sign for one orientation, so that equal inputs give equal messages.
     return out if out[3] >= 0 else -out
 
