@@ -13,10 +13,13 @@ import time
 
 import numpy as np
 import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseStamped
 from std_msgs.msg import String
 
 from fabric_guidance.bag import offline
+from fabric_guidance.bag.recorder_status import recorded_counts
 from fabric_guidance.core import ChannelMap, ray_orientation
 from fabric_guidance import interface
 from fabric_guidance.nodes import qos
@@ -64,20 +67,30 @@ def turning_session(tmp_path_factory):
         gaze = node.create_publisher(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
         target = node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
         name = node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
+        counts = {}
+        probe.subscribe(DiagnosticArray, '/diagnostics', 10,
+                        lambda msg: counts.update(recorded_counts(msg) or {}))
         wait_until(lambda: recorder_ready(probe) and node.count_publishers('controller_input'), 15.0,
                    what='controller and recorder')
+        # Looking ahead until the recorder writes the controller's steps: the three processes
+        # have matched (on a loaded machine that comes well after the graph lists them).
+        wait_until(lambda: gaze.publish(gaze_msg(0.0)) or counts.get('controller_input', 0) > 0, 20.0,
+                   what="the recorder writing the controller's steps", interval=0.05)
         yaws = [0.0] * 15 + [-0.5 * k for k in range(40)] + [-20.0] * 40
         point = PointStamped()
         point.header.frame_id = interface.IMMERSIVE_FRAME
         point.point.x, point.point.y, point.point.z = EYE + 2.0 * direction(40.0)
+        start = counts['controller_input']
         for k, yaw in enumerate(yaws):
             if k in (10, 80):
                 name.publish(String(data='t1' if k == 10 else 't2'))
             if k >= 10 and k % 5 == 0:    # as target_selector: the position again after the name
                 target.publish(point)
             gaze.publish(gaze_msg(yaw))
-            time.sleep(0.02)
-        time.sleep(0.2)
+            time.sleep(0.02)              # the headset's pace, not a wait for anything
+        # Stopped once the recorder has written (nearly) every step of the script.
+        wait_until(lambda: counts['controller_input'] - start >= len(yaws) - 5, 20.0,
+                   what='the recorder writing the scripted steps')
         assert graph.stop('pressure_controller') == 0
         assert graph.stop('bag_recorder') == 0
     finally:
@@ -127,14 +140,15 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
         probe.close()
         graph.stop_all()
     rec = offline.load(bag)
-    recorded = offline.load(turning_session)
     # The control timer is steady: before the first /clock sim time reads 0 (and the node vents,
     # with no gaze). The steps on the bag's time are the ones to look at.
     rec.inputs = [i for i in rec.inputs if i.t > 0.0]
     ts = np.array([i.t for i in rec.inputs])
-    # The controller ran on the bag's time (sim time), not on the wall clock of this run.
-    t_bag = [i.t for i in recorded.inputs]
-    assert min(t_bag) - 1.0 <= ts.min() and ts.max() <= max(t_bag) + 1.0
+    # The controller ran on the bag's time (sim time, which the replay's /clock takes from the
+    # bag's first message on), not on the wall clock of this run.
+    meta = yaml.safe_load((turning_session / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    start = meta['starting_time']['nanoseconds_since_epoch'] * 1e-9
+    assert start - 0.1 <= ts.min() and ts.max() <= start + meta['duration']['nanoseconds'] * 1e-9 + 1.0
     jumps = np.flatnonzero(np.diff(ts) < 0) + 1
     assert len(jumps) == 1, ts
     pairs = {i.step: rec.commands[i.command - rec.offset][L1] for i in rec.inputs

@@ -120,15 +120,20 @@ class _MapStream:
         return self._m.tell()
 
 
-def _recover(file: Path, f, wanted: set[str] | None, recovered: list[Recovered], metadata: str):
-    """The intact part of a file without a usable summary, in log-time order (recovery.py)."""
+def _scan_open(file: Path, f, wanted: set[str] | None) -> Recovered:
+    """recovery.scan over the open file f; BagReadError when nothing is intact."""
     if os.fstat(f.fileno()).st_size == 0:
         raise BagReadError(f'{file}: empty (the recording was cut off before its first chunk); nothing to recover')
     with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m:
         try:
-            found = scan(file, m, wanted, MAX_CHUNK_BYTES)
+            return scan(file, m, wanted, MAX_CHUNK_BYTES)
         except NothingRecovered as exc:
             raise BagReadError(str(exc)) from None
+
+
+def _recover(file: Path, f, wanted: set[str] | None, recovered: list[Recovered], metadata: str):
+    """The intact part of a file without a usable summary, in log-time order (recovery.py)."""
+    found = _scan_open(file, f, wanted)
     found.metadata = metadata
     found.messages.sort(key=lambda item: item[0])          # stable: file order within a time
     recovered.append(found)
@@ -289,13 +294,7 @@ def scan_bag(path: str | Path) -> tuple[Path, list[Recovered], str]:
         if not _has_summary(file):
             cut.append(file.name)
         with open(file, 'rb') as f:
-            if os.fstat(f.fileno()).st_size == 0:
-                raise BagReadError(f'{file}: empty (cut off before its first chunk); nothing to recover')
-            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m:
-                try:
-                    r = scan(file, m, None, MAX_CHUNK_BYTES)
-                except NothingRecovered as exc:
-                    raise BagReadError(str(exc)) from None
+            r = _scan_open(file, f, None)
         r.metadata = metadata or (_stale(info, r) if file.name in cut else '')
         found.append(r)
     missing = [f'no summary section in {", ".join(cut)}'] if cut else []
