@@ -27,7 +27,7 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
   test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
-.PHONY: test-hololens demo test test-deep test-launch test-py312 bench chaos venv clean system-deps test-pymodbus
+.PHONY: test-hololens demo test test-deep test-launch test-py312 bench chaos soak venv clean system-deps test-pymodbus
 
 venv: $(STAMP)
 
@@ -143,6 +143,13 @@ SEED ?= 1
 FAULTS ?= 40
 chaos: $(STAMP)
 	$(VENV)/bin/fabric-guidance chaos --seed $(SEED) --faults $(FAULTS) --out chaos/seed-$(SEED)
+
+# The soak run (docs/soak_and_chaos.md): the simulated graph guiding target after target for
+# MINUTES; a row of figures per minute, a plot and a verdict on drift in soak/.
+# `make test` runs the short form (test/test_soak.py).
+MINUTES ?= 60
+soak: $(STAMP)
+	$(VENV)/bin/fabric-guidance soak --minutes $(MINUTES) --out soak
 
 # The distribution's packages some tests use (root; CI runs this before `make test`). Without
 # them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their reason.

@@ -13,6 +13,7 @@
   beyond    the Discussion's two open points in simulation: per-wearer gain, moving targets
   bench     benchmarks: gaze-to-regulator latency against the transports' floor, costs, speed
   chaos     a seeded schedule of faults on the lab graph, invariants checked from the PLC's log
+  soak      the simulated graph guiding for N minutes: figures per minute and a verdict on drift
   example   the core alone on a worked example (no ROS)
   dds-profile  a Fast DDS profile keeping DDS on one network interface of the lab PC
   discovery-server  Fast DDS's discovery server for the lab graph (no multicast discovery)
@@ -55,6 +56,8 @@ SUBCOMMANDS = {
               "transports' floor, component costs, memory, simulation and replay speed"),
     'chaos': ('fabric_guidance.bench.chaos', 'a seeded schedule of faults on the lab graph, invariants '
               'checked from the PLC register log'),
+    'soak': ('fabric_guidance.bench.soak', 'the simulated lab graph guiding target after target for N minutes: '
+             'latency, resources and losses per minute, a verdict on drift'),
     'example': ('fabric_guidance.example_command',
                 'the core alone on a worked example: calibration and guided turns'),
     'dds-profile': ('fabric_guidance.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '

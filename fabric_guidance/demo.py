@@ -19,7 +19,6 @@ import dataclasses
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
-import socket
 import sys
 import tempfile
 import threading
@@ -35,15 +34,11 @@ from .core.feedback import PAPER_P_MAX
 from .core.task import angular_error_deg
 from .paths import config_path
 from .plc import PlcClient, RegisterMap
-from .process_graph import Graph, Probe, free_port, wait_until
+from .process_graph import FILES, NODES, Graph, Probe, sim_lab, start_nodes, start_task, wait_until
 from .sim.scene_plan import ScenePlan, plan_scene
 
-SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
 #: Distractor spheres of the paper's speed task (Section VI).
 PAPER_DUMMIES = 50
-#: Nodes in start order: the PLC side first so plc_output finds its PLC.
-NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'headset_display',
-         'wearer_sim')
 #: The report lists at most this many of the things the simulated headset showed.
 VIEW_LINES = 40
 
@@ -187,22 +182,11 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     layout = cond.layout or 'suit'
     cmap = ChannelMap.load(config_path('hardware/channel_map.yaml'))
     regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'), expected_channels=cmap.channels)
-    plc_port, gaze_port, display_port = free_port(), free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    lab = sim_lab(cond.number, layout, log_dir / 'calibrations')
+    overrides = lab.overrides
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
         f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}')
-    files = ('params/guidance.yaml', 'params/sim.yaml')
-    overrides = {
-        'mock_plc': dict(port=plc_port),
-        'plc_output': dict(plc_port=plc_port),
-        # wearer_sim is the headset: it answers the bridge's clock pings and shows the display.
-        'gaze_bridge': dict(port=gaze_port, headset_address='127.0.0.1', display_port=display_port),
-        'headset_display': dict(headset_address='127.0.0.1', display_port=display_port),
-        'target_selector': dict(autostart=False),
-        'pressure_controller': dict(condition=cond.number, calibration_file=SIM_CALIBRATION,
-                                    calibration_dir=str(log_dir / 'calibrations')),
-        'wearer_sim': dict(bridge_port=gaze_port, layout=layout, display_port=display_port),
-    }
     sequence = task_sequence()
     if plan is not None:
         sc, ctl = plan.scene, plan.scene.controller
@@ -240,15 +224,12 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     try:
         if bag is not None:    # first, so that it hears the session from its start
             graph.start('bag_recorder', (), output=str(bag))
-        for node in NODES:
-            graph.start(node, files, **overrides[node])
+        start_nodes(graph, lab, FILES)
         probe = Probe(graph.domain_id, 'demo_watch')
         watch = SessionWatch(probe, cmap, layout, sequence, say)
         deadline = time.monotonic() + timeout_s
         # Start the task, as an operator would, once the whole graph (the watch included) is up:
         # every target's time is then guidance time, not process start-up.
-        from std_srvs.srv import Trigger
-
         from . import interface
         wait_until(lambda: all(probe.messages.get(t) for t in (
             interface.PRESSURE_COMMAND, interface.GAZE, interface.MEASURED_PRESSURE, interface.ACTIVE_TARGET)),
@@ -258,7 +239,7 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             # not mean the recorder hears the controller yet. Its /diagnostics say what it has written.
             wait_until(lambda: watch.recorder_hears('controller_input', 'pressure_command', 'gaze'),
                        timeout_s, what='the recorder to hear the controller')
-        start_task(probe, watch, Trigger)
+        start_task(probe, lambda: watch.records)
         while not watch.finished.is_set() and time.monotonic() < deadline:
             dead = [n for n, p in graph.processes.items() if p.poll() is not None]
             if dead:
@@ -276,7 +257,7 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             graph.stop('bag_recorder')
             say(f'session recorded: {bag}' if (bag / 'metadata.yaml').is_file()
                 else f'the recording failed; see {log_dir}/bag_recorder.log')
-        with PlcClient(regmap, '127.0.0.1', plc_port, timeout_s=1.0) as client:
+        with PlcClient(regmap, '127.0.0.1', lab.plc_port, timeout_s=1.0) as client:
             after = client.read_commands_kpa()
         graph.stop('mock_plc')
         code = report(watch, cond, after, say, plan)
@@ -287,20 +268,6 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
             probe.close()
         graph.stop_all()
     return code
-
-
-def start_task(probe: Probe, watch: SessionWatch, trigger, attempts: int = 3) -> None:
-    """Call next_target as an operator would and wait for the first target to be active. The
-    outcome is watched, not the response: a service response can be lost while discovery is
-    under way, though the request was handled (asking again would skip a target)."""
-    for attempt in range(attempts):
-        probe.send(trigger, 'next_target', trigger.Request())
-        try:
-            wait_until(lambda: watch.records, 5.0, what='the first target to be active')
-            return
-        except AssertionError:
-            if attempt + 1 == attempts:
-                raise
 
 
 def task_sequence() -> list[str]:

@@ -9,6 +9,9 @@ Every mock_plc a graph starts keeps its write records in a file in the log folde
 `stop_all()` fails (PlcInvariantError) if any of them shows a write above p_max or outside
 the register map (plc/records.py): every test that runs a graph is held to that.
 
+`sim_lab()` and `start_nodes()` wire up the simulated lab graph (mock_plc, the five lab nodes,
+wearer_sim as the HoloLens) on free ports, as `fabric-guidance demo` and `soak` run it.
+
 `supervise()` opts nodes into the launch files' restart policy: a supervised process that dies
 (not stopped through `stop`/`stop_all`) is started again with the same parameters after a
 back-off that doubles while it keeps dying young. Every process of a graph carries its token in
@@ -26,7 +29,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping, Sequence
 
 from .paths import share_dir
 
@@ -380,3 +383,64 @@ class Probe:
 
     def __exit__(self, *exc):
         self.close()
+
+
+# ---- the simulated lab graph (demo, soak)
+SIM_CALIBRATION = 'config/calibrations/sim-wearer.yaml'
+#: The parameter files of every node, in order (sim.yaml's values win).
+FILES = ('params/guidance.yaml', 'params/sim.yaml')
+#: Nodes in start order: the PLC side first so plc_output finds its PLC.
+NODES = ('mock_plc', 'plc_output', 'gaze_bridge', 'target_selector', 'pressure_controller', 'headset_display',
+         'wearer_sim')
+
+
+@dataclass
+class SimLab:
+    """The ports of one simulated lab graph and every node's parameter overrides (node -> dict;
+    a caller may change them before start_nodes)."""
+    plc_port: int
+    gaze_port: int
+    display_port: int
+    overrides: dict[str, dict]
+
+
+def sim_lab(condition: int, layout: str, calibration_dir: Path) -> SimLab:
+    """Free ports and the overrides that wire the simulated graph together: the task waits for
+    the operator's next_target; wearer_sim is the headset (it answers the bridge's clock pings
+    and shows the display)."""
+    plc_port, gaze_port, display_port = free_port(), free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    overrides = {
+        'mock_plc': dict(port=plc_port),
+        'plc_output': dict(plc_port=plc_port),
+        'gaze_bridge': dict(port=gaze_port, headset_address='127.0.0.1', display_port=display_port),
+        'headset_display': dict(headset_address='127.0.0.1', display_port=display_port),
+        'target_selector': dict(autostart=False),
+        'pressure_controller': dict(condition=condition, calibration_file=SIM_CALIBRATION,
+                                    calibration_dir=str(calibration_dir)),
+        'wearer_sim': dict(bridge_port=gaze_port, layout=layout, display_port=display_port),
+    }
+    return SimLab(plc_port, gaze_port, display_port, overrides)
+
+
+def start_nodes(graph: Graph, lab: SimLab, files: Sequence[str] = FILES,
+                extra_files: Mapping[str, Sequence[str]] | None = None) -> None:
+    """Every node of NODES in order, with `files` (then the node's `extra_files`, absolute
+    paths allowed) and its overrides."""
+    extra = extra_files or {}
+    for node in NODES:
+        graph.start(node, (*files, *extra.get(node, ())), **lab.overrides[node])
+
+
+def start_task(probe: Probe, started: Callable[[], object], attempts: int = 3) -> None:
+    """Call next_target as an operator would until `started()` says the first target is active.
+    The outcome is watched, not the response: a service response can be lost while discovery
+    is under way, though the request was handled (asking again would skip a target)."""
+    from std_srvs.srv import Trigger
+    for attempt in range(attempts):
+        probe.send(Trigger, 'next_target', Trigger.Request())
+        try:
+            wait_until(started, 5.0, what='the first target to be active')
+            return
+        except AssertionError:
+            if attempt + 1 == attempts:
+                raise

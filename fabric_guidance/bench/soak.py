@@ -1,0 +1,800 @@
+"""fabric-guidance soak: the simulated lab graph guiding target after target for N minutes, with
+the figures a lab checks before trusting the graph for an afternoon, one row per minute, and a
+verdict on drift.
+
+The graph is demo's (process_graph.sim_lab: mock_plc, plc_output, gaze_bridge, target_selector,
+pressure_controller, headset_display, wearer_sim as the HoloLens), condition 1. target_selector
+runs a sequence of the four targets of config/params/guidance.yaml repeated for longer than the
+run can use, auto-advancing with the speed protocol's return to the front; the run is the
+operator: it starts the task, and skips a target (next_target) the wearer has not found within
+--target-timeout-s, so that a stall shows in the rows instead of ending the run.
+
+Before the clock starts, data must flow end to end: gaze at the controller, the bridge's clock
+estimate synchronised, and a gaze sample's command applied at the mock PLC's registers.
+
+Per row (--row-seconds, 60 by default), appended to soak.csv as it ends (a killed run keeps its
+rows): the gaze-to-register latency p50/p99/max (defined in soak.md), each node's RSS, CPU seconds
+per minute, open file descriptors and threads (/proc), gaze datagrams received, lost and dropped
+by gaze_bridge (its /diagnostics), control steps the run did not see and changed commands that
+never reached the registers, the mock PLC's watchdog trips and refused stale writes, targets
+reached and skipped, the median time to a target, and a stall column naming what stopped.
+At the end: a least-squares slope per hour for every figure with its 95 % interval; a figure
+drifts only when the interval excludes zero and the slope exceeds its threshold (10 % of its
+mean per hour, at least a floor per unit). soak.md (verdict), soak.json, soak.png (every figure over
+time) in --out.
+"""
+from __future__ import annotations
+
+import argparse
+from collections import Counter, deque
+import csv
+from dataclasses import dataclass
+import json
+import math
+import os
+from pathlib import Path
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+import yaml
+
+from .. import subcommand
+from ..atomic import write_bytes, write_text
+from ..paths import config_path
+from ..plc.register_log import RegisterLog
+from ..process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
+                             wait_until)
+from .graphs import cpu_s, rss_mb
+
+HELP = ('the simulated lab graph guiding target after target for N minutes: latency, resources and '
+        'losses per minute, a verdict on drift')
+
+LATENCY = ("gaze-to-register latency: for every control step on a new gaze sample (a gaze direction unlike "
+           "the step before's) whose command changed the PLC's command registers, the time the mock PLC "
+           "applied that command (its register log, CLOCK_MONOTONIC) minus the sample's capture time as "
+           "gaze_bridge stamps it (wearer_sim's send time through the bridge's clock estimate, within its "
+           "clock_bound_ms). Steps on a repeated gaze or on the controller's timer, and commands that "
+           "changed nothing, have no latency: while the wearer closes in, Eq. 5 holds the command, so this "
+           "comes about once per target. Gaze-to-command (command_*): the same capture time to the "
+           "publication of that step's pressure_command (its DDS source time), for every step on a new "
+           "gaze sample, changed or not.")
+
+#: Processes whose resources each row reports: the graph's nodes, and this run's own (the observer).
+OBSERVED = (*NODES, 'soak')
+#: A changed command not applied at the registers this long after it was published is lost [s].
+LAND_TIMEOUT_S = 1.0
+#: A command waits this long for the control step it belongs to (published just before it) [s].
+PAIR_WAIT_S = 0.5
+#: Gaze samples kept to find a step's sample (about 17 s at 60 Hz).
+GAZE_KEEP = 1024
+#: A figure drifts when its slope exceeds this fraction of its mean per hour (and its floor).
+RELATIVE = 0.10
+#: The least slope per hour that counts, per kind of figure (where the mean is near zero).
+FLOORS = {'ms': 0.1, 'MB': 1.0, 's/min': 0.1, 'count': 1.0, 'per row': 1.0, 's': 0.1}
+#: Statuses of the nodes' /diagnostics that are routine in a guided session (between targets).
+ROUTINE = ('no active target',)
+
+
+# ---------------------------------------------------------------- the latency, without ROS
+@dataclass
+class Pending:
+    """A changed command on its way to the registers."""
+    published_ns: int          # CLOCK_MONOTONIC
+    counts: tuple[int, ...]
+    capture_ns: int | None     # its gaze sample's capture (CLOCK_MONOTONIC); None: no new sample
+
+
+class LatencyMatcher:
+    """Gaze samples, control steps (controller_input), commands (pressure_command) and the mock
+    PLC's register log in; one latency per sample whose command changed the registers out.
+
+    A command belongs to the last step published before it (the controller publishes a step's
+    input, then its command); the step's gaze is the latest sample with the same direction
+    captured before the step. The command lands at the first register change after its
+    publication that holds exactly its counts. Times are CLOCK_MONOTONIC [ns]; the feed methods
+    are called from the probe's thread, `update` from the run's."""
+
+    def __init__(self, encode, vented: tuple[int, ...]):
+        self.encode = encode
+        self._lock = threading.Lock()
+        self._captures: dict[tuple, list[int]] = {}
+        self._order: deque = deque()
+        self._inputs: deque = deque()       # (published_ns, step, direction key)
+        self._commands: deque = deque()     # (published_ns, counts)
+        self._registers: deque = deque()    # (applied_ns, counts), client writes only
+        self._pending: deque[Pending] = deque()
+        self._last_counts = vented          # the PLC powers up vented
+        self._last_key = None
+        self._last_step: int | None = None
+        self.latencies: list[tuple[int, int]] = []   # (capture_ns, latency_ns): gaze to register
+        self.to_command: list[tuple[int, int]] = []   # (capture_ns, latency_ns): gaze to command
+        self.counts = Counter()
+
+    # ---- feeds
+    def gaze(self, key: tuple, capture_ns: int) -> None:
+        with self._lock:
+            self._captures.setdefault(key, []).append(capture_ns)
+            self._order.append(key)
+            if len(self._order) > GAZE_KEEP:
+                old = self._order.popleft()
+                kept = self._captures[old]
+                kept.pop(0)
+                if not kept:
+                    del self._captures[old]
+
+    def step(self, published_ns: int, step: int, key: tuple) -> None:
+        with self._lock:
+            if self._last_step is not None and step > self._last_step + 1:
+                self.counts['steps_unseen'] += step - self._last_step - 1
+            self._last_step = step
+            self.counts['steps'] += 1
+            self._inputs.append((published_ns, step, key))
+
+    def command(self, published_ns: int, kpa) -> None:
+        counts = tuple(self.encode(kpa))
+        with self._lock:
+            self._commands.append((published_ns, counts))
+
+    def registers(self, applied_ns: int, counts: tuple[int, ...]) -> None:
+        with self._lock:
+            self._registers.append((applied_ns, counts))
+
+    # ---- matching
+    def update(self, now_ns: int, drained_ns: int) -> None:
+        """Pair what has arrived and land what the register log covers (drained_ns)."""
+        with self._lock:
+            self._pair(now_ns)
+            self._land(drained_ns)
+
+    def _pair(self, now_ns: int) -> None:
+        wait_ns = int(PAIR_WAIT_S * 1e9)
+        while self._commands:
+            published, counts = self._commands[0]
+            # Its step is published first, but may arrive after it on another topic.
+            if not (self._inputs and self._inputs[-1][0] > published) and now_ns - published < wait_ns:
+                return
+            self._commands.popleft()
+            step = None
+            while self._inputs and self._inputs[0][0] <= published:
+                step = self._inputs.popleft()
+            capture = None
+            if step is not None and step[2] != self._last_key:
+                capture = max((c for c in self._captures.get(step[2], ()) if c <= step[0]), default=None)
+                if capture is None:
+                    self.counts['unmatched'] += 1
+                else:
+                    self.to_command.append((capture, published - capture))
+            if step is not None:
+                self._last_key = step[2]
+            if counts != self._last_counts:
+                self._last_counts = counts
+                self.counts['changed'] += 1
+                self._pending.append(Pending(published, counts, capture))
+
+    def _land(self, drained_ns: int) -> None:
+        timeout_ns = int(LAND_TIMEOUT_S * 1e9)
+        while self._pending:
+            p = self._pending[0]
+            hit = next((i for i, (t, c) in enumerate(self._registers) if t >= p.published_ns and c == p.counts), None)
+            if hit is not None:
+                applied = self._registers[hit][0]
+                for _ in range(hit + 1):
+                    self._registers.popleft()
+                self._pending.popleft()
+                if p.capture_ns is not None:
+                    self.latencies.append((p.capture_ns, applied - p.capture_ns))
+            elif drained_ns >= p.published_ns + timeout_ns:
+                self._pending.popleft()
+                self.counts['not_landed'] += 1
+            else:
+                return
+        # Nothing waits: changes older than any command to come are nobody's any more.
+        while self._registers and self._registers[0][0] < drained_ns - timeout_ns:
+            self._registers.popleft()
+
+    def settled(self, until_ns: int) -> bool:
+        """Every command published before until_ns has been paired and landed (or given up)."""
+        with self._lock:
+            return not ((self._commands and self._commands[0][0] < until_ns)
+                        or (self._pending and self._pending[0].published_ns < until_ns))
+
+    def take(self, until_ns: int) -> tuple[list[int], list[int], Counter]:
+        """Gaze-to-register and gaze-to-command latencies [ns] of samples captured before
+        until_ns, and the counts so far (all handed over: the next call starts from zero)."""
+        with self._lock:
+            taken = [lat for c, lat in self.latencies if c < until_ns]
+            self.latencies = [(c, lat) for c, lat in self.latencies if c >= until_ns]
+            to_command = [lat for c, lat in self.to_command if c < until_ns]
+            self.to_command = [(c, lat) for c, lat in self.to_command if c >= until_ns]
+            counts, self.counts = self.counts, Counter()
+        return taken, to_command, counts
+
+
+# ---------------------------------------------------------------- /proc
+def fds(pid: int) -> int | None:
+    """Open file descriptors of a process (/proc/PID/fd)."""
+    try:
+        return len(os.listdir(f'/proc/{pid}/fd'))
+    except OSError:
+        return None
+
+
+def threads(pid: int) -> int | None:
+    """Threads of a process (/proc/PID/status)."""
+    try:
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('Threads:'):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+# ---------------------------------------------------------------- the graph side
+def realtime_offset_ns() -> int:
+    """CLOCK_REALTIME minus CLOCK_MONOTONIC now: ROS stamps and DDS source times are realtime,
+    the register log monotonic (taken at each use, so that a stepped system clock is followed)."""
+    return time.time_ns() - time.monotonic_ns()
+
+
+class SoakWatch:
+    """What the run reads off the graph, with nothing kept that grows with the run's length."""
+
+    def __init__(self, probe: Probe, matcher: LatencyMatcher):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped
+        from std_msgs.msg import Float64MultiArray, String
+
+        from .. import interface
+        from ..bag.controller_io import DIRECTION, STEP
+        from ..core import ray_direction
+        from ..nodes import qos
+        self.matcher = matcher
+        self.lock = threading.Lock()
+        self.active = None               # the latest active_target ('' = none); None before any
+        self.active_since = time.monotonic()
+        self.target: tuple[str, float] | None = None   # the latest target activated, and when
+        self.found: list[float] = []     # time to each target found since the last take [s]
+        self.status: dict[str, tuple[int, str, dict]] = {}   # diagnostics name -> level, message, values
+        self.warnings: Counter = Counter()
+        self.heard = Counter()
+        self._ray, self._direction, self._step = ray_direction, DIRECTION, STEP
+        node = probe.node
+        node.create_subscription(PoseStamped, interface.GAZE, self.on_gaze, qos.SENSOR_QOS)
+        node.create_subscription(Float64MultiArray, interface.CONTROLLER_INPUT, self.on_input, qos.COMMAND_QOS)
+        node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self.on_command, qos.COMMAND_QOS)
+        node.create_subscription(String, interface.ACTIVE_TARGET, self.on_active, qos.LATCHED_QOS)
+        node.create_subscription(String, interface.TARGET_FOUND, self.on_found, qos.EVENT_QOS)
+        node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS, self.on_diagnostics, 10)
+
+    def on_gaze(self, msg) -> None:
+        self.heard['gaze'] += 1
+        o = msg.pose.orientation
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        # The controller's direction of this sample, computed as it computes it: bit for bit.
+        key = tuple(self._ray([o.x, o.y, o.z, o.w]).tolist())
+        self.matcher.gaze(key, stamp_ns - realtime_offset_ns())
+
+    def on_input(self, msg, info) -> None:
+        self.heard['controller_input'] += 1
+        d = msg.data
+        key = tuple(float(x) for x in d[self._direction])
+        self.matcher.step(info['source_timestamp'] - realtime_offset_ns(), int(d[self._step]), key)
+
+    def on_command(self, msg, info) -> None:
+        self.heard['pressure_command'] += 1
+        self.matcher.command(info['source_timestamp'] - realtime_offset_ns(), msg.data)
+
+    def on_active(self, msg) -> None:
+        with self.lock:
+            if msg.data != self.active:
+                self.active, self.active_since = msg.data, time.monotonic()
+                if msg.data:
+                    self.target = (msg.data, self.active_since)
+
+    def on_found(self, msg) -> None:
+        # The next active_target ('' while the wearer turns back to the front) may arrive first.
+        with self.lock:
+            if self.target is not None and msg.data == self.target[0]:
+                self.found.append(time.monotonic() - self.target[1])
+                self.target = None
+
+    def on_diagnostics(self, msg) -> None:
+        with self.lock:
+            for st in msg.status:
+                level = st.level if isinstance(st.level, int) else int.from_bytes(st.level, 'little')
+                self.status[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
+                if level > 0 and not any(r in st.message for r in ROUTINE):
+                    self.warnings[f'{st.name}: {st.message}'] += 1
+
+    def value(self, name_prefix: str, key: str, default=None):
+        with self.lock:
+            for name, (_, _, values) in self.status.items():
+                if name.startswith(name_prefix) and key in values:
+                    return values[key]
+        return default
+
+    def take(self) -> tuple[list[float], Counter]:
+        with self.lock:
+            found, self.found = self.found, []
+            warnings, self.warnings = self.warnings, Counter()
+        return found, warnings
+
+
+#: Cumulative counters of the nodes' /diagnostics a row reports as differences: column ->
+#: (status name prefix, key). Lost: gaps in the wearer's sequence numbers (sent, never received,
+#: or dropped as late before the sequence check); dropped: received and not published.
+COUNTERS = dict(datagrams_received=('gaze_bridge:', 'received'), datagrams_lost=('gaze_bridge:', 'lost'),
+                datagrams_dropped=('gaze_bridge:', 'dropped'), plc_watchdog_trips=('mock_plc:', 'watchdog trips'),
+                plc_stale_writes=('mock_plc:', 'stale writes refused'))
+
+#: Every column of soak.csv, in order.
+COLUMNS = (['row', 't_start_s', 't_end_s', 'latency_p50_ms', 'latency_p99_ms', 'latency_max_ms', 'latency_samples',
+            'command_p50_ms', 'command_p99_ms', 'command_max_ms', 'command_samples',
+            'steps', 'steps_unseen', 'commands_changed', 'commands_not_landed', 'samples_unmatched',
+            *COUNTERS, 'targets_reached', 'targets_skipped', 'time_to_target_s']
+           + [f'{figure}.{node}' for figure in ('rss_mb', 'cpu_s_per_min', 'fds', 'threads') for node in OBSERVED]
+           + ['warnings', 'stall'])
+
+#: Figures the verdict fits: column (or prefix for one per node) -> unit (its floor's kind).
+FIGURES = {'latency_p50_ms': 'ms', 'latency_p99_ms': 'ms', 'latency_max_ms': 'ms',
+           'command_p50_ms': 'ms', 'command_p99_ms': 'ms', 'command_max_ms': 'ms',
+           'rss_mb': 'MB', 'cpu_s_per_min': 's/min', 'fds': 'count', 'threads': 'count',
+           'datagrams_lost': 'per row', 'datagrams_dropped': 'per row', 'commands_not_landed': 'per row',
+           'steps_unseen': 'per row', 'targets_reached': 'per row', 'time_to_target_s': 's'}
+
+
+def target_sequence(minutes: float) -> list[str]:
+    """The four targets repeated for more than the run can reach (one a second at most)."""
+    params = yaml.safe_load(config_path('params/guidance.yaml').read_text())['target_selector']['ros__parameters']
+    names = [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
+    return names * (int(minutes * 60 / len(names)) + 2)
+
+
+class Soak:
+    """One run: the graph, its probe, the rows."""
+
+    def __init__(self, out: Path, minutes: float, row_seconds: float, target_timeout_s: float, say):
+        from ..plc import RegisterMap
+        self.out, self.minutes, self.row_s, self.say = out, minutes, row_seconds, say
+        self.target_timeout_s = target_timeout_s
+        self.graph = Graph(out / 'logs')
+        regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'))
+        self.matcher = LatencyMatcher(regmap.encode, (0,) * len(regmap))
+        self.register_log = RegisterLog(out / 'register_log.jsonl')
+        self.applied = None   # the latest entry of the register log
+        self.probe = None
+        self.watch = None
+        self.rows: list[dict] = []
+        self.skipped = 0
+        self.csv_path = out / 'soak.csv'
+
+    # ---- up
+    def start(self, startup_timeout_s: float) -> None:
+        lab = sim_lab(1, 'suit', self.out / 'calibrations')
+        lab.overrides['mock_plc'].update(register_log_file=str(self.register_log.path))
+        sequence = self.out / 'target_sequence.yaml'
+        write_text(sequence, yaml.safe_dump({'target_selector': {'ros__parameters': {
+            'sequence': target_sequence(self.minutes)}}}))
+        start_nodes(self.graph, lab, FILES, {'target_selector': (str(sequence),)})
+        self.probe = Probe(self.graph.domain_id, 'soak_watch')
+        self.watch = SoakWatch(self.probe, self.matcher)
+        w = self.watch
+        wait_until(lambda: self.check_alive() or (w.heard['gaze'] and w.heard['controller_input']
+                                                  and w.heard['pressure_command'] and w.active is not None),
+                   startup_timeout_s, what='gaze, control steps, commands and the task at the run')
+        wait_until(lambda: self.check_alive() or w.value('gaze_bridge:', 'clock_state') == 'synchronised',
+                   startup_timeout_s, what="gaze_bridge's estimate of the headset clock")
+        start_task(self.probe, lambda: w.active)
+        # End to end: a gaze sample's command applied at the PLC's registers.
+        wait_until(lambda: self.check_alive() or self.poll() or self.matcher.latencies,
+                   startup_timeout_s, what="a gaze sample's command at the PLC registers")
+
+    def check_alive(self) -> bool:
+        dead = {n: p.returncode for n, p in self.graph.processes.items() if p.poll() is not None}
+        if dead:
+            raise RuntimeError(f'node(s) exited: {dead}; logs in {self.graph.log_dir}')
+        return False
+
+    def poll(self) -> bool:
+        """Feed the register log's new lines to the matcher and match; False (for wait_until)."""
+        log = self.register_log.poll()
+        for e in log.entries:
+            if e.cause == 'write':
+                self.matcher.registers(int(round(e.t * 1e9)), e.counts)
+        if log.entries:
+            self.applied = log.entries[-1]
+        log.entries.clear()   # handed to the matcher: the log's list would grow with the run
+        drained = int(log.drained * 1e9) if math.isfinite(log.drained) else 0
+        self.matcher.update(time.monotonic_ns(), drained)
+        return False
+
+    # ---- the operator
+    def skip_if_stuck(self) -> None:
+        """A target not found (or the front not reached) within target_timeout_s: next_target."""
+        w = self.watch
+        with w.lock:
+            stuck = time.monotonic() - w.active_since > self.target_timeout_s
+        if stuck:
+            from std_srvs.srv import Trigger
+            self.probe.send(Trigger, 'next_target', Trigger.Request())
+            with w.lock:
+                w.active_since = time.monotonic()   # the request's outcome shows on active_target
+            self.skipped += 1
+
+    # ---- rows
+    def resources(self) -> dict:
+        pids = {n: p.pid for n, p in self.graph.processes.items()}
+        pids['soak'] = os.getpid()
+        return {n: (rss_mb(pid), cpu_s(pid), fds(pid), threads(pid)) for n, pid in pids.items()}
+
+    def counters(self) -> dict:
+        return {col: _number(self.watch.value(prefix, key)) for col, (prefix, key) in COUNTERS.items()}
+
+    def run(self) -> None:
+        """The rows until the time is up; each written and printed as it ends."""
+        total_s = self.minutes * 60.0
+        t0 = time.monotonic()
+        self.matcher.take(time.monotonic_ns())            # the start-up's samples are not a row's
+        self.watch.take()
+        self.skipped = 0
+        before, counters = self.resources(), self.counters()
+        n_rows = max(1, math.ceil(total_s / self.row_s - 1e-9))
+        with open(self.csv_path, 'w', newline='') as f:
+            writer = csv.DictWriter(f, COLUMNS)
+            writer.writeheader()
+            _sync(f)
+            for i in range(n_rows):
+                start, end = t0 + i * self.row_s, t0 + min((i + 1) * self.row_s, total_s)
+                while time.monotonic() < end:
+                    self.check_alive()
+                    self.poll()
+                    self.skip_if_stuck()
+                    time.sleep(0.1)
+                after, now_counters = self.resources(), self.counters()
+                skipped, self.skipped = self.skipped, 0
+                found, warnings = self.watch.take()
+                # The row's samples: wait until every command published before its end is settled.
+                end_ns = int(end * 1e9)
+                try:
+                    wait_until(lambda: self.poll() or self.matcher.settled(end_ns), LAND_TIMEOUT_S + PAIR_WAIT_S + 2.0,
+                               interval=0.05, what='the commands of the row')
+                except AssertionError:
+                    pass   # counted as not landed in the next row at the latest
+                latencies, to_command, counts = self.matcher.take(end_ns)
+                row = make_row(i + 1, start - t0, end - t0, latencies, to_command, counts, before, after,
+                               counters, now_counters, found, skipped, warnings, self.target_timeout_s)
+                before, counters = after, now_counters
+                self.rows.append(row)
+                writer.writerow(row)
+                _sync(f)
+                self.say(progress(row, n_rows))
+
+    # ---- down
+    def close(self) -> list[str]:
+        """Everything down, the lab side first (the registers must read vented while the mock
+        still runs); what went wrong on the way."""
+        problems = []
+        if self.probe is not None:
+            self.probe.close()
+        try:
+            for node in reversed(NODES[1:]):
+                if node in self.graph.processes:
+                    self.graph.stop(node)
+            stopped = time.monotonic()
+            wait_until(lambda: self.poll() or self.register_log.drained > stopped, 10.0,
+                       what="the mock PLC's register log after the lab nodes stopped")
+            if self.applied is not None and not self.applied.vented:
+                problems.append(f'the suit was not vented at shutdown: registers {list(self.applied.counts)}')
+        except AssertionError as exc:
+            problems.append(str(exc))
+        try:
+            self.graph.stop_all(check=True)
+        except PlcInvariantError as exc:
+            problems.append(str(exc))
+        problems += [f'left behind: {line}' for line in self.graph.leftovers()]
+        return problems
+
+
+def _sync(f) -> None:
+    f.flush()
+    os.fsync(f.fileno())
+
+
+def _number(text) -> float | None:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def _delta(a, b):
+    return None if a is None or b is None else b - a
+
+
+def make_row(index: int, t_start: float, t_end: float, latencies_ns: list[int], to_command_ns: list[int],
+             counts: Counter, before: dict, after: dict, counters: dict, now_counters: dict, found: list[float],
+             skipped: int, warnings: Counter, target_timeout_s: float) -> dict:
+    """One row of soak.csv from what was measured over it. Its stall column names what stopped:
+    no target reached in a row long enough for one (target_timeout_s), a target skipped, no
+    gaze sample at the registers."""
+    row = {'row': index, 't_start_s': round(t_start, 3), 't_end_s': round(t_end, 3)}
+    for name, values in (('latency', latencies_ns), ('command', to_command_ns)):
+        ms = np.asarray(values, dtype=float) / 1e6
+        for q in (50, 99):
+            row[f'{name}_p{q}_ms'] = round(float(np.percentile(ms, q)), 3) if len(ms) else None
+        row[f'{name}_max_ms'] = round(float(ms.max()), 3) if len(ms) else None
+        row[f'{name}_samples'] = len(ms)
+    row.update(steps=counts['steps'], steps_unseen=counts['steps_unseen'],
+               commands_changed=counts['changed'], commands_not_landed=counts['not_landed'],
+               samples_unmatched=counts['unmatched'])
+    for col in COUNTERS:
+        row[col] = _delta(counters.get(col), now_counters.get(col))
+    row.update(targets_reached=len(found), targets_skipped=skipped,
+               time_to_target_s=round(float(np.median(found)), 3) if found else None)
+    minutes = max(t_end - t_start, 1e-9) / 60.0
+    for node in OBSERVED:
+        rss, cpu, fd, th = after.get(node, (None,) * 4)
+        cpu0 = before.get(node, (None,) * 4)[1]
+        row[f'rss_mb.{node}'] = None if rss is None else round(rss, 2)
+        used = _delta(cpu0, cpu)
+        row[f'cpu_s_per_min.{node}'] = None if used is None else round(used / minutes, 3)
+        row[f'fds.{node}'], row[f'threads.{node}'] = fd, th
+    row['warnings'] = '; '.join(f'{text} (x{n})' for text, n in warnings.most_common(3))
+    stall = []
+    if not found and t_end - t_start >= target_timeout_s:
+        stall.append('no target reached')
+    if skipped:
+        stall.append(f'{skipped} target(s) skipped after {target_timeout_s:g} s')
+    if not latencies_ns:
+        stall.append('no gaze sample reached the registers')
+    row['stall'] = '; '.join(stall)
+    return row
+
+
+def progress(row: dict, n_rows: int) -> str:
+    def ms(v):
+        return '-' if v is None else f'{v:.1f}'
+    rss = {k.split('.', 1)[1]: v for k, v in row.items() if k.startswith('rss_mb.') and v is not None}
+    top = max(rss, key=rss.get) if rss else None
+    line = (f"[{row['row']}/{n_rows}] {row['t_end_s'] / 60:5.1f} min: latency p50 {ms(row['latency_p50_ms'])} "
+            f"p99 {ms(row['latency_p99_ms'])} max {ms(row['latency_max_ms'])} ms ({row['latency_samples']} samples); "
+            f"targets {row['targets_reached']} reached, {row['targets_skipped']} skipped; datagrams "
+            f"{row['datagrams_received']} received, {row['datagrams_lost']} lost, {row['datagrams_dropped']} "
+            f"dropped; commands not landed {row['commands_not_landed']}")
+    if top is not None:
+        line += f'; largest RSS {rss[top]:.0f} MB ({top})'
+    if row['stall']:
+        line += f"; STALL: {row['stall']}" + (f" [{row['warnings']}]" if row['warnings'] else '')
+    return line
+
+
+# ---------------------------------------------------------------- the verdict
+def drift(t_h, y, unit: str) -> dict:
+    """Least-squares slope of y per hour with its 95 % interval (Student t, n - 2 degrees of
+    freedom), and the verdict: DRIFTS when the interval excludes zero and |slope| exceeds the
+    threshold, max(RELATIVE * |mean|, FLOORS[unit]), with its direction ('DRIFTS up', 'DRIFTS
+    down'); 'steady' when the interval holds zero; 'small' when it does not but the slope is below
+    the threshold."""
+    from scipy import stats
+    t_h, y = np.asarray(t_h, dtype=float), np.asarray(y, dtype=float)
+    ok = np.isfinite(t_h) & np.isfinite(y)
+    t_h, y = t_h[ok], y[ok]
+    out = {'n': int(len(y)), 'mean': float(y.mean()) if len(y) else None, 'unit': unit}
+    if len(y) < 3 or np.ptp(t_h) == 0:
+        return {**out, 'slope_per_h': None, 'low': None, 'high': None, 'threshold': None,
+                'verdict': 'too few rows'}
+    threshold = max(RELATIVE * abs(out['mean']), FLOORS[unit])
+    if np.ptp(y) == 0:
+        slope = stderr = 0.0
+    else:
+        fit = stats.linregress(t_h, y)
+        slope, stderr = float(fit.slope), float(fit.stderr)
+    half = float(stats.t.ppf(0.975, len(y) - 2)) * stderr
+    low, high = slope - half, slope + half
+    excludes = low > 0 or high < 0
+    if not excludes:
+        verdict = 'steady'
+    elif abs(slope) > threshold:
+        verdict = 'DRIFTS up' if slope > 0 else 'DRIFTS down'
+    else:
+        verdict = 'small'
+    return {**out, 'slope_per_h': slope, 'low': low, 'high': high, 'threshold': threshold, 'verdict': verdict}
+
+
+#: The figures for which fewer is worse: everything else drifts the wrong way upwards.
+DOWN_IS_WORSE = ('targets_reached',)
+
+
+def harmful(column: str, result: dict) -> bool:
+    """A drift the lab must act on: upwards, or downwards for DOWN_IS_WORSE."""
+    return result['verdict'] == ('DRIFTS down' if column in DOWN_IS_WORSE else 'DRIFTS up')
+
+
+def verdicts(rows: list[dict]) -> dict[str, dict]:
+    """Every figure of FIGURES (one per node for the per-node ones) over the rows."""
+    t_h = [(r['t_start_s'] + r['t_end_s']) / 2 / 3600 for r in rows]
+    out = {}
+    for figure, unit in FIGURES.items():
+        columns = [c for c in COLUMNS if c == figure or c.startswith(figure + '.')]
+        for col in columns:
+            out[col] = drift(t_h, [_float(r.get(col)) for r in rows], unit)
+    return out
+
+
+def _float(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def verdict_table(results: dict[str, dict]) -> list[str]:
+    def f(v):
+        return '—' if v is None else f'{v:+.3g}'
+    lines = ['| figure | mean | slope per hour | 95 % interval | threshold | verdict |',
+             '| --- | --- | --- | --- | --- | --- |']
+    for col, r in results.items():
+        mean = '—' if r['mean'] is None else f"{r['mean']:.3g} {r['unit']}"
+        interval = '—' if r['low'] is None else f"[{f(r['low'])}, {f(r['high'])}]"
+        threshold = '—' if r['threshold'] is None else f"{r['threshold']:.3g}"
+        lines.append(f"| {col} | {mean} | {f(r['slope_per_h'])} | {interval} | {threshold} | {r['verdict']} |")
+    return lines
+
+
+def summary(rows: list[dict], results: dict[str, dict], args: dict, problems: list[str]) -> str:
+    drifting = [f"{c} ({r['verdict'][7:]})" for c, r in results.items() if r['verdict'].startswith('DRIFTS')]
+    stalls = [r for r in rows if r['stall']]
+    head = (f"Soak run: {len(rows)} rows of {args['row_seconds']:g} s ({args['minutes']:g} min asked). "
+            + ('No figure drifts.' if not drifting else f"Drifting: {', '.join(drifting)}.")
+            + (f' {len(stalls)} row(s) stalled.' if stalls else ' No row stalled.')) if rows else (
+        f"Soak run: no row written ({args['minutes']:g} min asked); see the problems below.")
+    lines = [head, '', f'Latency: {LATENCY}', '',
+             f'Verdict per figure: least-squares slope per hour over the rows with its 95 % interval (Student t, '
+             f'n - 2 degrees of freedom); DRIFTS (up or down) only where the interval excludes zero and the slope '
+             f'exceeds the threshold, {RELATIVE:.0%} of the mean per hour or the floor of its unit '
+             f"({', '.join(f'{v:g} {k}' for k, v in FLOORS.items())}), whichever is larger; 'small' where the "
+             "interval excludes zero below the threshold. Counts per row are per row of the run. The exit code "
+             f"is 1 for a drift upwards (downwards for {', '.join(DOWN_IS_WORSE)}), a stalled row or a problem.",
+             '',
+             *verdict_table(results)]
+    if stalls:
+        lines += ['', 'Stalled rows:', '']
+        lines += [f"- row {r['row']} ({r['t_start_s'] / 60:.1f}-{r['t_end_s'] / 60:.1f} min): {r['stall']}; "
+                  f"{r['targets_reached']} reached, {r['targets_skipped']} skipped"
+                  + (f"; {r['warnings']}" if r['warnings'] else '') for r in stalls]
+    if problems:
+        lines += ['', 'Problems:', ''] + [f'- {p}' for p in problems]
+    return '\n'.join(lines) + '\n'
+
+
+# ---------------------------------------------------------------- the plot
+def plot(rows: list[dict], path: Path) -> Path:
+    """The per-row figures over time, one panel each, as a PNG; a node has one colour in every
+    panel (one legend above them)."""
+    import io
+
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = [r['t_end_s'] / 60 for r in rows]
+    colours = dict(zip(OBSERVED, plt.get_cmap('tab10').colors))
+    fig, axes = plt.subplots(4, 2, figsize=(13, 14), sharex=True)
+
+    def panel(ax, series, title, ylabel, zero=True, legend=True):
+        top = 0.0
+        for col, label, style in series:
+            y = [_float(r.get(col)) for r in rows]
+            top = max([top] + [v for v in y if math.isfinite(v)])
+            ax.plot(t, y, marker='.', label=label, **style)
+        ax.set_title(title)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        if zero:   # counts and times from zero: a flat line must not look like a swing
+            ax.set_ylim(0, max(1.0, 1.25 * top))
+        if legend:
+            ax.legend(fontsize=7, loc='best', ncol=2, handlelength=3)
+
+    panel(axes[0, 0], [(f'{kind}_{q}_ms', f'{label} {q}', dict(linestyle=ls, color=c))
+                       for kind, label, ls in (('latency', 'to register', '-'), ('command', 'to command', '--'))
+                       for q, c in (('p50', 'tab:blue'), ('p99', 'tab:orange'), ('max', 'tab:red'))],
+          'gaze-to-register and gaze-to-command latency', 'ms')
+    for ax, figure, title, unit, zero in ((axes[0, 1], 'rss_mb', 'resident memory', 'MB', False),
+                                          (axes[1, 0], 'cpu_s_per_min', 'CPU', 's per minute', True),
+                                          (axes[1, 1], 'fds', 'open file descriptors', 'count', True),
+                                          (axes[2, 0], 'threads', 'threads', 'count', True)):
+        panel(ax, [(f'{figure}.{n}', n, dict(color=colours[n])) for n in OBSERVED], title, unit, zero, legend=False)
+    losses = ('datagrams_lost', 'datagrams_dropped', 'commands_not_landed', 'steps_unseen', 'samples_unmatched',
+              'plc_watchdog_trips')
+    panel(axes[2, 1], [(col, col, {}) for col in losses], 'losses per row', 'count')
+    panel(axes[3, 0], [('targets_reached', 'reached', {}), ('targets_skipped', 'skipped', {})],
+          'targets per row', 'count')
+    panel(axes[3, 1], [('time_to_target_s', 'median', {})], 'time to a target', 's')
+    for ax in axes[-1]:
+        ax.set_xlabel('minutes')
+    handles = [plt.Line2D([], [], color=colours[n], marker='.') for n in OBSERVED]
+    fig.legend(handles, OBSERVED, loc='upper center', ncol=len(OBSERVED), fontsize=8, title='processes')
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    buf = io.BytesIO()
+    fig.savefig(buf, format='png', dpi=90)
+    plt.close(fig)
+    return write_bytes(path, buf.getvalue())
+
+
+# ---------------------------------------------------------------- the command
+def run_soak(minutes: float, out: Path, say, row_seconds: float = 60.0, target_timeout_s: float = 30.0,
+             startup_timeout_s: float = 120.0) -> tuple[list[dict], dict, list[str]]:
+    """The run; its rows, the verdict per figure and the problems met ([] when none). Writes
+    soak.csv (as it goes), soak.md, soak.json and soak.png in `out`."""
+    out = Path(out).resolve()   # the nodes run in the package's folder: their paths must not be relative
+    out.mkdir(parents=True, exist_ok=True)
+    soak = Soak(out, minutes, row_seconds, target_timeout_s, say)
+    problems: list[str] = []
+    t_start = time.monotonic()
+    try:
+        say(f'soak: {minutes:g} min in rows of {row_seconds:g} s on ROS_DOMAIN_ID {soak.graph.domain_id}; '
+            f'logs in {out / "logs"}')
+        soak.start(startup_timeout_s)
+        say(f'soak: data flows end to end after {time.monotonic() - t_start:.1f} s; the clock starts')
+        soak.run()
+    except (RuntimeError, AssertionError) as exc:
+        problems.append(str(exc))
+        say(f'soak: stopped: {exc}')
+    except KeyboardInterrupt:
+        problems.append(f'interrupted after {len(soak.rows)} rows')
+    finally:
+        problems += soak.close()
+    rows = soak.rows
+    results = verdicts(rows)
+    args = {'minutes': minutes, 'row_seconds': row_seconds, 'target_timeout_s': target_timeout_s}
+    write_text(out / 'soak.json', json.dumps({'args': args, 'latency': LATENCY, 'rows': rows, 'verdicts': results,
+                                              'problems': problems}, indent=1) + '\n')
+    write_text(out / 'soak.md', summary(rows, results, args, problems))
+    if rows:
+        plot(rows, out / 'soak.png')
+    return rows, results, problems
+
+
+def above_zero(text: str) -> float:
+    """An option's value: a finite number above 0."""
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f'must be above 0, got {text}')
+    return value
+
+
+def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    options = (('--minutes', 60.0, 'how long the clock runs'),
+               ('--row-seconds', 60.0, 'one row of figures per this many seconds'),
+               ('--target-timeout-s', 30.0, 'a target not found within this is skipped, as an operator would'),
+               ('--startup-timeout-s', 120.0, 'how long the graph may take until data flows end to end'))
+    for flag, default, text in options:
+        parser.add_argument(flag, type=above_zero, default=default, help=f'{text} (default {default:g})')
+    parser.add_argument('--out', default=None, help='folder for soak.csv, soak.md, soak.json, soak.png, the '
+                        'register log and the node logs (default: a new temporary folder)')
+    return parser
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    return subcommand.add(subparsers, 'soak', HELP, __doc__, configure, run)
+
+
+def run(args, stream=sys.stdout) -> int:
+    """0 when every row was written, none stalled, nothing drifts and the run met no problem."""
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='fabric-guidance-soak-'))
+    say = subcommand.printer(stream)
+    rows, results, problems = run_soak(args.minutes, out, say, args.row_seconds, args.target_timeout_s,
+                                       args.startup_timeout_s)
+    say('')
+    say((out / 'soak.md').read_text())
+    written = ['soak.csv', 'soak.md', 'soak.json'] + (['soak.png'] if rows else [])
+    say('written: ' + ', '.join(str(out / name) for name in written))
+    failed = problems or any(r['stall'] for r in rows) or any(harmful(c, v) for c, v in results.items())
+    return 1 if failed or not rows else 0
+
+
+if __name__ == '__main__':
+    sys.exit(subcommand.main('python -m fabric_guidance.bench.soak', __doc__, configure, run))
