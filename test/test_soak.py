@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from fabric_guidance.bench import soak
+from fabric_guidance.bench import soak, soak_report
 from fabric_guidance.bench.soak import LatencyMatcher
 
 MS = 1_000_000
@@ -92,18 +92,18 @@ def test_a_command_waits_for_its_step_arriving_late_on_the_other_topic():
 def test_a_growing_figure_drifts_and_a_noisy_flat_one_does_not():
     rng = np.random.default_rng(3)
     t_h = np.arange(60) / 60
-    growing = soak.drift(t_h, 80 + 20 * t_h + rng.normal(0, 0.5, 60), 'MB')
+    growing = soak_report.drift(t_h, 80 + 20 * t_h + rng.normal(0, 0.5, 60), 'MB')
     assert growing['verdict'] == 'DRIFTS up' and growing['low'] < 20 < growing['high']
-    assert soak.harmful('rss_mb.gaze_bridge', growing) and not soak.harmful('targets_reached', growing)
-    falling = soak.drift(t_h, 30 - 10 * t_h + rng.normal(0, 0.5, 60), 'per row')
-    assert falling['verdict'] == 'DRIFTS down' and soak.harmful('targets_reached', falling)
-    flat = soak.drift(t_h, 80 + rng.normal(0, 0.5, 60), 'MB')
+    assert soak_report.harmful('rss_mb.gaze_bridge', growing) and not soak_report.harmful('targets_reached', growing)
+    falling = soak_report.drift(t_h, 30 - 10 * t_h + rng.normal(0, 0.5, 60), 'per row')
+    assert falling['verdict'] == 'DRIFTS down' and soak_report.harmful('targets_reached', falling)
+    flat = soak_report.drift(t_h, 80 + rng.normal(0, 0.5, 60), 'MB')
     assert flat['verdict'] == 'steady' and flat['low'] < 0 < flat['high']
     # Significant but below 10 % of the mean per hour: reported, not a drift.
-    slight = soak.drift(t_h, 80 + 2 * t_h + rng.normal(0, 0.05, 60), 'MB')
+    slight = soak_report.drift(t_h, 80 + 2 * t_h + rng.normal(0, 0.05, 60), 'MB')
     assert slight['verdict'] == 'small'
-    assert soak.drift(t_h, np.full(60, 12.0), 'count')['verdict'] == 'steady'
-    assert soak.drift(t_h[:2], [1.0, 2.0], 'ms')['verdict'] == 'too few rows'
+    assert soak_report.drift(t_h, np.full(60, 12.0), 'count')['verdict'] == 'steady'
+    assert soak_report.drift(t_h[:2], [1.0, 2.0], 'ms')['verdict'] == 'too few rows'
 
 
 # ------------------------------------------------------------------ a short run on the graph

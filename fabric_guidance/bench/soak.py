@@ -42,12 +42,13 @@ import numpy as np
 import yaml
 
 from .. import subcommand
-from ..atomic import write_bytes, write_text
+from ..atomic import write_text
 from ..paths import config_path
 from ..plc.register_log import RegisterLog
 from ..process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
                              wait_until)
 from .graphs import cpu_s, rss_mb
+from .soak_report import harmful, plot, summary, verdicts
 
 HELP = ('the simulated lab graph guiding target after target for N minutes: latency, resources and '
         'losses per minute, a verdict on drift')
@@ -70,10 +71,6 @@ LAND_TIMEOUT_S = 1.0
 PAIR_WAIT_S = 0.5
 #: Gaze samples kept to find a step's sample (about 17 s at 60 Hz).
 GAZE_KEEP = 1024
-#: A figure drifts when its slope exceeds this fraction of its mean per hour (and its floor).
-RELATIVE = 0.10
-#: The least slope per hour that counts, per kind of figure (where the mean is near zero).
-FLOORS = {'ms': 0.1, 'MB': 1.0, 's/min': 0.1, 'count': 1.0, 'per row': 1.0, 's': 0.1}
 #: Statuses of the nodes' /diagnostics that are routine in a guided session (between targets).
 ROUTINE = ('no active target',)
 
@@ -572,158 +569,6 @@ def progress(row: dict, n_rows: int) -> str:
     return line
 
 
-# ---------------------------------------------------------------- the verdict
-def drift(t_h, y, unit: str) -> dict:
-    """Least-squares slope of y per hour with its 95 % interval (Student t, n - 2 degrees of
-    freedom), and the verdict: DRIFTS when the interval excludes zero and |slope| exceeds the
-    threshold, max(RELATIVE * |mean|, FLOORS[unit]), with its direction ('DRIFTS up', 'DRIFTS
-    down'); 'steady' when the interval holds zero; 'small' when it does not but the slope is below
-    the threshold."""
-    from scipy import stats
-    t_h, y = np.asarray(t_h, dtype=float), np.asarray(y, dtype=float)
-    ok = np.isfinite(t_h) & np.isfinite(y)
-    t_h, y = t_h[ok], y[ok]
-    out = {'n': int(len(y)), 'mean': float(y.mean()) if len(y) else None, 'unit': unit}
-    if len(y) < 3 or np.ptp(t_h) == 0:
-        return {**out, 'slope_per_h': None, 'low': None, 'high': None, 'threshold': None,
-                'verdict': 'too few rows'}
-    threshold = max(RELATIVE * abs(out['mean']), FLOORS[unit])
-    if np.ptp(y) == 0:
-        slope = stderr = 0.0
-    else:
-        fit = stats.linregress(t_h, y)
-        slope, stderr = float(fit.slope), float(fit.stderr)
-    half = float(stats.t.ppf(0.975, len(y) - 2)) * stderr
-    low, high = slope - half, slope + half
-    excludes = low > 0 or high < 0
-    if not excludes:
-        verdict = 'steady'
-    elif abs(slope) > threshold:
-        verdict = 'DRIFTS up' if slope > 0 else 'DRIFTS down'
-    else:
-        verdict = 'small'
-    return {**out, 'slope_per_h': slope, 'low': low, 'high': high, 'threshold': threshold, 'verdict': verdict}
-
-
-#: The figures for which fewer is worse: everything else drifts the wrong way upwards.
-DOWN_IS_WORSE = ('targets_reached',)
-
-
-def harmful(column: str, result: dict) -> bool:
-    """A drift the lab must act on: upwards, or downwards for DOWN_IS_WORSE."""
-    return result['verdict'] == ('DRIFTS down' if column in DOWN_IS_WORSE else 'DRIFTS up')
-
-
-def verdicts(rows: list[dict]) -> dict[str, dict]:
-    """Every figure of FIGURES (one per node for the per-node ones) over the rows."""
-    t_h = [(r['t_start_s'] + r['t_end_s']) / 2 / 3600 for r in rows]
-    out = {}
-    for figure, unit in FIGURES.items():
-        columns = [c for c in COLUMNS if c == figure or c.startswith(figure + '.')]
-        for col in columns:
-            out[col] = drift(t_h, [_float(r.get(col)) for r in rows], unit)
-    return out
-
-
-def _float(v) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def verdict_table(results: dict[str, dict]) -> list[str]:
-    def f(v):
-        return '—' if v is None else f'{v:+.3g}'
-    lines = ['| figure | mean | slope per hour | 95 % interval | threshold | verdict |',
-             '| --- | --- | --- | --- | --- | --- |']
-    for col, r in results.items():
-        mean = '—' if r['mean'] is None else f"{r['mean']:.3g} {r['unit']}"
-        interval = '—' if r['low'] is None else f"[{f(r['low'])}, {f(r['high'])}]"
-        threshold = '—' if r['threshold'] is None else f"{r['threshold']:.3g}"
-        lines.append(f"| {col} | {mean} | {f(r['slope_per_h'])} | {interval} | {threshold} | {r['verdict']} |")
-    return lines
-
-
-def summary(rows: list[dict], results: dict[str, dict], args: dict, problems: list[str]) -> str:
-    drifting = [f"{c} ({r['verdict'][7:]})" for c, r in results.items() if r['verdict'].startswith('DRIFTS')]
-    stalls = [r for r in rows if r['stall']]
-    head = (f"Soak run: {len(rows)} rows of {args['row_seconds']:g} s ({args['minutes']:g} min asked). "
-            + ('No figure drifts.' if not drifting else f"Drifting: {', '.join(drifting)}.")
-            + (f' {len(stalls)} row(s) stalled.' if stalls else ' No row stalled.')) if rows else (
-        f"Soak run: no row written ({args['minutes']:g} min asked); see the problems below.")
-    lines = [head, '', f'Latency: {LATENCY}', '',
-             f'Verdict per figure: least-squares slope per hour over the rows with its 95 % interval (Student t, '
-             f'n - 2 degrees of freedom); DRIFTS (up or down) only where the interval excludes zero and the slope '
-             f'exceeds the threshold, {RELATIVE:.0%} of the mean per hour or the floor of its unit '
-             f"({', '.join(f'{v:g} {k}' for k, v in FLOORS.items())}), whichever is larger; 'small' where the "
-             "interval excludes zero below the threshold. Counts per row are per row of the run. The exit code "
-             f"is 1 for a drift upwards (downwards for {', '.join(DOWN_IS_WORSE)}), a stalled row or a problem.",
-             '',
-             *verdict_table(results)]
-    if stalls:
-        lines += ['', 'Stalled rows:', '']
-        lines += [f"- row {r['row']} ({r['t_start_s'] / 60:.1f}-{r['t_end_s'] / 60:.1f} min): {r['stall']}; "
-                  f"{r['targets_reached']} reached, {r['targets_skipped']} skipped"
-                  + (f"; {r['warnings']}" if r['warnings'] else '') for r in stalls]
-    if problems:
-        lines += ['', 'Problems:', ''] + [f'- {p}' for p in problems]
-    return '\n'.join(lines) + '\n'
-
-
-# ---------------------------------------------------------------- the plot
-def plot(rows: list[dict], path: Path) -> Path:
-    """The per-row figures over time, one panel each, as a PNG; a node has one colour in every
-    panel (one legend above them)."""
-    import io
-
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    t = [r['t_end_s'] / 60 for r in rows]
-    colours = dict(zip(OBSERVED, plt.get_cmap('tab10').colors))
-    fig, axes = plt.subplots(4, 2, figsize=(13, 14), sharex=True)
-
-    def panel(ax, series, title, ylabel, zero=True, legend=True):
-        top = 0.0
-        for col, label, style in series:
-            y = [_float(r.get(col)) for r in rows]
-            top = max([top] + [v for v in y if math.isfinite(v)])
-            ax.plot(t, y, marker='.', label=label, **style)
-        ax.set_title(title)
-        ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
-        if zero:   # counts and times from zero: a flat line must not look like a swing
-            ax.set_ylim(0, max(1.0, 1.25 * top))
-        if legend:
-            ax.legend(fontsize=7, loc='best', ncol=2, handlelength=3)
-
-    panel(axes[0, 0], [(f'{kind}_{q}_ms', f'{label} {q}', dict(linestyle=ls, color=c))
-                       for kind, label, ls in (('latency', 'to register', '-'), ('command', 'to command', '--'))
-                       for q, c in (('p50', 'tab:blue'), ('p99', 'tab:orange'), ('max', 'tab:red'))],
-          'gaze-to-register and gaze-to-command latency', 'ms')
-    for ax, figure, title, unit, zero in ((axes[0, 1], 'rss_mb', 'resident memory', 'MB', False),
-                                          (axes[1, 0], 'cpu_s_per_min', 'CPU', 's per minute', True),
-                                          (axes[1, 1], 'fds', 'open file descriptors', 'count', True),
-                                          (axes[2, 0], 'threads', 'threads', 'count', True)):
-        panel(ax, [(f'{figure}.{n}', n, dict(color=colours[n])) for n in OBSERVED], title, unit, zero, legend=False)
-    losses = ('datagrams_lost', 'datagrams_dropped', 'commands_not_landed', 'steps_unseen', 'samples_unmatched',
-              'plc_watchdog_trips')
-    panel(axes[2, 1], [(col, col, {}) for col in losses], 'losses per row', 'count')
-    panel(axes[3, 0], [('targets_reached', 'reached', {}), ('targets_skipped', 'skipped', {})],
-          'targets per row', 'count')
-    panel(axes[3, 1], [('time_to_target_s', 'median', {})], 'time to a target', 's')
-    for ax in axes[-1]:
-        ax.set_xlabel('minutes')
-    handles = [plt.Line2D([], [], color=colours[n], marker='.') for n in OBSERVED]
-    fig.legend(handles, OBSERVED, loc='upper center', ncol=len(OBSERVED), fontsize=8, title='processes')
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
-    buf = io.BytesIO()
-    fig.savefig(buf, format='png', dpi=90)
-    plt.close(fig)
-    return write_bytes(path, buf.getvalue())
-
-
 # ---------------------------------------------------------------- the command
 def run_soak(minutes: float, out: Path, say, row_seconds: float = 60.0, target_timeout_s: float = 30.0,
              startup_timeout_s: float = 120.0) -> tuple[list[dict], dict, list[str]]:
@@ -748,13 +593,13 @@ def run_soak(minutes: float, out: Path, say, row_seconds: float = 60.0, target_t
     finally:
         problems += soak.close()
     rows = soak.rows
-    results = verdicts(rows)
+    results = verdicts(rows, FIGURES, COLUMNS)
     args = {'minutes': minutes, 'row_seconds': row_seconds, 'target_timeout_s': target_timeout_s}
     write_text(out / 'soak.json', json.dumps({'args': args, 'latency': LATENCY, 'rows': rows, 'verdicts': results,
                                               'problems': problems}, indent=1) + '\n')
-    write_text(out / 'soak.md', summary(rows, results, args, problems))
+    write_text(out / 'soak.md', summary(rows, results, args, problems, LATENCY))
     if rows:
-        plot(rows, out / 'soak.png')
+        plot(rows, out / 'soak.png', OBSERVED)
     return rows, results, problems
 
 
