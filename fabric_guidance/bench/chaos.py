@@ -425,6 +425,7 @@ def markdown(rows: list[dict], seed: int, faults: int, violations: list[str]) ->
 
 def run_chaos(seed: int, faults: int, out: Path, say) -> tuple[list[dict], list[str]]:
     """The run; returns the table's rows and every broken invariant ([] when all held)."""
+    out = Path(out).resolve()   # the nodes run in the package's folder: their paths must not be relative
     out.mkdir(parents=True, exist_ok=True)
     plan = schedule(seed, faults)
     lab = ChaosLab(out, say)
