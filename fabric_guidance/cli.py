@@ -25,6 +25,8 @@ import argparse
 from importlib import import_module
 import sys
 
+from . import subcommand
+
 #: Every subcommand: its module (which has add_parser(subparsers) and run(args)) and the one line
 #: `fabric-guidance --help` lists. A module is imported only when its subcommand runs, so each
 #: pays only for its own dependencies (bench needs no scikit-posthocs, example no pandas).
@@ -88,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         else:  # listed, not imported: its options are parsed only when it is the one chosen
             sub.add_parser(name, help=help_text)
     args = parser.parse_args(argv)
+    subcommand.stop_on_sigterm()
     return args.run(args)
 
 

@@ -3,7 +3,9 @@ from a module's HELP, docstring, configure(parser) and run(args)."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from typing import Callable, Sequence, TextIO
 
 Configure = Callable[[argparse.ArgumentParser], argparse.ArgumentParser]
@@ -18,9 +20,22 @@ def add(subparsers, name: str, help_text: str, doc: str | None, configure: Confi
     return parser
 
 
+def stop_on_sigterm() -> None:
+    """SIGTERM (a supervisor, `kill`, a CI timeout) ends a command as Ctrl-C does: as a
+    KeyboardInterrupt, so its clean-up runs. Without it the runs that start a graph of processes
+    (soak, chaos, demo, bench) died at once and left their nodes running."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f'signal {signum}')
+
+
 def main(prog: str, doc: str | None, configure: Configure,
          run: Callable[[argparse.Namespace], int], argv: Sequence[str] | None = None) -> int:
     """The module run on its own (`python -m ...`): the same options, no subcommand."""
+    stop_on_sigterm()
     parser = argparse.ArgumentParser(prog=prog, description=doc,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     return run(configure(parser).parse_args(argv))

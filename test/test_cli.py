@@ -70,3 +70,24 @@ def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith('fabric-guidance: error: argument command: invalid choice')
+
+
+def test_sigterm_ends_a_command_as_ctrl_c_does_so_its_clean_up_runs():
+    """soak, chaos, demo and bench stop their graph in `finally`; a SIGTERM that killed the
+    process outright left the nodes running (seen with a soak run)."""
+    import os
+    import signal
+
+    from fabric_guidance import subcommand
+    before = signal.getsignal(signal.SIGTERM)
+    cleaned = []
+    try:
+        subcommand.stop_on_sigterm()
+        with pytest.raises(KeyboardInterrupt):
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)   # its handler runs before kill returns here
+            finally:
+                cleaned.append(True)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert cleaned == [True]
