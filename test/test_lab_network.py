@@ -244,10 +244,21 @@ def lab_hosts():
                                  (b, 'other0', f'{OTHER}.2'), (c, 'br0', f'{OTHER}.3')):
             ip('-n', ns, 'addr', 'add', f'{address}/24', 'dev', dev)
             ip('-n', ns, 'link', 'set', dev, 'up')
+        # A veth's carrier comes up after `link set up` returns (the kernel's link watch, up to a
+        # second on some machines); Fast DDS leaves out an interface that is not up yet when a
+        # participant starts, and a profile allowing that interface alone then has no transport.
+        links = ((a, 'lab0'), (b, 'lab0'), (a, 'other0'), (b, 'other0'), (c, 'br0'))
+        wait_until(lambda: all(operstate(ns, dev) == 'UP' for ns, dev in links), 10.0,
+                   what='every link of the lab network up')
         yield a, b, c
     finally:
         for ns in (a, b, c):
             delete_host(ns)
+
+
+def operstate(ns, dev) -> str:
+    """The link's operational state in namespace ns (UP once it has a carrier)."""
+    return json.loads(ip('-n', ns, '-j', 'link', 'show', 'dev', dev).stdout)[0].get('operstate', '')
 
 
 def multicast_route(ns, dev):
