@@ -31,15 +31,34 @@ def make_sweep() -> Sweep:
     return Sweep(Calibration.load(SIM_CALIBRATION), RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'))
 
 
-def rss_mb(pid: int) -> float | None:
-    """Resident memory of a process [MB], from /proc (None where there is no /proc)."""
+def _status(pid: int, key: str) -> int | None:
+    """The first number of /proc/PID/status's line `key:` (None where there is no /proc)."""
     try:
         for line in Path(f'/proc/{pid}/status').read_text().splitlines():
-            if line.startswith('VmRSS:'):
-                return int(line.split()[1]) / 1024.0
+            if line.startswith(key + ':'):
+                return int(line.split()[1])
     except OSError:
         pass
     return None
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of a process [MB], from /proc (None where there is no /proc)."""
+    kb = _status(pid, 'VmRSS')
+    return None if kb is None else kb / 1024.0
+
+
+def threads(pid: int) -> int | None:
+    """Threads of a process, from /proc."""
+    return _status(pid, 'Threads')
+
+
+def fds(pid: int) -> int | None:
+    """Open file descriptors of a process (/proc/PID/fd)."""
+    try:
+        return len(os.listdir(f'/proc/{pid}/fd'))
+    except OSError:
+        return None
 
 
 def cpu_s(pid: int) -> float | None:

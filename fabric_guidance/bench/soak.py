@@ -47,7 +47,7 @@ from ..paths import config_path
 from ..plc.register_log import RegisterLog
 from ..process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
                              wait_until)
-from .graphs import cpu_s, rss_mb
+from .graphs import cpu_s, fds, rss_mb, threads
 from .soak_report import harmful, plot, summary, verdicts
 
 HELP = ('the simulated lab graph guiding target after target for N minutes: latency, resources and '
@@ -208,26 +208,6 @@ class LatencyMatcher:
             self.to_command = [(c, lat) for c, lat in self.to_command if c >= until_ns]
             counts, self.counts = self.counts, Counter()
         return taken, to_command, counts
-
-
-# ---------------------------------------------------------------- /proc
-def fds(pid: int) -> int | None:
-    """Open file descriptors of a process (/proc/PID/fd)."""
-    try:
-        return len(os.listdir(f'/proc/{pid}/fd'))
-    except OSError:
-        return None
-
-
-def threads(pid: int) -> int | None:
-    """Threads of a process (/proc/PID/status)."""
-    try:
-        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
-            if line.startswith('Threads:'):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return None
 
 
 # ---------------------------------------------------------------- the graph side
