@@ -179,7 +179,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
     in the sweep's condition; whiskers +-1 SE over wearer means (over several seeds or variants:
     the 95 % interval over them). Left: the whole plane; right:
     the same axes zoomed on the knobs other than the tolerance (they crowd round the condition
-    point), where their end values are labelled."""
+    point), where their end values are labelled; without such knobs (a variants run) the whole
+    plane alone."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
@@ -191,9 +192,12 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
     k = getattr(result, 'runs', 1)
     whiskers = (f'whiskers: 95 % interval over {k} {getattr(result, "axis", "seed")}s' if k > 1 else
                 'whiskers +-1 SE over wearer means')
-    fig = Figure(figsize=(14.0, 8.6), layout='constrained')
+    knobs = [k for k in KNOBS if k in curves]
+    swept = [k for k in knobs if k != 'acceptance_deg']
+    fig = Figure(figsize=(14.0, 8.6) if swept else (9.0, 8.0), layout='constrained')
     canvas = FigureCanvasAgg(fig)
-    whole, zoom = fig.subplots(1, 2, width_ratios=(1.0, 1.0))
+    whole, zoom = fig.subplots(1, 2, width_ratios=(1.0, 1.0)) if swept else (fig.subplots(1, 1), None)
+    axes = (whole, zoom) if zoom is not None else (whole,)
 
     def stats(rows):
         t = np.array([r.stats('time')['mean'] for r in rows])
@@ -202,7 +206,6 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
         ase = np.nan_to_num([_whisker(r, 'accuracy') for r in rows])
         return t, a, tse, ase
 
-    knobs = [k for k in KNOBS if k in curves]
     colours = {k: f'C{i}' for i, k in enumerate(knobs)}
     markers = {1: 'o', 2: 's', 3: '^', 4: 'D'}
     handles, labels = [], []
@@ -225,9 +228,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
                        Line2D([], [], ls='none', marker=markers.get(c, 'o'), ms=9, mec='black',
                               mfc='0.2' if c == cond else 'white'))
         labels.insert(len(labels) - len(knobs), f'condition {CONDITION_LABELS[c]}'
-                      + (' (the knobs are swept here)' if c == cond else ''))
+                      + (' (the knobs are swept here)' if c == cond and swept else ''))
 
-    for ax in (whole, zoom):
+    for ax in axes:
         for knob in knobs:
             x, y, xe, ye = stats(curves[knob])
             style = ':' if knob == 'acceptance_deg' else '-'
@@ -259,7 +262,7 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
     # the zoom: every knob but the tolerance, and the sweep's condition, with their whiskers
     near = [r for k in knobs if k != 'acceptance_deg' for r in curves[k]] + \
         [r for r in cond_rows if int(r.value) == cond]
-    if near:
+    if near and zoom is not None:
         x, y, xe, ye = stats(near)
         x0, x1, y0, y1 = (x - xe).min(), (x + xe).max(), (y - ye).min(), (y + ye).max()
         mx, my = 0.12 * ((x1 - x0) or 0.1), 0.12 * ((y1 - y0) or 0.1)
@@ -269,10 +272,11 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
                                   fill=False,
                                   ec='0.4', ls='--', lw=0.8, zorder=2))
     s = result.settings
-    whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
-    zoom.set_title(f'zoom: the knobs swept in condition {cond} '
-                   '(package values at the filled point)',
-                   fontsize=10)
+    if zoom is not None:
+        whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
+        zoom.set_title(f'zoom: the knobs swept in condition {cond} '
+                       '(package values at the filled point)',
+                       fontsize=10)
     fig.suptitle((title or 'What accuracy costs in time: conditions 1-4 at the package defaults and '
                   'every knob') + f';\n{s.subjects} wearers, {whiskers}'
                  + ('; grey: each run\'s own point' if k > 1 else '') + '; lower and to the left is better',
@@ -311,8 +315,9 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
             if knob in ('calibration_steps', 'fit_tolerance'):
                 text += f' ({rows[i].note.split("; ")[0]})'
             items.append((x[i], y[i], text, colours[knob]))
-    _place_labels(zoom, renderer, items, obstacles(zoom,
-                                                   [r for r in cond_rows if int(r.value) == cond]))
+    if zoom is not None:
+        _place_labels(zoom, renderer, items, obstacles(zoom,
+                                                       [r for r in cond_rows if int(r.value) == cond]))
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path
