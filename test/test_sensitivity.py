@@ -61,9 +61,10 @@ def test_every_parameter_of_every_listed_effect_and_the_population_and_dwell():
               if (spd.effect(e).params_dict.get(p, default)) is not None
               and (e, p) not in R.MEASURED]
     assert 'speech_latency.per_word_s' not in keys     # fitted by fit-wearer: not an assumption
+    assert 'population.arm_spread' not in keys         # profiled by fit-wearer: not an assumption
     assert [k for k in keys if not k.startswith(('population.', 'protocol.'))] == expect
-    assert keys[-5:] == ['population.spread.a', 'population.spread.b', 'population.spread.c',
-                         'population.arm_spread', 'protocol.dwell_s']
+    assert keys[-4:] == ['population.spread.a', 'population.spread.b', 'population.spread.c',
+                         'protocol.dwell_s']
     assert 'datagram_loss.burst_len' not in keys       # unset optional: nothing to vary
     assert len(set(keys)) == len(keys)
 

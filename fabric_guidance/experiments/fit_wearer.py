@@ -7,22 +7,26 @@ suit's and the arm band's cue is misread, a person's search pace, their pace wit
 eighteen numbers of the paper's per-subject table (experiments/paper.py, or a CSV given with
 --table): the four condition means, the four SDs of the subject means, the best-condition
 counts and the six correlations between conditions. Two more traits are assumed, not fitted.
+How far the arm muscles' law of condition 3 differs from the suit's (population.arm_spread) is
+profiled: a design per value (--arm-spread), the fit on each, the lowest objective kept.
 
-The speed protocol runs once on a design population (--design-seeds, --wearers per seed; none
-of them a seed of the validation), then every candidate population is the design reweighted
-(importance weights): the fit itself takes seconds. A bootstrap (--bootstrap N: design wearers
-and the paper's subjects resampled, the fit repeated) gives each fitted number its interval and
-the variants file (fit/variants.yaml in --out: one scene override set per bootstrap fit) that
-`tradeoff --scene-variants` runs. The design is saved (fit/design.npz) and --design reuses it:
-the shipped scenes are reproduced from the shipped design in seconds.
+The speed protocol runs once per arm_spread on a design population (--design-seeds, --wearers
+per seed; none of them a seed of the validation; about 90 s each on two cores), then every
+candidate population is the design reweighted (importance weights): a fit takes seconds. A
+bootstrap (--bootstrap N: design wearers and the paper's subjects resampled, the fit repeated on
+every design, the best kept) gives each fitted number its interval and the variants file
+(fit/variants.yaml in --out: one scene override set per bootstrap fit) that `tradeoff
+--scene-variants` runs. The designs are saved (fit/design-arm_spread-<value>.npz) and --design
+reuses them: the shipped scenes are reproduced from the shipped designs in seconds.
 
 It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the paper
 scenes plus the model's effects at the fitted medians and the population's traits, the same in
 both) with comments saying what was fitted, to what, on which seeds, and the statistics reached.
 Validation on other seeds: `fabric-guidance compare-paper --seeds ...`.
 
-    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,102,103] [--wearers 60]
-                               [--bootstrap 100] [--design FILE] [--workers 2] [--table CSV]
+    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 120]
+                               [--arm-spread 0,0.1,0.2,0.3] [--bootstrap 100] [--design FILE ...]
+                               [--workers 2] [--table CSV]
     python -m fabric_guidance.experiments.fit_wearer ...
 """
 from __future__ import annotations
@@ -34,6 +38,7 @@ from pathlib import Path
 import re
 import sys
 import time
+from typing import Sequence
 
 import numpy as np
 
@@ -99,18 +104,12 @@ def model_scene(base, values: dict[tuple[str, str], float], seed: int | None = N
     return scene if seed is None else scene.replace(seed=int(seed))
 
 
-def base_scene(protocol: str = 'speed'):
-    """paper-<protocol> with the model's effects listed and the fixed values."""
+def base_scene(protocol: str = 'speed', arm_spread: float | None = None):
+    """paper-<protocol> with the model's effects listed, the fixed values and arm_spread (None:
+    the paper scene's)."""
     from ..sim.scene import load_scene
-    return model_scene(load_scene(f'paper-{protocol}'), FIXED)
-
-
-def fitted_scene(phi, protocol: str = 'speed', seed: int | None = None, subjects: int | None = None):
-    """The fitted population phi on paper-<protocol> (what the written scene file holds)."""
-    values = pf.trait_values(phi)
-    medians = {q: v for m, _ in values.values() for q, v in m.items()}
-    return pf.population_scene(base_scene(protocol), medians, {k: sd for k, (_, sd) in values.items()},
-                               seed, subjects)
+    scene = model_scene(load_scene(f'paper-{protocol}'), FIXED)
+    return scene if arm_spread is None else scene.with_value('population.arm_spread', float(arm_spread))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -156,10 +155,13 @@ def _effect_line(name: str, params: dict, comment: str) -> str:
     return f'  - {name}: {{{inner}}}   # {comment}'
 
 
-def fitted_text(base_name: str, new_name: str, phi, header: list[str]) -> str:
+ARM_SPREAD_LINES = re.compile(r'^  # Condition 3 drives arm muscles.*\n(?:  # .*\n)*  arm_spread: .*$', re.M)
+
+
+def fitted_text(base_name: str, new_name: str, phi, header: list[str], arm_spread: float) -> str:
     """The base scene file's text with the fitted population: a header, the new name, the
-    traits in the population section, the speech line's median per_word_s and the model's
-    effects appended."""
+    profiled arm_spread, the traits in the population section, the speech line's median
+    per_word_s and the model's effects appended."""
     from ..sim.effects import effect_class
     values = pf.trait_values(phi)
     medians = {tuple(q.split('.')): v for m, _ in values.values() for q, v in m.items()}
@@ -171,6 +173,12 @@ def fitted_text(base_name: str, new_name: str, phi, header: list[str]) -> str:
     if n != 1:
         raise ValueError(f'{base_name}: no speech_latency line with per_word_s to set')
     text = re.sub(r'(- speech_latency: .*)$', r'\1 [per_word_s: fitted median]', text, count=1, flags=re.M)
+    arm = ["  # Condition 3 drives the arm muscles with the suit's calibration (the paper); how far the",
+           "  # arm's law differs from the suit's (lognormal sigma on a) is profiled by fit-wearer (header).",
+           f'  arm_spread: {arm_spread:g}']
+    text, n = ARM_SPREAD_LINES.subn(lambda m: '\n'.join(arm), text, count=1)
+    if n != 1:
+        raise ValueError(f'{base_name}: no "# Condition 3 drives arm muscles" comment and arm_spread line to set')
     traits = ['  # Between-person traits (fabric-guidance fit-wearer): each wearer draws u ~ N(0, sd) per',
               "  # trait and every listed parameter moves by u on the trait's scale around the value",
               '  # this scene gives it (the population median).',
@@ -206,7 +214,7 @@ def _write(path: Path, text: str, check=None) -> Path:
     return write_text(path, text, check=check)
 
 
-def write_scenes(out: Path, phi, header: list[str]) -> list[Path]:
+def write_scenes(out: Path, phi, header: list[str], arm_spread: float) -> list[Path]:
     """paper-fitted-speed.yaml and paper-fitted-accuracy.yaml; `header` may name {name} and
     {base}, the scene and its base."""
     from ..sim.scene import load_scene
@@ -215,17 +223,19 @@ def write_scenes(out: Path, phi, header: list[str]) -> list[Path]:
     for protocol in ('speed', 'accuracy'):
         name, base = f'paper-fitted-{protocol}', f'paper-{protocol}'
         head = [h.replace('{name}', name).replace('{base}', base) for h in header]
-        paths.append(_write(out / f'{name}.yaml', fitted_text(base, name, phi, head), load_scene))
+        paths.append(_write(out / f'{name}.yaml', fitted_text(base, name, phi, head, arm_spread), load_scene))
     return paths
 
 
-def variants_text(boot: np.ndarray) -> str:
-    """One override set per bootstrap fit: effect.parameter medians and population.traits sds."""
+def variants_text(boot: np.ndarray, arm_spreads: Sequence[float]) -> str:
+    """One override set per bootstrap fit: effect.parameter medians, population.arm_spread and
+    population.traits sds."""
     import yaml
     rows = []
-    for phi in boot:
+    for phi, arm in zip(boot, arm_spreads):
         values = pf.trait_values(phi)
         row = {q: round(v, 6) for m, _ in values.values() for q, v in m.items()}
+        row['population.arm_spread'] = float(arm)
         row.update({f'population.traits.{name}.sd': round(sd, 6) for name, (_, sd) in values.items()})
         rows.append(row)
     return ('# Bootstrap fits of fabric-guidance fit-wearer: each entry is one plausible population\n'
@@ -250,6 +260,20 @@ def _seeds(text: str) -> tuple[int, ...]:
     return seeds
 
 
+def _arm_spreads(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(s) for s in str(text).split(',') if s.strip())
+    except ValueError:
+        raise SystemExit(f'--arm-spread must be numbers separated by commas, got {text!r}')
+    if not values or any(not 0.0 <= v <= 3.0 for v in values) or len(set(values)) != len(values):
+        raise SystemExit(f'--arm-spread must be distinct numbers in [0, 3], got {text!r}')
+    return values
+
+
+def design_path(out: Path, arm_spread: float) -> Path:
+    return out / 'fit' / f'design-arm_spread-{arm_spread:g}.npz'
+
+
 def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, default=None,
                    help='folder for the fitted scenes and the variants file (default config/scenes)')
@@ -257,8 +281,11 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    help='seeds of the design population (default %(default)s)')
     p.add_argument('--wearers', type=int, default=pf.DESIGN_WEARERS,
                    help='design wearers per seed (default %(default)s)')
-    p.add_argument('--design', type=Path, default=None,
-                   help='a design.npz of an earlier run to reuse (skips the simulation)')
+    p.add_argument('--arm-spread', default=','.join(f'{v:g}' for v in pf.ARM_SPREADS),
+                   help='values of population.arm_spread to profile, a design each (default %(default)s; '
+                        'with --design, the designs\' own)')
+    p.add_argument('--design', type=Path, nargs='+', default=None,
+                   help='design files of an earlier run to reuse, one per arm_spread (skips the simulation)')
     p.add_argument('--bootstrap', type=int, default=100, help='bootstrap refits (default 100; 0: none)')
     p.add_argument('--workers', type=int, default=2, help='processes for the design (default 2)')
     p.add_argument('--table', type=Path, default=None,
@@ -279,7 +306,22 @@ def load_design(path: Path) -> pf.Design:
     if design.u.ndim != 2 or design.u.shape[1] != len(pf.FITTED) or design.y.shape != (len(design.u), 4):
         raise SystemExit(f'{path}: a design of {design.u.shape} traits and {design.y.shape} means does not '
                          f'match the {len(pf.FITTED)} fitted traits')
+    if design.arm_spread is None:
+        raise SystemExit(f'{path}: the design does not record its arm_spread (made before the profile); '
+                         'run fit-wearer without --design')
     return design
+
+
+def load_designs(paths: Sequence[Path]) -> list[pf.Design]:
+    designs, first = [], {}
+    for path in paths:
+        design = load_design(path)
+        if design.arm_spread in first:
+            raise SystemExit(f'{path}: a second design of arm_spread {design.arm_spread:g} (the first: '
+                             f'{first[design.arm_spread]}); give one per value')
+        first[design.arm_spread] = path
+        designs.append(design)
+    return designs
 
 
 def run(args) -> int:
@@ -292,6 +334,7 @@ def run(args) -> int:
         print(f'--bootstrap must be >= 0, got {args.bootstrap}', file=sys.stderr)
         return 2
     seeds = _seeds(args.design_seeds)
+    arm_spreads = _arm_spreads(args.arm_spread)
     table = read_table(args.table)
     n = table.shape[0]
     target = pf.table_statistics(table)
@@ -299,60 +342,76 @@ def run(args) -> int:
     (out / 'fit').mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     if args.design is not None:
-        design = load_design(args.design)
-        print(f'design: {len(design.y)} wearers from {args.design}', flush=True)
+        designs = load_designs(args.design)
+        for path, design in zip(args.design, designs):
+            print(f'design: {len(design.y)} wearers of arm_spread {design.arm_spread:g} from {path}', flush=True)
     else:
-        try:
-            base = base_scene('speed')
-        except SceneError as exc:
-            print(exc, file=sys.stderr)
-            return 2
+        designs = []
 
         def say(s):
             print(f'  {time.perf_counter() - start:6.0f} s  {s}', flush=True)
 
-        # Round 1: wide spreads around the design values; round 2: around round 1's fit, on
-        # other seeds, so that the fitted population has design wearers near it.
-        first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
-        print(f'design round 1: the speed protocol on {args.wearers} wearers of each seed '
-              f'{", ".join(map(str, first))}', flush=True)
-        design = pf.run_design(base, first, args.wearers, args.workers, say)
-        mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
-        print(f'design round 2, around the first fit: {args.wearers} wearers of each seed '
-              f'{", ".join(map(str, second))}', flush=True)
-        design = design.joined(pf.run_design(base, second, args.wearers, args.workers, say, mu, sd))
-        design.save(out / 'fit' / 'design.npz')
+        for arm in arm_spreads:
+            try:
+                base = base_scene('speed', arm)
+            except (SceneError, ValueError) as exc:
+                print(exc, file=sys.stderr)
+                return 2
+            # Round 1: wide spreads around the design values; round 2: around round 1's fit, on
+            # other seeds, so that the fitted population has design wearers near it.
+            first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
+            print(f'arm_spread {arm:g}, design round 1: the speed protocol on {args.wearers} wearers of each '
+                  f'seed {", ".join(map(str, first))}', flush=True)
+            design = pf.run_design(base, first, args.wearers, args.workers, say)
+            mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
+            print(f'arm_spread {arm:g}, design round 2, around the first fit: {args.wearers} wearers of each '
+                  f'seed {", ".join(map(str, second))}', flush=True)
+            design = design.joined(pf.run_design(base, second, args.wearers, args.workers, say, mu, sd))
+            design.save(design_path(out, arm))
+            designs.append(design)
+    designs.sort(key=lambda d: d.arm_spread)     # the profile's order, whatever the command line's
     design_s = time.perf_counter() - start
     t0 = time.perf_counter()
-    phi, obj = pf.fit_population(design, target, n)
-    w = pf.weights(design, phi)
-    ess = 1.0 / float(np.sum(w ** 2))
-    model = pf.weighted_statistics(design, w, n)
+    fits = []
+    for design in designs:
+        phi, obj = pf.fit_population(design, target, n)
+        w = pf.weights(design, phi)
+        fits.append((phi, obj, 1.0 / float(np.sum(w ** 2)), pf.weighted_statistics(design, w, n)))
+        print(f'fit at arm_spread {design.arm_spread:g}: objective {obj:.2f} over 18 statistics, 8 parameters; '
+              f'effective design wearers {fits[-1][2]:.0f}', flush=True)
+    best = int(np.argmin([f[1] for f in fits]))
+    phi, obj, ess, model = fits[best]
+    design, arm = designs[best], designs[best].arm_spread
     fit_s = time.perf_counter() - t0
-    print(f'fit: objective {obj:.2f} over 18 statistics, 8 parameters; effective design wearers {ess:.0f} '
-          f'({fit_s:.1f} s)')
-    boot = None
+    print(f'kept arm_spread {arm:g} ({fit_s:.1f} s)')
+    boot, kept = None, None
     if args.bootstrap:
-        boot = pf.bootstrap(design, table, phi, args.bootstrap, seed=1,
-                            progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
-                            if r % 10 == 0 or r == k else None)
-        _write(out / 'fit' / 'variants.yaml', variants_text(boot))
+        boot, kept = pf.bootstrap(designs, table, [f[0] for f in fits], args.bootstrap, seed=1,
+                                  progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
+                                  if r % 10 == 0 or r == k else None)
+        _write(out / 'fit' / 'variants.yaml', variants_text(boot, [designs[i].arm_spread for i in kept]))
     for line in phi_lines(phi, boot):
         print('  ' + line)
     for line in statistics_lines(model, target):
         print('  ' + line)
+    profile = ', '.join(f'{d.arm_spread:g}: {f[1]:.2f}' for d, f in zip(designs, fits))
+    chosen = '' if kept is None else (
+        f'; the bootstrap kept {arm:g} in {int(np.sum(kept == best))} of {len(kept)} refits ('
+        + ', '.join(f'{d.arm_spread:g}: {int(np.sum(kept == i))}' for i, d in enumerate(designs)) + ')')
     header = [
         '# {name}: {base} plus a wearer model with people who differ, fitted by `fabric-guidance',
         "# fit-wearer` (fabric_guidance/experiments/fit_wearer.py, population_fit.py) to the paper's",
         '# per-subject speed table: 4 means, 4 SDs of subject means, 4 best-condition counts, 6 correlations',
-        f'# between conditions (18 numbers, 8 fitted parameters), on a design of {len(design.y)} wearers from '
-        f'seeds {", ".join(map(str, sorted(set(int(s) for s in design.seeds))))}',
-        f'# (importance-weighted; effective wearers {ess:.0f}). Objective (sum of squared standardized',
-        f'# distances) {obj:.2f}. Validate on other seeds: fabric-guidance compare-paper --seeds ...',
+        '# between conditions (18 numbers, 8 fitted parameters and arm_spread profiled), on a design of',
+        f'# {len(design.y)} wearers from seeds {", ".join(map(str, sorted(set(int(s) for s in design.seeds))))}'
+        f' (importance-weighted; effective wearers {ess:.0f}).',
+        f'# Objective (sum of squared standardized distances) {obj:.2f}. Validate on other seeds:',
+        '# fabric-guidance compare-paper --seeds ...',
+        f'# arm_spread profiled (a design per value, objective): {profile}; kept {arm:g}{chosen}',
     ] + ['# ' + line for line in phi_lines(phi, boot)] + [
         '# Reached, model vs paper:'] + ['#   ' + line for line in statistics_lines(model, target)] + [
         "# Every other number is the base scene's or the effect's default (sim/effects/).", '#']
-    paths = write_scenes(out, phi, header)
+    paths = write_scenes(out, phi, header, arm)
     print(f'design {design_s:.0f} s, fit {fit_s:.1f} s, total {time.perf_counter() - start:.0f} s')
     for path in paths:
         print(f'wrote {path}')

@@ -24,9 +24,9 @@ from .tradeoff.settings import paired_scenes
 
 
 #: (effect, parameter) pairs measured or fitted, so not assumptions: never swept. The medians that
-#: fit-wearer fits to the paper's speed table are here; extend it (or pass --exclude, or give the
-#: scene a `measured`/`fitted` list) once a value is measured.
-MEASURED: set[tuple[str, str]] = set(FITTED_PARAMS)
+#: fit-wearer fits to the paper's speed table are here, and the arm_spread it profiles; extend it
+#: (or pass --exclude, or give the scene a `measured`/`fitted` list) once a value is measured.
+MEASURED: set[tuple[str, str]] = set(FITTED_PARAMS) | {('population', 'arm_spread')}
 #: Scene attributes that may list measured or fitted parameters as 'effect.parameter'.
 SCENE_MEASURED_KEYS = ('measured', 'fitted')
 #: Where a scene's value is 0, x0.5 and x2 stay 0: the high side takes this value instead
