@@ -379,6 +379,8 @@ def run(args) -> int:
         fits.append((phi, obj, 1.0 / float(np.sum(w ** 2)), pf.weighted_statistics(design, w, n)))
         print(f'fit at arm_spread {design.arm_spread:g}: objective {obj:.2f} over 18 statistics, 8 parameters; '
               f'effective design wearers {fits[-1][2]:.0f}', flush=True)
+        for line in statistics_lines(fits[-1][3], target):
+            print('    ' + line)
     best = int(np.argmin([f[1] for f in fits]))
     phi, obj, ess, model = fits[best]
     design, arm = designs[best], designs[best].arm_spread
