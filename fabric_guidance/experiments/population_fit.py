@@ -341,7 +341,11 @@ def run_design(base, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_
     us, ys, ss = [], [], []
     for seed in seeds:
         scene = design_scene(base, seed, wearers, mu, sd)
-        report = (lambda done, total, s, seed=seed: progress(f'design seed {seed}: wearer {done}/{total}'))
+
+        def report(done, total, _s, seed=seed):
+            if done % 20 == 0 or done == total:      # a line every few seconds, not one per wearer
+                progress(f'design seed {seed}: wearer {done}/{total}')
+
         results = run_protocol(scene, None, workers, report if progress else None)
         by = {}
         for r in results:
