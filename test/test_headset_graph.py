@@ -300,13 +300,15 @@ def test_the_micromanipulator_objects_reach_the_headset_as_live_objects(tmp_path
         return [t for t in m['targets'] if t['role'] == 'live']
     with display_session(tmp_path, [('micromanipulator_sim', micro_files, {}), ('target_selector', micro_files, {})],
                          '--frames', '0') as (_, harness):
-        wait_until(lambda: any(len(live(m)) == 3 for m in harness.messages('targets')), 30.0,
-                   what='three live objects at the headset')
+        # The markers and the latched active_target are two topics: headset_display may draw the
+        # three objects before it has heard which one is active (seen once in a fresh clone).
+        wait_until(lambda: any(len(live(m)) == 3 and m['active'] for m in harness.messages('targets')), 30.0,
+                   what='three live objects and an active one at the headset')
     params = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
     selector, stack = params['target_selector']['ros__parameters'], params['micromanipulator_sim']['ros__parameters']
     scale, offset = selector['live_scale'], np.array(selector['live_offset'])
     drift = stack['drift_amplitude_m'] * scale
-    last = [m for m in harness.messages('targets') if len(live(m)) == 3][-1]
+    last = [m for m in harness.messages('targets') if len(live(m)) == 3 and m['active']][-1]
     assert last['active'] == stack['object_names'][0]
     for t in live(last):
         i = stack['object_names'].index(t['id'])
