@@ -19,6 +19,7 @@ import pytest
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 import yaml
 
+from fabric_guidance.bench.graphs import state
 from fabric_guidance.core.gaze_wire import encode_datagram
 from fabric_guidance.core.geometry import ray_direction
 from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
@@ -312,12 +313,6 @@ def test_keeps_up_with_90_hz_and_reports_a_1000_hz_burst(bridge):
     assert published_1000 == 1000
 
 
-def process_state(pid: int) -> str:
-    """The state letter of /proc/PID/stat (T: stopped)."""
-    with open(f'/proc/{pid}/stat') as f:
-        return f.read().rsplit(')', 1)[1].split()[0]
-
-
 def test_a_backlog_older_than_max_queue_delay_is_dropped_as_late(own_bridge):
     """A bridge held up (SIGSTOP, as a loaded machine can) while the HoloLens keeps sending, then
     the stream stops: the backlog is old gaze. Published, it would keep the controller guiding
@@ -330,7 +325,7 @@ def test_a_backlog_older_than_max_queue_delay_is_dropped_as_late(own_bridge):
     b.proc.send_signal(signal.SIGSTOP)
     try:
         # kill() returns before the process stops: a datagram sent meanwhile may still be handled
-        wait_until(lambda: process_state(b.proc.pid) == 'T', 5.0, what='gaze_bridge stopped')
+        wait_until(lambda: state(b.proc.pid) == 'T', 5.0, what='gaze_bridge stopped')
         for i in range(20):
             b.send(b.sample(tag=0.5 + i * 1e-3))
         time.sleep(limit + 0.3)   # the backlog ages while the node is held (the fault itself)

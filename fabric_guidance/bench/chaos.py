@@ -44,6 +44,7 @@ from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
 from ..process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
 from .faultproxy import FaultProxy
+from .graphs import state
 
 HELP = 'a seeded schedule of faults on the lab graph, invariants checked from the PLC register log'
 
@@ -374,11 +375,7 @@ def _listening(port: int) -> bool:
 
 
 def _alive(pid: int) -> bool:
-    try:
-        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != 'Z'
+    return state(pid) not in (None, 'Z')
 
 
 def as_fault(o: Outcome) -> Fault:

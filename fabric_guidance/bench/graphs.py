@@ -61,13 +61,25 @@ def fds(pid: int) -> int | None:
         return None
 
 
-def cpu_s(pid: int) -> float | None:
-    """CPU time (user + system) a process has used [s], from /proc."""
+def _stat(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command name (which may hold spaces and ')'):
+    [0] the state letter, [11] and [12] user and system time in ticks (None: no such process)."""
     try:
-        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
     except OSError:
         return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def state(pid: int) -> str | None:
+    """A process's state letter (R running, S sleeping, T stopped, Z zombie), from /proc."""
+    fields = _stat(pid)
+    return None if fields is None else fields[0]
+
+
+def cpu_s(pid: int) -> float | None:
+    """CPU time (user + system) a process has used [s], from /proc."""
+    fields = _stat(pid)
+    return None if fields is None else (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def combine(blocks: list[dict], rate_hz: float) -> dict:
