@@ -11,7 +11,7 @@ How far the arm muscles' law of condition 3 differs from the suit's (population.
 profiled: a design per value (--arm-spread), the fit on each, the lowest objective kept.
 
 The speed protocol runs once per arm_spread on a design population (--design-seeds, --wearers
-per seed; none of them a seed of the validation; about 90 s each on two cores), then every
+per seed; none of them a seed of the validation; about 3 min each on two cores), then every
 candidate population is the design reweighted (importance weights): a fit takes seconds. A
 bootstrap (--bootstrap N: design wearers and the paper's subjects resampled, the fit repeated on
 every design, the best kept) gives each fitted number its interval and the variants file
@@ -38,7 +38,7 @@ from pathlib import Path
 import re
 import sys
 import time
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -250,21 +250,23 @@ PROG = 'fabric-guidance fit-wearer'
 HELP = "fit the simulated population to the paper's whole speed table across seeds"
 
 
-def _seeds(text: str) -> tuple[int, ...]:
+def _comma_list(text: str, convert, option: str, kind: str) -> tuple:
     try:
-        seeds = tuple(int(s) for s in str(text).split(',') if s.strip())
+        values = tuple(convert(s) for s in str(text).split(',') if s.strip())
     except ValueError:
-        raise SystemExit(f'--design-seeds must be whole numbers separated by commas, got {text!r}')
+        raise SystemExit(f'{option} must be {kind} separated by commas, got {text!r}')
+    return values
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    seeds = _comma_list(text, int, '--design-seeds', 'whole numbers')
     if not seeds or any(s < 0 for s in seeds):
         raise SystemExit(f'--design-seeds must be whole numbers >= 0, got {text!r}')
     return seeds
 
 
 def _arm_spreads(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(s) for s in str(text).split(',') if s.strip())
-    except ValueError:
-        raise SystemExit(f'--arm-spread must be numbers separated by commas, got {text!r}')
+    values = _comma_list(text, float, '--arm-spread', 'numbers')
     if not values or any(not 0.0 <= v <= 3.0 for v in values) or len(set(values)) != len(values):
         raise SystemExit(f'--arm-spread must be distinct numbers in [0, 3], got {text!r}')
     return values
@@ -324,6 +326,36 @@ def load_designs(paths: Sequence[Path]) -> list[pf.Design]:
     return designs
 
 
+class ProfileFit(NamedTuple):
+    """The fit on one profiled design: phi, objective, effective design wearers, and the
+    statistics the weighted design reaches for n people."""
+
+    phi: np.ndarray
+    objective: float
+    ess: float
+    model: dict
+
+
+def simulate_design(base, seeds, wearers: int, workers: int, target: dict, n: int, say) -> pf.Design:
+    """Round 1: wide spreads around the design values; round 2: around round 1's fit, on the
+    other seeds, so that the fitted population has design wearers near it."""
+    arm = base.population.arm_spread
+    first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
+    print(f'arm_spread {arm:g}, design round 1: the speed protocol on {wearers} wearers of each '
+          f'seed {", ".join(map(str, first))}', flush=True)
+    design = pf.run_design(base, first, wearers, workers, say)
+    mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
+    print(f'arm_spread {arm:g}, design round 2, around the first fit: {wearers} wearers of each '
+          f'seed {", ".join(map(str, second))}', flush=True)
+    return design.joined(pf.run_design(base, second, wearers, workers, say, mu, sd))
+
+
+def fit_design(design: pf.Design, target: dict, n: int) -> ProfileFit:
+    phi, obj = pf.fit_population(design, target, n)
+    w = pf.weights(design, phi)
+    return ProfileFit(phi, obj, 1.0 / float(np.sum(w ** 2)), pf.weighted_statistics(design, w, n))
+
+
 def run(args) -> int:
     from ..sim.scene import SceneError
     for name in ('wearers', 'workers'):
@@ -357,16 +389,7 @@ def run(args) -> int:
             except (SceneError, ValueError) as exc:
                 print(exc, file=sys.stderr)
                 return 2
-            # Round 1: wide spreads around the design values; round 2: around round 1's fit, on
-            # other seeds, so that the fitted population has design wearers near it.
-            first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
-            print(f'arm_spread {arm:g}, design round 1: the speed protocol on {args.wearers} wearers of each '
-                  f'seed {", ".join(map(str, first))}', flush=True)
-            design = pf.run_design(base, first, args.wearers, args.workers, say)
-            mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
-            print(f'arm_spread {arm:g}, design round 2, around the first fit: {args.wearers} wearers of each '
-                  f'seed {", ".join(map(str, second))}', flush=True)
-            design = design.joined(pf.run_design(base, second, args.wearers, args.workers, say, mu, sd))
+            design = simulate_design(base, seeds, args.wearers, args.workers, target, n, say)
             design.save(design_path(out, arm))
             designs.append(design)
     designs.sort(key=lambda d: d.arm_spread)     # the profile's order, whatever the command line's
@@ -374,21 +397,20 @@ def run(args) -> int:
     t0 = time.perf_counter()
     fits = []
     for design in designs:
-        phi, obj = pf.fit_population(design, target, n)
-        w = pf.weights(design, phi)
-        fits.append((phi, obj, 1.0 / float(np.sum(w ** 2)), pf.weighted_statistics(design, w, n)))
-        print(f'fit at arm_spread {design.arm_spread:g}: objective {obj:.2f} over 18 statistics, 8 parameters; '
-              f'effective design wearers {fits[-1][2]:.0f}', flush=True)
-        for line in statistics_lines(fits[-1][3], target):
+        fit = fit_design(design, target, n)
+        fits.append(fit)
+        print(f'fit at arm_spread {design.arm_spread:g}: objective {fit.objective:.2f} over 18 statistics, '
+              f'8 parameters; effective design wearers {fit.ess:.0f}', flush=True)
+        for line in statistics_lines(fit.model, target):
             print('    ' + line)
-    best = int(np.argmin([f[1] for f in fits]))
+    best = int(np.argmin([f.objective for f in fits]))
     phi, obj, ess, model = fits[best]
     design, arm = designs[best], designs[best].arm_spread
     fit_s = time.perf_counter() - t0
     print(f'kept arm_spread {arm:g} ({fit_s:.1f} s)')
     boot, kept = None, None
     if args.bootstrap:
-        boot, kept = pf.bootstrap(designs, table, [f[0] for f in fits], args.bootstrap, seed=1,
+        boot, kept = pf.bootstrap(designs, table, [f.phi for f in fits], args.bootstrap, seed=1,
                                   progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
                                   if r % 10 == 0 or r == k else None)
         _write(out / 'fit' / 'variants.yaml', variants_text(boot, [designs[i].arm_spread for i in kept]))
@@ -396,7 +418,7 @@ def run(args) -> int:
         print('  ' + line)
     for line in statistics_lines(model, target):
         print('  ' + line)
-    profile = ', '.join(f'{d.arm_spread:g}: {f[1]:.2f}' for d, f in zip(designs, fits))
+    profile = ', '.join(f'{d.arm_spread:g}: {f.objective:.2f}' for d, f in zip(designs, fits))
     chosen = '' if kept is None else (
         f'; the bootstrap kept {arm:g} in {int(np.sum(kept == best))} of {len(kept)} refits ('
         + ', '.join(f'{d.arm_spread:g}: {int(np.sum(kept == i))}' for i, d in enumerate(designs)) + ')')
