@@ -179,7 +179,7 @@ def test_the_fitted_population_simulated_agrees_with_the_weighted_design():
     predicted, sds = np.array(reached('mean')), np.array(reached('SD of subject means'))
     records = run_protocol(scene, workers=2)
     analysis = analyze_trials(trials_frame(records), 'identified', higher_is_better=True)
-    order = ['surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech']
+    order = list(fit_wearer.COLUMNS)
     means, spreads = analysis.means[order].to_numpy(), analysis.sds[order].to_numpy()
     assert np.all(np.abs(means - predicted) <= 3 * sds / math.sqrt(15)), (means, predicted)
     assert np.all(np.abs(spreads - sds) <= 3 * sds / math.sqrt(2 * 14)), (spreads, sds)

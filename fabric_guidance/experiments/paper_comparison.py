@@ -141,8 +141,9 @@ def speed_sections(results: Sequence[SeedResult]) -> tuple[list[str], dict[str, 
     lines += ['', '### Not fitted', '']
     rows = []
     for c, name in CONDITIONS.items():
+        sds = [float(r.speed.sds[name]) for r in seeds]     # per seed: the spread is what a seed shows
         rows.append([f'SD of per-subject means, {c}', f'{table.sds[name]:.2f}',
-                     _spread([float(r.speed.sds[name]) for r in seeds])])
+                     _per_seed(sds) + (f' (mean {np.mean(sds):.2f})' if len(sds) > 1 else '')])
     for c, name in CONDITIONS.items():
         rows.append([f'SD over trials, {c}', f'{paper.SPEED_TRIAL_SD[c]:.1f} (text)',
                      _spread([float(r.speed.trial_sd[name]) for r in seeds])])
