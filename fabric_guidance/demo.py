@@ -163,8 +163,31 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     def say(line: str = '') -> None:
         print(line, file=stream, flush=True)
 
-    log_dir = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='fabric-guidance-demo-'))
-    log_dir.mkdir(parents=True, exist_ok=True)
+    if out_dir is not None:
+        log_dir = Path(out_dir)
+        log_dir.mkdir(parents=True, exist_ok=True)
+        return _run_demo(condition, timeout_s, log_dir, say, scene, record_dir, kept=True)
+    # A temporary folder goes when the demo ends, a failed one too: what a person needs of its
+    # logs is printed first (the tail of each node that logged an error), and --out keeps them.
+    with tempfile.TemporaryDirectory(prefix='fabric-guidance-demo-') as tmp:
+        code = _run_demo(condition, timeout_s, Path(tmp), say, scene, record_dir, kept=False)
+        if code != 0:
+            say_log_tails(Path(tmp), say)
+            say('(the logs above were in a temporary folder, now removed; `--out DIR` keeps them)')
+        return code
+
+
+def say_log_tails(log_dir: Path, say, lines: int = 8) -> None:
+    """The last lines of every node log in log_dir that reports an error or a traceback."""
+    for log in sorted(log_dir.glob('*.log')):
+        text = log.read_text(errors='replace')
+        if 'Traceback' in text or '[ERROR]' in text:
+            say(f'--- {log.name} (last {lines} lines)')
+            for line in text.splitlines()[-lines:]:
+                say(f'    {line}')
+
+
+def _run_demo(condition, timeout_s, log_dir: Path, say, scene, record_dir, kept: bool) -> int:
     plan = None
     if scene is not None:
         try:
@@ -186,7 +209,8 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     overrides = lab.overrides
     graph = Graph(log_dir)
     say(f'fabric_guidance demo: condition {cond.number} ({cond.name}), the simulated graph as {len(NODES)} '
-        f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}')
+        f'processes on ROS_DOMAIN_ID {graph.domain_id} (localhost only); logs in {log_dir}'
+        + ('' if kept else ' (removed at the end; --out DIR keeps them)'))
     sequence = task_sequence()
     if plan is not None:
         sc, ctl = plan.scene, plan.scene.controller
