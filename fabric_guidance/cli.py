@@ -82,14 +82,18 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest='command', required=True)
     chosen = _command(argv)
+    chosen_parser = parser
     for name, (module, help_text) in SUBCOMMANDS.items():
         if name == chosen:
             chosen_module = import_module(module)
+            chosen_parser = chosen_module.add_parser(sub)
             # set here too: not every module's add_parser sets run itself
-            chosen_module.add_parser(sub).set_defaults(run=chosen_module.run)
+            chosen_parser.set_defaults(run=chosen_module.run)
         else:  # listed, not imported: its options are parsed only when it is the one chosen
             sub.add_parser(name, help=help_text)
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:   # a mistyped option of a subcommand: that subcommand's usage, not the top one's
+        chosen_parser.error(f'unrecognized arguments: {" ".join(unknown)}')
     subcommand.stop_on_sigterm()
     return args.run(args)
 

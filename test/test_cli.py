@@ -72,6 +72,18 @@ def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
     assert err[-1].startswith('fabric-guidance: error: argument command: invalid choice')
 
 
+
+def test_a_mistyped_option_prints_the_subcommands_usage(tmp_path, capsys):
+    from fabric_guidance.cli import main
+    table = tmp_path / 't.csv'
+    table.write_text('subject,1,2\nS01,1,2\n')
+    with pytest.raises(SystemExit) as exc:
+        main(['analyze', str(table), '--plto', 'x.png'])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith('usage: fabric-guidance analyze')
+    assert err.strip().splitlines()[-1] == 'fabric-guidance analyze: error: unrecognized arguments: --plto x.png'
+
 def test_sigterm_ends_a_command_as_ctrl_c_does_so_its_clean_up_runs():
     """soak, chaos, demo and bench stop their graph in `finally`; a SIGTERM that killed the
     process outright left the nodes running (seen with a soak run)."""
