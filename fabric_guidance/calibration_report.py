@@ -30,6 +30,7 @@ import numpy as np
 
 from . import subcommand
 from .atomic import atomic_write, write_text
+from .paths import share_dir
 from .core.calibration import Calibration, CalibrationFileError
 from .core.geometry import DIRECTIONS
 from .core.power_law import THETA_MAX
@@ -209,7 +210,8 @@ def write_fit_report(calibration: Calibration, folder: str | Path, source: str |
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('file', type=Path, metavar='FILE.yaml', help="a wearer's calibration file")
     parser.add_argument('--out', type=Path, default=None, metavar='DIR',
-                        help="folder for <wearer>-fit.txt and <wearer>-fit.png (default: the file's folder)")
+                        help="folder for <wearer>-fit.txt and <wearer>-fit.png (default: the file's folder; the "
+                             "current folder for a file of the package's config/)")
     return parser
 
 
@@ -218,11 +220,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return subcommand.add(subparsers, 'calibration-report', HELP, __doc__, configure, run)
 
 
+def default_out(file: Path) -> Path:
+    """The file's folder; the current folder for a file the package ships (config/), so that
+    reading the shipped example writes nothing into the checkout or the install."""
+    shipped = share_dir().resolve() / 'config'
+    if file.resolve().is_relative_to(shipped):
+        return Path.cwd()
+    return file.parent
+
+
 def run(args: argparse.Namespace) -> int:
     """Load the file, print the text report, write both files. 2 on an unusable file or folder."""
     try:
         cal = Calibration.load(args.file)
-        out = args.out if args.out is not None else args.file.parent
+        out = args.out if args.out is not None else default_out(args.file)
         txt, png = write_fit_report(cal, out, source=str(args.file))
     except (CalibrationFileError, OSError, ValueError, ArithmeticError) as exc:
         # ArithmeticError: a value the file's checks let through that the drawing cannot take

@@ -133,6 +133,20 @@ def test_cli_writes_the_report_and_refuses_a_bad_file_with_its_reason(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.yaml', 'sim-wearer-fit.png', 'sim-wearer-fit.txt']
 
 
+
+def test_the_shipped_example_is_reported_into_the_current_folder_not_config(tmp_path, monkeypatch, capsys):
+    before = sorted(p.name for p in SIM_CAL.parent.iterdir())
+    monkeypatch.chdir(tmp_path)
+    assert main([str(SIM_CAL)]) == 0
+    assert (tmp_path / 'sim-wearer-fit.png').is_file() and (tmp_path / 'sim-wearer-fit.txt').is_file()
+    assert sorted(p.name for p in SIM_CAL.parent.iterdir()) == before
+    # A file of the user's own is still reported beside itself.
+    own = tmp_path / 'own' / 'sim-wearer.yaml'
+    own.parent.mkdir()
+    own.write_text(SIM_CAL.read_text())
+    assert main([str(own)]) == 0
+    assert (own.parent / 'sim-wearer-fit.txt').is_file()
+
 def test_the_module_runs_as_a_command(tmp_path):
     out = subprocess.run([sys.executable, '-m', 'fabric_guidance.calibration_report', str(SIM_CAL), '--out',
                           str(tmp_path)], capture_output=True, text=True, timeout=60, cwd=ROOT)
