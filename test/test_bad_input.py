@@ -626,3 +626,18 @@ def test_bag_reader_refuses_mutated_bags_in_one_line(session_bag, tmp_path_facto
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
     assert peak < 4 * PEAK_BYTES, f'{peak / 1e6:.0f} MB'
+
+
+def test_a_missing_field_is_named_missing_not_got_none(tmp_path):
+    from fabric_guidance.core.calibration import Calibration, CalibrationFileError
+    from fabric_guidance.paths import config_path
+    data = yaml.safe_load(config_path('calibrations/sim-wearer.yaml').read_text())
+    for field in ('p_max_kpa', 'wearer', 'units', 'directions', 'schema_version'):
+        broken = {k: v for k, v in data.items() if k != field}
+        with pytest.raises(CalibrationFileError) as exc:
+            Calibration.from_dict(broken, source='alice.yaml')
+        assert f'field "{field}"' in str(exc.value) and 'the field is missing' in str(exc.value)
+        assert 'None' not in str(exc.value)
+    # A null written in the file is still reported as what it is.
+    with pytest.raises(CalibrationFileError, match='got None'):
+        Calibration.from_dict(dict(data, p_max_kpa=None), source='alice.yaml')

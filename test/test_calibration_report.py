@@ -133,7 +133,6 @@ def test_cli_writes_the_report_and_refuses_a_bad_file_with_its_reason(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.yaml', 'sim-wearer-fit.png', 'sim-wearer-fit.txt']
 
 
-
 def test_the_shipped_example_is_reported_into_the_current_folder_not_config(tmp_path, monkeypatch, capsys):
     before = sorted(p.name for p in SIM_CAL.parent.iterdir())
     monkeypatch.chdir(tmp_path)
@@ -146,6 +145,7 @@ def test_the_shipped_example_is_reported_into_the_current_folder_not_config(tmp_
     own.write_text(SIM_CAL.read_text())
     assert main([str(own)]) == 0
     assert (own.parent / 'sim-wearer-fit.txt').is_file()
+
 
 def test_the_module_runs_as_a_command(tmp_path):
     out = subprocess.run([sys.executable, '-m', 'fabric_guidance.calibration_report', str(SIM_CAL), '--out',

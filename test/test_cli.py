@@ -72,7 +72,6 @@ def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
     assert err[-1].startswith('fabric-guidance: error: argument command: invalid choice')
 
 
-
 def test_a_mistyped_option_prints_the_subcommands_usage(tmp_path, capsys):
     from fabric_guidance.cli import main
     table = tmp_path / 't.csv'
@@ -83,6 +82,7 @@ def test_a_mistyped_option_prints_the_subcommands_usage(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith('usage: fabric-guidance analyze')
     assert err.strip().splitlines()[-1] == 'fabric-guidance analyze: error: unrecognized arguments: --plto x.png'
+
 
 def test_sigterm_ends_a_command_as_ctrl_c_does_so_its_clean_up_runs():
     """soak, chaos, demo and bench stop their graph in `finally`; a SIGTERM that killed the

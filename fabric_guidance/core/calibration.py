@@ -29,7 +29,7 @@ import yaml
 
 from ..atomic import write_text
 from .feedback import FRONT, PAPER_P_MAX
-from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, load_yaml
+from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, got, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
 
@@ -212,20 +212,21 @@ class Calibration:
         if not isinstance(data, Mapping):
             raise CalibrationFileError(f'{source}: expected a YAML mapping at the top level')
         if data.get('schema_version') != SCHEMA_VERSION:
-            fail('schema_version', f'must be {SCHEMA_VERSION}, got {excerpt(data.get("schema_version"))}')
+            fail('schema_version', f'must be {SCHEMA_VERSION}, {got(data, "schema_version")}')
         units = data.get('units')
         if units != {'pressure': 'kPa', 'angle': 'deg'}:
-            fail('units', f'must be {{pressure: kPa, angle: deg}}, got {excerpt(units)}')
+            fail('units', f'must be {{pressure: kPa, angle: deg}}, {got(data, "units")}')
         wearer = data.get('wearer')
         if not isinstance(wearer, str) or not WEARER_PATTERN.fullmatch(wearer):
-            fail('wearer', f'{WEARER_RULE}, got {excerpt(wearer)}')
+            fail('wearer', f'{WEARER_RULE}, {got(data, "wearer")}')
         p_max = data.get('p_max_kpa')
         if not (_number(p_max) and 0 < p_max <= P_MAX_LIMIT_KPA):
-            fail('p_max_kpa', f'must be a number in (0, {P_MAX_LIMIT_KPA:g}] kPa, got {excerpt(p_max)}')
+            fail('p_max_kpa', f'must be a number in (0, {P_MAX_LIMIT_KPA:g}] kPa, {got(data, "p_max_kpa")}')
         dirs = data.get('directions')
         if not isinstance(dirs, Mapping) or set(dirs) != set(DIRECTIONS):
-            got = sorted(map(str, dirs)) if isinstance(dirs, Mapping) else dirs
-            fail('directions', f'must hold exactly {list(DIRECTIONS)}, got {excerpt(got)}')
+            held = (f'got {excerpt(sorted(map(str, dirs)))}' if isinstance(dirs, Mapping)
+                    else got(data, 'directions'))
+            fail('directions', f'must hold exactly {list(DIRECTIONS)}, {held}')
         out = {}
         for d in DIRECTIONS:
             entry = dirs[d]

@@ -10,6 +10,7 @@ bound on what an error message prints of a value, one check of a wearer's name.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 import re
 import reprlib
@@ -49,6 +50,14 @@ def excerpt(value, limit: int = EXCERPT_CHARS) -> str:
         text = f'<{type(value).__name__}>'
     text = ' '.join(text.split())
     return text if len(text) <= limit else text[:limit - 3] + '...'
+
+
+def got(mapping, key) -> str:
+    """How an error names what a field held: 'the field is missing' when the mapping has no
+    such key (not "got None", which reads as a null written in the file), else 'got <excerpt>'."""
+    if isinstance(mapping, Mapping) and key not in mapping:
+        return 'the field is missing'
+    return f'got {excerpt(mapping.get(key) if isinstance(mapping, Mapping) else None)}'
 
 
 class _NoAliasLoader(yaml.SafeLoader):
