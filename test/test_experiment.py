@@ -9,6 +9,7 @@ def test_speed_experiment_writes_everything(tmp_path, capsys):
     assert main(['experiment', '--protocol', 'speed', '--subjects', '3', '--out', str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert '[ 3/3]' in out                                          # progress
+    assert out.startswith('scene paper-fitted-speed:')              # the README's population
     trials = pd.read_csv(tmp_path / 'trials.csv')
     assert len(trials) == 3 * 4 * 6                                 # wearers x conditions x repetitions
     assert set(trials['condition']) == {'surface_adjusted', 'surface_fixed', 'simple_adjusted', 'speech'}

@@ -32,7 +32,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser('experiment', help="run one of the paper's experiments on simulated wearers",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--protocol', choices=sorted(MEASURES), default=None,
-                   help='the paper scene of this protocol (config/scenes/paper-<protocol>.yaml)')
+                   help='the paper scene of this protocol on the fitted population '
+                        '(config/scenes/paper-fitted-<protocol>.yaml, the README\'s figures); the '
+                        'unfitted paper-<protocol> with --scene')
     p.add_argument('--scene', default=None, help='a scene file or a name in config/scenes (instead of --protocol)')
     p.add_argument('--subjects', type=int, default=None, help='the first N wearers of the scene (default: all)')
     p.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes (default: 2)')
@@ -51,7 +53,7 @@ def run(args) -> int:
         print('fabric-guidance experiment: error: give exactly one of --protocol or --scene', file=sys.stderr)
         return 2
     try:
-        scene = load_scene(args.scene or f'paper-{args.protocol}')
+        scene = load_scene(args.scene or f'paper-fitted-{args.protocol}')
     except (SceneError, OSError) as exc:
         print(f'fabric-guidance experiment: error: {exc}', file=sys.stderr)
         return 2

@@ -2,7 +2,8 @@
 
 Sweeps every knob of the package that buys accuracy with time, on the scene simulator
 (fabric_guidance.sim: the paper's protocols on simulated wearers calibrated by Algorithm 1,
-with the realistic effects of config/scenes/paper-accuracy.yaml and paper-speed.yaml), and
+on the fitted population of config/scenes/paper-fitted-accuracy.yaml and paper-fitted-speed.yaml
+by default, settings.DEFAULT_*_SCENE; --speed-scene/--accuracy-scene choose others), and
 writes for each knob value the accuracy and the time it costs, with their spread:
 
   acceptance_deg        speed protocol: the true gaze error when a target counts (deg) against
