@@ -65,15 +65,17 @@ def verdicts(rows: list[dict], figures: dict[str, str], columns) -> dict[str, di
     out = {}
     for figure, unit in figures.items():
         for col in [c for c in columns if c == figure or c.startswith(figure + '.')]:
-            out[col] = drift(t_h, [_float(r.get(col)) for r in rows], unit)
+            out[col] = drift(t_h, [number(r.get(col)) for r in rows], unit)
     return out
 
 
-def _float(v) -> float:
+def number(v, missing=math.nan):
+    """A cell of a row or a diagnostics value as a float; `missing` where it holds none (empty,
+    absent, not a number). The one parser of soak's rows and counters."""
     try:
         return float(v)
     except (TypeError, ValueError):
-        return math.nan
+        return missing
 
 
 def verdict_table(results: dict[str, dict]) -> list[str]:
@@ -131,7 +133,7 @@ def plot(rows: list[dict], path: Path, observed) -> Path:
     def panel(ax, series, title, ylabel, zero=True, legend=True):
         top = 0.0
         for col, label, style in series:
-            y = [_float(r.get(col)) for r in rows]
+            y = [number(r.get(col)) for r in rows]
             top = max([top] + [v for v in y if math.isfinite(v)])
             ax.plot(t, y, marker='.', label=label, **style)
         ax.set_title(title)
