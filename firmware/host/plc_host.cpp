@@ -139,7 +139,7 @@ void list_json(std::string& s, const uint16_t list[][2], uint32_t count) {
 
 // Records (records.py fields) + what reached the outputs. Written atomically (rename).
 void write_state(const Options& o, const plc::Core& core, const std::vector<uint16_t>& max_out,
-                 uint32_t scans) {
+                 uint32_t scans, uint32_t longest_scan_ms) {
   if (o.state.empty()) return;
   const plc::Records& r = core.records();
   std::string s = "{";
@@ -162,6 +162,7 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   s += ", \"watchdog_trips\": " + std::to_string(r.watchdog_trips);
   s += ", \"vented\": " + std::string(core.vented() ? "true" : "false");
   s += ", \"scans\": " + std::to_string(scans);
+  s += ", \"longest_scan_ms\": " + std::to_string(longest_scan_ms);
   s += ", \"output_counts\": [";
   for (int ch = 0; ch < o.channels; ++ch) {
     s += (ch ? ", " : "") + std::to_string(core.output_counts(static_cast<uint8_t>(ch)));
@@ -240,9 +241,11 @@ int main(int argc, char** argv) {
   std::vector<uint16_t> max_out(o.channels, 0);
   std::vector<Client> clients;
   uint32_t scans = 0, last_scan = now_ms(), last_state = last_scan;
+  // The longest time between two scans: how long the watchdog could not run.
+  uint32_t longest_scan_ms = 0;
   std::string written;  // the state's outputs + counters last written: rewrite only on change
   core.scan(last_scan);
-  write_state(o, core, max_out, scans);
+  write_state(o, core, max_out, scans, longest_scan_ms);
   printf("listening on %s:%d\n", o.host.c_str(), ntohs(addr.sin_port));
   fflush(stdout);
 
@@ -295,6 +298,7 @@ int main(int argc, char** argv) {
     t = now_ms();
     if (static_cast<uint32_t>(t - last_scan) >= static_cast<uint32_t>(o.scan_ms)) {
       double dt = static_cast<double>(t - last_scan);
+      if (t - last_scan > longest_scan_ms) longest_scan_ms = t - last_scan;
       last_scan = t;
       core.scan(t);
       ++scans;
@@ -316,7 +320,7 @@ int main(int argc, char** argv) {
       if (now_state != written || static_cast<uint32_t>(t - last_state) >= 100) {
         written = now_state;
         last_state = t;
-        write_state(o, core, max_out, scans);
+        write_state(o, core, max_out, scans, longest_scan_ms);
       }
     }
   }
@@ -325,6 +329,6 @@ int main(int argc, char** argv) {
   core.scan(now_ms());
   for (const Client& c : clients) close(c.fd);
   close(listener);
-  write_state(o, core, max_out, scans);
+  write_state(o, core, max_out, scans, longest_scan_ms);
   return 0;
 }
