@@ -155,8 +155,11 @@ def test_a_stalling_client_never_holds_the_scan(tmp_path):
         wait_until(lambda: program.state()['scans'] and not any(program.state()['output_counts']), 10.0,
                    what='the program scanning again')
         longest_ms = program.state()['longest_scan_ms']
+        closed = program.state()['closed']
     vent = 'never' if vent_s is None else f'{vent_s:.3f} s'
     print(f'\nstalling client: every output 0 {vent} after the heartbeat stopped (deadline '
           f'{STALL_VENT_S:.3f} s, watched {STALL_S:g} s); longest interval between two scans {longest_ms} ms')
     assert vent_s is not None and vent_s <= STALL_VENT_S, vent
+    # Both peers' sockets were reaped by the program itself, not left to the test's close.
+    assert closed['stalled'] >= 1 and closed['idle'] >= 1, closed
     assert longest_ms < 1000 * STALL_WATCHDOG_S / 2, longest_ms

@@ -28,6 +28,7 @@ const char* current_test = "";
 const uint8_t kUnit = 1;
 const uint8_t kN = 18;
 const uint16_t kPmax = 3750;
+const plc::ConnectionId kConn = 1;  // the one client of most tests
 
 plc::Config config() { return plc::Config{kUnit, kN, kPmax, 500}; }
 
@@ -72,7 +73,7 @@ Bytes write6_pdu(uint16_t address, uint16_t value) {
 // The PDU of the answer (empty: no answer).
 Bytes ask(plc::Core& core, const Bytes& frame) {
   uint8_t out[plc::kMaxAdu];
-  size_t n = core.handle(frame.data(), frame.size(), out, sizeof(out));
+  size_t n = core.handle(kConn, frame.data(), frame.size(), out, sizeof(out));
   if (n == 0) return Bytes();
   return Bytes(out + plc::kMbapLength, out + n);
 }
@@ -103,7 +104,7 @@ void test_mbap_echo_and_read_holding() {
   plc::Core core(config());
   uint8_t out[plc::kMaxAdu];
   Bytes f = adu(read_pdu(3, 0, kN + 2), kUnit, 0xbeef);
-  size_t n = core.handle(f.data(), f.size(), out, sizeof(out));
+  size_t n = core.handle(kConn, f.data(), f.size(), out, sizeof(out));
   CHECK(n == plc::kMbapLength + 2 + 2 * (kN + 2));
   CHECK(out[0] == 0xbe && out[1] == 0xef && out[2] == 0 && out[3] == 0);
   CHECK(((out[4] << 8) | out[5]) == static_cast<int>(n - 6));
@@ -358,7 +359,7 @@ void test_fuzzed_frames_stay_in_bounds() {
     frame[6] = kUnit;
     frame[7] = (i % 3 == 0) ? 16 : frame[7];
     uint8_t out[plc::kMaxAdu];
-    size_t n = core.handle(frame, len, out, sizeof(out));
+    size_t n = core.handle(kConn, frame, len, out, sizeof(out));
     CHECK(n <= plc::kMaxAdu);
     core.scan(static_cast<uint32_t>(i));
     for (uint8_t ch = 0; ch < kN; ++ch) {
