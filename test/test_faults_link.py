@@ -10,7 +10,6 @@ and once the link heals the latest command is back in the registers. Deadlines a
 the worst times printed (run with -s or -rP).
 """
 import dataclasses
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
