@@ -433,8 +433,10 @@ class MockPlcServer:
             self._writers.discard(writer)
             writer.close()
             with self._lock:
-                if self._holding.connection_closed(connection):
-                    self._sim.watchdog.armed = False   # the outputs vent at once
+                if self._holding.connection_closed(connection) and self._sim.watchdog.armed:
+                    # Tripped by the close, not by the time: the outputs vent at once.
+                    self._sim.watchdog.armed = False
+                    self._sim.watchdog.trips += 1
 
     async def _scan_loop(self) -> None:
         period = 1.0 / self.update_hz

@@ -166,6 +166,7 @@ void Core::connection_closed(ConnectionId connection) {
   owner_ = 0;
   claim_pending_ = false;
   ++records_.owner_lost;
+  if (armed_) ++records_.watchdog_trips;  // tripped by the close, not by the time
   vent_now();
 }
 

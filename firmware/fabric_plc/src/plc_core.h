@@ -50,7 +50,7 @@ struct Records {
   uint32_t out_of_map;           // write requests refused with exception 02
   uint32_t stale;                // sequenced writes refused as not newer
   uint32_t unsequenced;          // command writes without a sequence number, refused
-  uint32_t watchdog_trips;       // armed -> tripped transitions
+  uint32_t watchdog_trips;       // armed -> tripped transitions (silence, or the holder's close)
   uint32_t busy;                 // writes refused with exception 06: another connection's claim
   uint32_t owner_lost;           // the claim holder's connection closed (vented if armed)
   uint16_t max_written[kMaxChannels];  // largest count ever sent per channel (before the clamp)
