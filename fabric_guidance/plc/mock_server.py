@@ -37,7 +37,7 @@ MAX_PDU = 253
 BUSY = 6
 #: A connection silent this long is closed, and one that sent part of a request and then
 #: nothing for PARTIAL_S (the PLC program's kIdleMs and kPartialFrameMs, plc_link.h).
-IDLE_S, PARTIAL_S = 3.0, 1.0
+IDLE_S, PARTIAL_S = 10.0, 1.0
 
 
 class _Registers:

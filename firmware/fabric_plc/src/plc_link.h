@@ -22,9 +22,10 @@
 namespace plc {
 
 // No byte from a client for this long: its socket is reaped (a half-open link after a cable
-// pull, a tool that left without closing). plc_output writes at 50 Hz; a reader polling more
-// slowly is reconnected by its client library.
-const uint32_t kIdleMs = 3000;
+// pull, a tool that left without closing). Longer than plc_output's longest pause between two
+// tries on a refusing PLC (reconnect_max_s 5 s), which keeps its connection; a reader polling
+// more slowly is reconnected by its client library.
+const uint32_t kIdleMs = 10000;
 // A request begun and not finished for this long: the client is gone mid-frame.
 const uint32_t kPartialFrameMs = 1000;
 
