@@ -429,6 +429,28 @@ def test_the_claim_holder_s_loss_vents_and_frees_the_claim(server, death):
         survivor.close()
 
 
+def test_a_half_sent_request_of_the_claim_holder_closes_its_connection(server):
+    """A holder that sends part of a request and then nothing (a link gone mid-frame) is closed
+    by the PLC after 1 s, as a dead peer, and the registers read 0."""
+    holder, other = Raw(server.port), Raw(server.port)
+    heartbeat, seq = arm(holder, server.port)
+    try:
+        holder.command([2000] * N, seq=seq + 1)
+        heartbeat.pause()
+        holder.sock.sendall(struct.pack('>HHH', 9, 0, 6)[:5])
+        t0 = time.monotonic()
+        holder.sock.settimeout(3.0)
+        assert holder.sock.recv(1) == b'', 'the PLC kept the connection'
+        closed_s = time.monotonic() - t0
+        assert other.registers(0, N) == [0] * N
+        LOG.record(f'half-sent request -> connection closed, registers 0 ({server.kind})', closed_s, 1.0 + 0.3)
+        assert 0.9 <= closed_s <= 1.3, closed_s
+    finally:
+        heartbeat.stop()
+        holder.close()
+        other.close()
+
+
 # ------------------------------------------------------------------------------- clamp
 def test_over_limit_values_are_stored_clamped(server, raw, armed):
     assert raw.command([P_MAX + 1, 0xFFFF, P_MAX], seq=armed + 1) == echo16(0, N + 1)
