@@ -65,7 +65,7 @@ class SecondWriter:
 def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) -> dict:
     """The fault on a ChaosLab (its graph, register log, PLC port); returns its timeline: t_start,
     t_kill, t_die (the fault's time), refusals before the kill and their codes, the command
-    pattern in counts, recovery_s (guidance back after t_die)."""
+    pattern in counts, recovery_s (guidance back after t_die), t_closed (its connection closed)."""
     from ..plc import PlcClient, RegisterMap
     g, log = lab.graph, lab.register_log
     regmap = RegisterMap.load(CONFIG / 'hardware' / 'plc_register_map.yaml')
@@ -86,10 +86,15 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
         w['t_die'] = time.monotonic()
         writer.silence()
         wait_until(lambda: g.restart_count('plc_output') > restarts, RECOVERY_S, what='plc_output restarted')
-        lab.wait_pressurised(RECOVERY_S, f'fault {index}: {kind}: guidance back')
+        # Its command is still the last in the log: guidance is back once something else is.
+        wait_until(lambda: any(e.t > w['t_die'] and e.vented for e in log.poll().entries), RECOVERY_S,
+                   what=f'fault {index}: the vent after the second writer fell silent')
+        wait_until(lambda: not log.poll().entries[-1].vented and log.entries[-1].counts != pattern, RECOVERY_S,
+                   what=f'fault {index}: {kind}: guidance back')
         w['recovery_s'] = time.monotonic() - w['t_die']
     finally:
         writer.close()
+        w['t_closed'] = time.monotonic()
     wait_until(lambda: log.poll().drained >= w['t_die'] + vent_deadline_s, DRAIN_S,
                what='the register log drained')
     return w
@@ -114,7 +119,8 @@ def breaches(entries, faults: list[tuple[str, dict]], vent_deadline_s: float, dr
             late = 'never' if seconds is None else f'after {seconds:.3f} s'
             found.append(f'{where}: vented {late} after it fell silent (deadline {vent_deadline_s:.3f} s)')
             continue
-        back = [e for e in entries if e.t > t + seconds and e.counts == w['pattern']]
+        # Until it closed its connection (a later fault's second writer is another client).
+        back = [e for e in entries if t + seconds < e.t <= w['t_closed'] and e.counts == w['pattern']]
         if back:
             found.append(f'{where}: its command applied again at t={back[0].t:.3f} s, after the vent')
     return found
