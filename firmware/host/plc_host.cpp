@@ -151,6 +151,15 @@ struct PosixLink {
 
 // Connections closed by the program, per plc::Verdict (kKeep unused).
 uint32_t reaped[5] = {0, 0, 0, 0, 0};
+// The longest time one pass spent on the sockets (accept and every connection) [us]: what a
+// blocking call would show, without the scheduler's delays between passes on a busy host.
+uint32_t longest_serve_us = 0;
+
+uint64_t now_us() {
+  timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1000000u + static_cast<uint64_t>(ts.tv_nsec) / 1000u;
+}
 
 struct Client {
   PosixLink link;
@@ -212,6 +221,7 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   s += ", \"vented\": " + std::string(core.vented() ? "true" : "false");
   s += ", \"scans\": " + std::to_string(scans);
   s += ", \"longest_scan_ms\": " + std::to_string(longest_scan_ms);
+  s += ", \"longest_serve_us\": " + std::to_string(longest_serve_us);
   s += ", \"output_counts\": [";
   for (int ch = 0; ch < o.channels; ++ch) {
     s += (ch ? ", " : "") + std::to_string(core.output_counts(static_cast<uint8_t>(ch)));
@@ -295,6 +305,7 @@ int main(int argc, char** argv) {
       break;
     }
     t = now_ms();
+    const uint64_t serve_start_us = now_us();
     if (ready > 0 && (fds[0].revents & POLLIN)) {
       int fd = accept4(listener, nullptr, nullptr, SOCK_NONBLOCK);
       if (fd >= 0) {
@@ -325,6 +336,8 @@ int main(int argc, char** argv) {
       plc::Verdict v = plc::serve_once(core, it->link, it->connection, t);
       it = v == plc::kKeep ? it + 1 : drop(it, v);
     }
+    const uint64_t served_us = now_us() - serve_start_us;
+    if (served_us > longest_serve_us) longest_serve_us = static_cast<uint32_t>(served_us);
     t = now_ms();
     if (static_cast<uint32_t>(t - last_scan) >= static_cast<uint32_t>(o.scan_ms)) {
       double dt = static_cast<double>(t - last_scan);
