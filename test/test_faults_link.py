@@ -10,7 +10,6 @@ and once the link heals the latest command is back in the registers. Deadlines a
 the worst times printed (run with -s or -rP).
 """
 import dataclasses
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -20,6 +19,7 @@ import pytest
 from deadlines import DeadlineLog
 from fabric_guidance.bench.faultproxy import FaultProxy, is_modbus_write_multiple
 from fabric_guidance.plc import PlcClient, PlcLinkError
+from fabric_guidance.plc.modbus import PlcRefusedError
 from fabric_guidance.plc.mock_server import MockPlcServer
 from rosgraph import free_port, wait_until
 from test_node_plc import MOCK, N, OUTPUT, REGISTER_MAP   # the parameters as the graph gets them
@@ -67,47 +67,52 @@ def command(k):
 # ------------------------------------------------------------ the PLC layer on its own
 @pytest.mark.parametrize('sequenced', [True, False], ids=['sequence register', 'no sequence register'])
 def test_a_write_delayed_on_a_dead_connection_never_overwrites_a_newer_one(sequenced):
+    """The dead connection still holds the PLC's write claim until its held write and the close
+    behind it arrive: the client's new connection is refused (exception 06) until then, so the
+    newer command C lands after the late B, never before it, with or without sequence numbers."""
     reg_map = REGISTER_MAP if sequenced else dataclasses.replace(REGISTER_MAP, sequence_register=None)
     assert (reg_map.sequenced_block() is not None) == sequenced
-    # A long watchdog, armed once: only the writes under test change the registers.
-    with MockPlcServer(reg_map, watchdog_s=60.0, regulator_tau_s=0.0) as plc, \
+    # A long watchdog: only the writes under test and the claim holder's close change the registers.
+    with MockPlcServer(reg_map, watchdog_s=60.0, regulator_tau_s=0.0, log_registers=True) as plc, \
             FaultProxy('127.0.0.1', plc.port) as proxy:
         client = PlcClient(reg_map, '127.0.0.1', proxy.port, timeout_s=0.2)
-        direct = PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=1.0)
-        try:
-            beat = [0]
+        beat = [0]
 
-            def armed():
-                beat[0] += 1
-                direct.write_heartbeat(beat[0])
-                return plc.watchdog_armed
+        def armed():
+            beat[0] += 1
+            client.write_heartbeat(beat[0])
+            return plc.watchdog_armed
+        try:
             wait_until(armed, 2.0, what='the watchdog to arm')
             a, b, c = command(1), command(2), command(3)
             client.write_pressures(a)
             assert np.allclose(plc.commands_kpa(), a, atol=TOLERANCE_KPA)
-
             proxy.hold(HOLD_S, when=is_modbus_write_multiple)
             with pytest.raises(PlcLinkError):
                 client.write_pressures(b)        # held in the proxy: times out, the client drops it
             assert proxy.get('held_chunks') == 1
-            client.write_pressures(c)            # a new connection, not held
-            assert np.allclose(plc.commands_kpa(), c, atol=TOLERANCE_KPA)
-            wait_until(lambda: proxy.get('held_delivered') == 1, HOLD_S + 2.0, what='the held write delivered')
+            refusals = []
+
+            def c_written():   # on a new connection, refused while the dead one holds the claim
+                try:
+                    client.write_pressures(c)
+                except PlcRefusedError as exc:
+                    refusals.append(exc.code)
+                    return False
+                return True
+            wait_until(c_written, HOLD_S + 2.0, what='C written once the dead connection is gone')
             assert proxy.get('delivered_after_client_closed') == 1
-            # The late write has been handed to the server; give it its scan, then look.
-            wait_until(lambda: (len(plc.stale_writes) == 1) if sequenced else
-                       np.allclose(plc.commands_kpa(), b, atol=TOLERANCE_KPA), 2.0, what='the late write handled')
+            assert refusals and set(refusals) == {6}, refusals
+            wait_until(armed, 2.0, what='the watchdog armed again by the new connection')
+            client.write_pressures(c)
             now = plc.commands_kpa()
+            log = plc.take_register_log()
         finally:
             client.close()
-            direct.close()
-    if sequenced:
-        np.testing.assert_allclose(now, c, atol=TOLERANCE_KPA, err_msg='the late, older write overwrote C')
-        (seq, last), = plc.stale_writes
-        assert seq != last
-    else:
-        # Without numbers the older command B wins over C: what the sequence register prevents.
-        np.testing.assert_allclose(now, b, atol=TOLERANCE_KPA)
+    np.testing.assert_allclose(now, c, atol=TOLERANCE_KPA, err_msg='C is not the command in force')
+    encoded = {k: tuple(reg_map.encode(v)) for k, v in (('b', b), ('c', c))}
+    first_c = next(i for i, e in enumerate(log) if e[2] == encoded['c'])
+    assert not [e for e in log[first_c:] if e[2] == encoded['b']], 'the late, older write overwrote C'
 
 
 def test_a_restarted_client_is_not_taken_for_a_stale_one():
@@ -221,42 +226,32 @@ def test_a_half_open_link_is_noticed_by_the_timeout_and_reconnected(link):
 
 
 def test_a_delayed_link_never_lets_an_old_command_overwrite_a_newer_one(link):
+    """A write of A held on the connection plc_output drops: its new connection is refused by
+    the PLC (the dead one holds the write claim) until A and the close behind it have landed;
+    then B, and from then on every read is B."""
     rig, proxy = link.rig, link.proxy
     a, b = command(60), command(61)
     rig.command(a)
     rig.wait_registers(a, COMMAND_DEADLINE_S, 'command A in the registers')
-    stale_before = link.mock_records()['stale_count']
     proxy.hold(HOLD_S, when=is_modbus_write_multiple)
     wait_until(lambda: proxy.get('held_chunks'), 2.0, what='a write of A held on the current connection')
-    held_at = time.monotonic()
     rig.command(b)
-    rig.wait_registers(b, MODBUS_TIMEOUT_S + RECONNECT_MAX_S + 1.0, 'B written on a new connection')
-    assert time.monotonic() - held_at < HOLD_S, 'B must be in before the held write of A lands, or nothing is shown'
-    # From here the registers must hold B, through the moment the old write of A arrives.
+    wait_until(lambda: proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
+               what='the held write of A delivered after plc_output dropped that connection')
+    rig.wait_registers(b, MODBUS_TIMEOUT_S + RECONNECT_MAX_S + WATCHDOG_S + 1.0, 'B written on a new connection')
+    # From here the registers must hold B.
     seen = []
-    done = threading.Event()
-
-    def watch():
-        while not done.is_set():
-            r = rig.registers()
-            if r is not None:
-                seen.append(r)
-            time.sleep(0.002)
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    try:
-        wait_until(lambda: proxy.get('delivered_after_client_closed'), HOLD_S + 2.0,
-                   what='the held write of A delivered after plc_output dropped that connection')
-        wait_until(lambda: link.mock_records()['stale_count'] > stale_before, 2.0,
-                   what='the mock PLC refusing the late write of A as stale')
-        time.sleep(0.05)   # a few more reads after the refusal
-    finally:
-        done.set()
-        watcher.join(2)
+    t_end = time.monotonic() + 0.3
+    while time.monotonic() < t_end:
+        r = rig.registers()
+        if r is not None:
+            seen.append(r)
+        time.sleep(0.002)
     wrong = [r for r in seen if np.max(np.abs(r - b)) > TOLERANCE_KPA]
     assert not wrong, f'{len(wrong)} of {len(seen)} reads were not B, e.g. {wrong[0]}'
     records = link.mock_records()
-    print(f'\n[link] stale writes refused by the mock PLC: {records["stale_writes"]}; {len(seen)} reads all B')
+    print(f'\n[link] writes refused while the dead connection held the claim: {records.get("busy_count")}; '
+          f'{len(seen)} reads all B')
     proxy.heal()
 
 

@@ -69,8 +69,15 @@ class Raw:
     def __init__(self, port: int):
         self.sock = socket.create_connection(('127.0.0.1', port), timeout=2.0)
         self.tid = 0
+        # One request out at a time: the heartbeat thread shares this connection (a write is
+        # taken only from the connection that holds the write claim).
+        self.lock = threading.RLock()
 
     def ask_adu(self, pdu: bytes, unit: int = UNIT, timeout_s: float = 2.0) -> bytes | None:
+        with self.lock:
+            return self._ask_adu(pdu, unit, timeout_s)
+
+    def _ask_adu(self, pdu: bytes, unit: int, timeout_s: float) -> bytes | None:
         self.tid = (self.tid + 1) & 0xFFFF
         self.sock.sendall(struct.pack('>HHHB', self.tid, 0, len(pdu) + 1, unit) + pdu)
         self.sock.settimeout(timeout_s)
@@ -82,12 +89,13 @@ class Raw:
         return header + self._exactly(length - 1)
 
     def ask(self, pdu: bytes, unit: int = UNIT, timeout_s: float = 2.0) -> bytes | None:
-        adu = self.ask_adu(pdu, unit, timeout_s)
-        if adu is None:
-            return None
-        tid, protocol, _length, answered_unit = struct.unpack('>HHHB', adu[:7])
-        assert (tid, protocol, answered_unit) == (self.tid, 0, unit), adu.hex()
-        return adu[7:]
+        with self.lock:
+            adu = self._ask_adu(pdu, unit, timeout_s)
+            if adu is None:
+                return None
+            tid, protocol, _length, answered_unit = struct.unpack('>HHHB', adu[:7])
+            assert (tid, protocol, answered_unit) == (self.tid, 0, unit), adu.hex()
+            return adu[7:]
 
     def _exactly(self, n: int) -> bytes:
         data = b''
@@ -140,10 +148,11 @@ def echo16(start: int, quantity: int) -> bytes:
 
 
 class Heartbeat:
-    """Changes the heartbeat register every 50 ms on its own connection (plc_output's job)."""
+    """Changes the heartbeat register every 50 ms on the commanding client's connection
+    (plc_output's job)."""
 
-    def __init__(self, port: int):
-        self.raw = Raw(port)
+    def __init__(self, raw: 'Raw'):
+        self.raw = raw
         self.value = 0
         self._stop = threading.Event()
         self._paused = False
@@ -167,14 +176,13 @@ class Heartbeat:
     def stop(self):
         self._stop.set()
         self._thread.join(2)
-        self.raw.close()
 
 
 def arm(raw: Raw, port: int) -> tuple[Heartbeat, int]:
     """A live heartbeat, and the watchdog armed: a probe command (on the last channel, with
     sequence numbers 1, 2, ...) is written until it stays. Returns the heartbeat and the last
     sequence number used; the tests number their writes from there."""
-    heartbeat = Heartbeat(port)
+    heartbeat = Heartbeat(raw)
     seqs = iter(range(1, 200))
 
     def probe():
@@ -341,6 +349,108 @@ def test_first_write_after_power_up_is_accepted_whatever_its_number(server, raw)
     assert raw.registers(SEQ, 1) == [40000]
 
 
+# ------------------------------------------------------------------ one writer at a time
+#: A closed connection of the claim holder -> registers 0: one scan, a read round trip, slack.
+CLOSE_VENT_S = 0.01 + 0.3
+
+
+def test_a_second_client_s_writes_are_refused_with_exception_06(server, raw, armed):
+    raw.command([500], seq=armed + 1)
+    other = Raw(server.port)
+    try:
+        assert other.command([3000] * N, seq=armed + 1024) == exception(16, 6)
+        assert other.write6(HEARTBEAT, 4242) == exception(6, 6)
+        assert other.write6(SEQ, armed + 2000) == exception(6, 6)
+        assert other.write16(0, [3000]) == exception(16, 6)
+        # Reads are anyone's; the map's addresses are checked first (02 before 06).
+        assert other.registers(0, 1) + other.registers(SEQ, 2)[:1] == [500, armed + 1]
+        assert other.write6(N + 2, 1) == exception(6, 2)
+    finally:
+        other.close()
+    assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, armed + 1]
+
+
+def test_a_second_writer_that_dies_never_holds_pressure(server, raw, armed):
+    """The two-writer fault: the survivor (raw, first to connect) writes zeros with its own
+    heartbeat; a second client numbered 1024 ahead writes 200 kPa with its heartbeat and dies.
+    Its writes must never have held the registers, whatever its numbers."""
+    raw.command([0] * N, seq=armed + 1)
+    second = Raw(server.port)
+    answers = [second.command([2000] * N, seq=armed + 1024)]
+    for k in range(10):
+        answers.append(second.write6(HEARTBEAT, 30000 + k))
+    second.close()
+    for k in range(2, 30):   # the survivor's zeros go on, with its heartbeat
+        raw.command([0] * N, seq=armed + k)
+        assert raw.registers(0, N) == [0] * N
+        time.sleep(0.02)
+    assert answers == [exception(16, 6)] + [exception(6, 6)] * 10
+
+
+@pytest.mark.parametrize('death', ['closed', 'silent'])
+def test_the_claim_holder_s_loss_vents_and_frees_the_claim(server, death):
+    """The claim holder commands 200 kPa and dies: its connection closed (a process killed) or
+    silent and open (a half-open link). The other client's writes (heartbeat included) are
+    refused meanwhile, so they cannot keep the watchdog armed; the registers read 0 within one
+    scan of the close, or within the watchdog of the silence, and then the other client claims
+    and commands, whatever its sequence number."""
+    holder, survivor = Raw(server.port), Raw(server.port)
+    heartbeat, seq = arm(holder, server.port)
+    try:
+        holder.command([2000] * N, seq=seq + 5000)
+        assert holder.registers(0, 2) == [2000, 2000]
+        heartbeat.pause()
+        t0 = time.monotonic()
+        if death == 'closed':
+            holder.close()
+        deadline = CLOSE_VENT_S if death == 'closed' else WATCHDOG_VENT_S
+        beat = iter(range(100, 10000))
+
+        def vented():   # the survivor keeps trying: heartbeat and zeros, refused until free
+            survivor.write6(HEARTBEAT, next(beat))
+            return survivor.registers(0, N) == [0] * N
+        wait_until(vented, deadline, what=f'registers 0 after the claim holder {death} ({server.kind})')
+        LOG.record(f'claim holder {death} -> registers 0 ({server.kind})', time.monotonic() - t0, deadline)
+        # Free (at once when closed, within the watchdog when silent): the survivor claims; its
+        # first write is taken though its number is far behind the holder's.
+        wait_until(lambda: survivor.command([700], seq=seq + 1) == echo16(0, N + 1)
+                   and survivor.registers(SEQ, 1) == [seq + 1], WATCHDOG_VENT_S, what='the claim taken')
+        survivor_beat = Heartbeat(survivor)
+        try:
+            wait_until(lambda: survivor.command([700], seq=seq + 2 + next(beat) % 100) and
+                       survivor.registers(0, 1) == [700], 2.0, what='the survivor commanding')
+        finally:
+            survivor_beat.stop()
+        if death == 'silent':   # the silent holder is refused now
+            assert holder.write6(HEARTBEAT, 1) == exception(6, 6)
+    finally:
+        heartbeat.stop()
+        holder.close()
+        survivor.close()
+
+
+def test_a_half_sent_request_of_the_claim_holder_closes_its_connection(server):
+    """A holder that sends part of a request and then nothing (a link gone mid-frame) is closed
+    by the PLC after 1 s, as a dead peer, and the registers read 0."""
+    holder, other = Raw(server.port), Raw(server.port)
+    heartbeat, seq = arm(holder, server.port)
+    try:
+        holder.command([2000] * N, seq=seq + 1)
+        heartbeat.pause()
+        holder.sock.sendall(struct.pack('>HHH', 9, 0, 6)[:5])
+        t0 = time.monotonic()
+        holder.sock.settimeout(3.0)
+        assert holder.sock.recv(1) == b'', 'the PLC kept the connection'
+        closed_s = time.monotonic() - t0
+        assert other.registers(0, N) == [0] * N
+        LOG.record(f'half-sent request -> connection closed, registers 0 ({server.kind})', closed_s, 1.0 + 0.3)
+        assert 0.9 <= closed_s <= 1.3, closed_s
+    finally:
+        heartbeat.stop()
+        holder.close()
+        other.close()
+
+
 # ------------------------------------------------------------------------------- clamp
 def test_over_limit_values_are_stored_clamped(server, raw, armed):
     assert raw.command([P_MAX + 1, 0xFFFF, P_MAX], seq=armed + 1) == echo16(0, N + 1)
@@ -403,8 +513,9 @@ def mbpoll_session(port: int) -> dict[str, str]:
             'out-of-map read': mbpoll(port, *unit, '-t', '4', '-r', str(N + 2), '-c', '1'),
             'out-of-map write': mbpoll(port, *unit, '-t', '4', '-r', '100', values=('5',)),
             'unknown function (coils)': mbpoll(port, *unit, '-t', '0', '-r', '0', '-c', '1'),
-            'stale write': mbpoll(port, *unit, '-t', '4', '-r', '0', values=values),
-            'read after the stale write': mbpoll(port, *unit, '-t', '4', '-r', '0', '-c', '2'),
+            # raw holds the write claim: a second client's write is refused, whatever its number.
+            'write from a second client': mbpoll(port, *unit, '-t', '4', '-r', '0', values=values),
+            'read after the refused write': mbpoll(port, *unit, '-t', '4', '-r', '0', '-c', '2'),
         }
     finally:
         heartbeat.stop()
@@ -416,8 +527,8 @@ EXPECTED_MBPOLL = {
     'out-of-map read': r'^exit 1\n.*Illegal data address',
     'out-of-map write': r'^exit 1\n.*Illegal data address',
     'unknown function (coils)': r'^exit 1\n.*Illegal function',
-    'stale write': rf'^exit 0\n.*Written {N + 1} references',
-    'read after the stale write': r'^exit 0\n.*\[0\]:\s+1111\n\[1\]:\s+2222',
+    'write from a second client': r'^exit 1\n.*busy',
+    'read after the refused write': r'^exit 0\n.*\[0\]:\s+1111\n\[1\]:\s+2222',
 }
 
 

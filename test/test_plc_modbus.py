@@ -68,11 +68,23 @@ def plc(reg_map):
 
 @pytest.fixture
 def steady_plc(reg_map):
-    """A mock PLC whose watchdog, once armed, holds for a minute: no race with a trip."""
+    """A mock PLC whose watchdog, once armed, holds for a minute: no race with a trip. The test
+    arms it on the connection it writes on (one writer at a time: the first to write holds the
+    write claim, and its connection's close vents)."""
     with MockPlcServer(reg_map, regulator_tau_s=TAU_S, watchdog_s=60.0, update_hz=200) as server:
-        with PlcClient(reg_map, '127.0.0.1', server.port, timeout_s=0.5) as c:
-            Controller(c).arm(server)
         yield server
+
+
+def arm_raw(raw, server, reg_map):
+    """Heartbeats from a pymodbus client until the watchdog is armed (it then holds the claim)."""
+    beat = [0]
+
+    def armed():
+        beat[0] += 1
+        assert not compat.request(raw, 'write_register', reg_map.heartbeat_register, beat[0],
+                                  unit_id=reg_map.unit_id).isError()
+        return server.watchdog_armed
+    wait_until(armed, 1.0, 'the watchdog to arm')
 
 
 @pytest.fixture
@@ -240,6 +252,7 @@ def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_ma
     raw = compat.make_client('127.0.0.1', steady_plc.port, 1.0)
     assert raw.connect()
     try:
+        arm_raw(raw, steady_plc, reg_map)
         refused = compat.request(raw, 'write_register', 200, 1234, unit_id=reg_map.unit_id)
         assert compat.exception_code(refused) == 2
         # Starts on the last command register and runs past the end of the map (19 is the
@@ -265,18 +278,34 @@ def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_ma
 
 def test_an_unsequenced_command_write_is_answered_and_undone(reg_map, steady_plc):
     plc = steady_plc
-    client = PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=0.5)
-    client.write_pressures(ramp(50.0))
     raw = compat.make_client('127.0.0.1', plc.port, 1.0)
     assert raw.connect()
     try:
+        arm_raw(raw, plc, reg_map)
+        assert not compat.request(raw, 'write_registers', 0, [500] * N + [7],
+                                  unit_id=reg_map.unit_id).isError()
         answer = compat.request(raw, 'write_register', 0, 1000, unit_id=reg_map.unit_id)
         assert not answer.isError()   # the library answers; the program restores
+        assert np.allclose(plc.commands_kpa(), 50.0)
     finally:
         raw.close()
-    assert np.allclose(client.read_commands_kpa(), 50.0)
-    client.close()
     assert plc.stale_writes[-1][0] is None
+
+
+def test_a_second_client_is_refused_with_server_device_busy(reg_map, plc, client):
+    """One writer at a time: a second PlcClient (a second plc_output) gets a PlcRefusedError
+    that says another client holds the write claim, and writes nothing."""
+    Controller(client).arm(plc)
+    client.write_pressures(ramp(40.0))
+    with PlcClient(reg_map, '127.0.0.1', plc.port, timeout_s=0.5) as second:
+        with pytest.raises(PlcRefusedError) as info:
+            second.write_pressures(ramp(200.0))
+        second.read_measured_kpa()   # reads are anyone's: the connection is still good
+        with pytest.raises(PlcRefusedError):
+            second.write_heartbeat(12345)
+    assert info.value.code == 6 and info.value.state == 'refused'
+    assert 'another Modbus client holds' in str(info.value)
+    assert np.allclose(plc.commands_kpa(), 40.0) and plc.heartbeat_value() != 12345
 
 
 def test_an_illegal_address_names_the_register_and_the_map(reg_map, plc):

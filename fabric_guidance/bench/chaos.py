@@ -11,14 +11,17 @@ first or respawned, waits for the operator's enable, which this run calls.
 
 Each fault is drawn from the seed: SIGKILL, or SIGSTOP then SIGCONT, of each node in turn and
 of two at once; the Modbus link dropping every byte or delayed beyond the request timeout; the
-gaze stream paused or flooded. Each is injected while the suit is pressurised, during guidance
-or during a calibration (start_calibration), then healed, and guidance must come back.
+gaze stream paused or flooded; a second Modbus writer (second_writer.py, closing each round).
+Each is injected while the suit is pressurised, during guidance or during a calibration
+(start_calibration), then healed, and guidance must come back.
 
 Invariants, from the register log alone (plc/register_log.py), checked after every fault and
 again at the end: no command above P_MAX ever sent; every fault that must vent has every
 register at 0 within its deadline (docs/safety.md); after a controller restart, once vented,
 nothing nonzero is applied before the operator's enable; at the end no process of the graph is
-left (every pid gone, children included). Output: progress per fault, then a table of every
+left (every pid gone, children included); a second writer is refused while plc_output holds the
+PLC, and once it holds it and dies the suit vents within the watchdog's deadline and its command
+never comes back. Output: progress per fault, then a table of every
 fault kind with its deadline and worst measured time, as Markdown and JSON in --out.
 """
 from __future__ import annotations
@@ -43,6 +46,7 @@ from ..atomic import write_text
 from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
 from ..process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
+from . import second_writer
 from .faultproxy import FaultProxy
 from .graphs import state
 
@@ -108,7 +112,7 @@ def pair_deadline(nodes) -> float | None:
 @dataclass(frozen=True)
 class Planned:
     """One fault of the schedule."""
-    action: str                 # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood
+    action: str                 # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, two_writers
     nodes: tuple[str, ...] = ()
     phase: str = 'guidance'     # guidance or calibration
     hold_s: float = 2.0         # how long a stop, a link fault or a gaze fault lasts
@@ -120,21 +124,26 @@ class Planned:
                 'link_drop': 'Modbus link drops every byte',
                 'link_delay': f'Modbus link delayed {LINK_DELAY_S:g} s each way',
                 'gaze_pause': 'gaze stream paused',
-                'gaze_flood': f'gaze stream flooded ({FLOOD_RATE_HZ:.0f} datagrams/s)'}[self.action]
+                'gaze_flood': f'gaze stream flooded ({FLOOD_RATE_HZ:.0f} datagrams/s)',
+                'two_writers': 'a second Modbus writer holds the PLC, then falls silent'}[self.action]
 
     @property
     def deadline_s(self) -> float | None:
         if self.action in ('kill', 'stop'):
             return pair_deadline(self.nodes)
         return {'link_drop': WATCHDOG_VENT_S, 'link_delay': LINK_DELAY_VENT_S,
-                'gaze_pause': GAZE_STALE_VENT_S, 'gaze_flood': None}[self.action]
+                'gaze_pause': GAZE_STALE_VENT_S, 'gaze_flood': None,
+                'two_writers': WATCHDOG_VENT_S}[self.action]
 
 
 def schedule(seed: int, faults: int) -> list[Planned]:
     """`faults` faults from `seed`: rounds of every kind once (each node killed and stopped in
     turn, a pair killed and a pair stopped, every link and gaze fault), each round shuffled;
-    phase and hold drawn per fault. The same seed gives the same schedule."""
+    phase and hold drawn per fault; a second writer closes each round (drawn from its own
+    generator: the other faults of a seed stay as they were). The same seed gives the same
+    schedule."""
     rng = random.Random(seed)
+    extra = random.Random(f'{seed}-two-writers')
     out: list[Planned] = []
     while len(out) < faults:
         pairs = list(itertools.combinations(NODES, 2))
@@ -145,6 +154,8 @@ def schedule(seed: int, faults: int) -> list[Planned]:
         for action, nodes in kinds:
             out.append(Planned(action, tuple(nodes), rng.choice(('guidance', 'calibration')),
                                round(rng.uniform(HOLD_S[0], HOLD_S[1]), 2)))
+        out.append(Planned('two_writers', ('plc_output',), extra.choice(('guidance', 'calibration')),
+                           round(extra.uniform(HOLD_S[0], HOLD_S[1]), 2)))
     return out[:faults]
 
 
@@ -194,6 +205,8 @@ class Outcome:
     recovery_s: float | None = None
     t_enable: float | None = None
     notes: list[str] = field(default_factory=list)
+    #: a second writer's fault: its start, plc_output's kill, its refusals before the kill
+    writer: dict | None = None
 
 
 class ChaosLab:
@@ -309,6 +322,8 @@ class ChaosLab:
                        RECOVERY_DEADLINE_S, what=f'fault {index}: the calibration begun (vented rest)')
         # Injected while the suit is pressurised: a vent is then a change the log must show.
         self.wait_pressurised(RECOVERY_DEADLINE_S, f'fault {index} ({p.phase})')
+        if p.action == 'two_writers':
+            return self.two_writers(index, p)
         restarts = {n: g.restart_count(n) for n in p.nodes}
         for n in p.nodes:
             self.mark_log(n)
@@ -367,6 +382,13 @@ class ChaosLab:
         out.vent_s = vent_time(self.register_log.entries, out.t, fault.held_until)
         return out
 
+    def two_writers(self, index: int, p: Planned) -> Outcome:
+        """A second Modbus writer (second_writer.py); its death is the fault's time."""
+        w = second_writer.inject(self, index, p.hold_s, p.kind, WATCHDOG_VENT_S)
+        out = Outcome(index, p, w['t_die'], t_end=w['t_die'], recovery_s=w['recovery_s'], writer=w)
+        out.vent_s = vent_time(self.register_log.entries, w['t_die'])
+        return out
+
 
 def _listening(port: int) -> bool:
     with socket.socket() as s:
@@ -379,14 +401,19 @@ def _alive(pid: int) -> bool:
 
 
 def as_fault(o: Outcome) -> Fault:
-    return Fault(o.planned.kind, o.t, o.planned.deadline_s, o.t_end, o.t_enable)
+    # A second writer's vent is judged by second_writer.breaches: from its death to the first
+    # vent (the respawned plc_output may guide again as soon as the PLC is free).
+    deadline = None if o.writer is not None else o.planned.deadline_s
+    return Fault(o.planned.kind, o.t, deadline, o.t_end, o.t_enable)
 
 
 def judge(log: RegisterLog, outcomes: list[Outcome], p_max_counts: int) -> list[str]:
     """Every breach of the invariants the register log shows for these faults."""
     faults = [as_fault(o) for o in outcomes]
     return (over_p_max(log.entries, p_max_counts) + late_vents(log.entries, faults, log.drained)
-            + gate_breaches(log.entries, faults))
+            + gate_breaches(log.entries, faults)
+            + second_writer.breaches(log.entries, [(o.planned.kind, o.writer) for o in outcomes if o.writer],
+                                     WATCHDOG_VENT_S, log.drained))
 
 
 def table(outcomes: list[Outcome]) -> list[dict]:

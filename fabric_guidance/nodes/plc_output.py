@@ -16,7 +16,8 @@ link. Commands are written only while every link is up; a fault on any link vent
 others at once, and each link is retried on its own backoff with a vent, a heartbeat and a
 read (never the command) until it passes; then commands flow again. /diagnostics has one
 status per link besides the overall one: a link is "down" (no connection), "refused" (the
-PLC answers with a Modbus exception: the register map or the PLC program is wrong) or
+PLC answers with a Modbus exception: the register map or the PLC program is wrong, or, with
+exception 06, another client holds the PLC's write claim: one writer at a time) or
 "no answer" (silence on an open connection: check the unit id).
 With write_on_command (the default) each command is also written the moment it arrives, so it
 does not wait for the next cycle; the cycle keeps the heartbeat, the re-send and the read-back.

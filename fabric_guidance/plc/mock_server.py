@@ -5,12 +5,14 @@ pymodbus) that keeps the PLC contract (docs/plc.md) exactly as the PLC program d
 register map's addresses only (exception 02 elsewhere), function codes 3, 4, 6, 16 (01 for
 others), the quantity limits (03), silence for another unit id, the write sequence gate (a stale
 or unnumbered command write is answered normally and undone), the clamp to p_max counts, the
-heartbeat watchdog and the regulator lag (regulator.py). It records every write it gets,
+heartbeat watchdog, the write claim (one connection writes; others get exception 06; the
+holder's close or silence vents and frees it) and the regulator lag (regulator.py). It records every write it gets,
 optionally to a file (records.py), so tests can assert what left the package.
 """
 from __future__ import annotations
 
 import asyncio
+import itertools
 import struct
 import threading
 import time
@@ -31,6 +33,11 @@ MAX_READ, MAX_WRITE = 125, 123
 _MBAP = struct.Struct('>HHHB')   # transaction id, protocol id, length (unit id + PDU), unit id
 #: Largest PDU of Modbus TCP (a 260-byte ADU less the 7-byte MBAP header).
 MAX_PDU = 253
+#: The exception a write from a connection without the write claim gets (SERVER DEVICE BUSY).
+BUSY = 6
+#: A connection silent this long is closed, and one that sent part of a request and then
+#: nothing for PARTIAL_S (the PLC program's kIdleMs and kPartialFrameMs, plc_link.h).
+IDLE_S, PARTIAL_S = 10.0, 1.0
 
 
 class _Registers:
@@ -61,6 +68,12 @@ class _Registers:
         #: (sequence number or None when the request had none, last applied) of undone writes
         self.stale_writes: list[tuple[int | None, int | None]] = []
         self.writes = 0    # client write requests that reached the registers
+        #: The connection holding the write claim (None: free), whether its time is still to be
+        #: taken at the next scan, writes refused with exception 06, claims lost to a close.
+        self.owner: int | None = None
+        self.claim_pending = False
+        self.busy = 0
+        self.owner_lost = 0
         self.version = 0   # bumped on every change of the records
         #: (time.monotonic_ns(), first address, values) per client write, when timing is on
         #: (the benchmarks' landing times); None: off, nothing is recorded.
@@ -78,6 +91,7 @@ class _Registers:
             self.holding = dict.fromkeys(self.holding_addresses, 0)
             self.input = dict.fromkeys(self.input_addresses, 0)
             self.gate.reset()
+            self.owner, self.claim_pending = None, False
             self.log_state('power_up')
 
     def log_state(self, cause: str, sent_max: int = 0) -> None:
@@ -92,7 +106,8 @@ class _Registers:
         self.register_log.append((time.monotonic_ns(), cause, state, sent_max))
 
     # ---- one request (PDU in, PDU out; None: no answer)
-    def handle(self, pdu: bytes) -> bytes:
+    def handle(self, pdu: bytes, connection: int = 0) -> bytes:
+        """The answer to one request from `connection` (numbered by the server, never reused)."""
         fc = pdu[0]
         try:
             if fc in (3, 4):
@@ -114,6 +129,8 @@ class _Registers:
                 if not self._mapped(self.holding, address, 1):
                     self._record_out_of_map(address, [value])
                     return _exception(fc, 2)
+                if not self._may_write(connection):
+                    return _exception(fc, BUSY)
                 self.write(address, [value])
                 return pdu[:5]
             if fc == 16:
@@ -127,11 +144,43 @@ class _Registers:
                 if not self._mapped(self.holding, start, quantity):
                     self._record_out_of_map(start, values)
                     return _exception(fc, 2)
+                if not self._may_write(connection):
+                    return _exception(fc, BUSY)
                 self.write(start, values)
                 return pdu[:5]
         except struct.error:
             return _exception(fc, 3)
         return _exception(fc, 1)
+
+    def _may_write(self, connection: int) -> bool:
+        """False when another connection holds the write claim (the whole request refused,
+        heartbeat included: another client's heartbeat must never keep the watchdog armed for
+        commands it did not write); a free claim is taken by `connection`."""
+        with self.lock:
+            if self.owner is not None and self.owner != connection:
+                self.busy += 1
+                self.version += 1
+                return False
+            if self.owner is None:
+                self.owner, self.claim_pending = connection, True
+                # A new writer's numbers have no relation to the last one's: its first is taken,
+                # as after power-up (an earlier connection's late writes are refused above).
+                self.gate.reset()
+            return True
+
+    def connection_closed(self, connection: int) -> bool:
+        """The server closed `connection`; True when it held the write claim (now free, the
+        command registers zeroed: the caller vents the outputs)."""
+        with self.lock:
+            if self.owner is None or self.owner != connection:
+                return False
+            self.owner, self.claim_pending = None, False
+            self.owner_lost += 1
+            self.version += 1
+            for a in self.commands:
+                self.holding[a] = 0
+            self.log_state('owner closed')
+            return True
 
     @staticmethod
     def _mapped(table: dict, start: int, quantity: int) -> bool:
@@ -245,6 +294,10 @@ class MockPlcServer:
         self._listening = False
         self._error: BaseException | None = None
         self._writers: set[asyncio.StreamWriter] = set()
+        self._connection_ids = itertools.count(1)
+        # The owner's last sign of life at a scan: the claim, or a heartbeat change.
+        self._scan_heartbeat: int | None = None
+        self._owner_heard_s = 0.0
 
     # ---- life cycle
     @property
@@ -263,6 +316,7 @@ class MockPlcServer:
         with self._lock:
             self._holding.power_up()
             self._sim.reset()
+            self._scan_heartbeat = None
         self._listening, self._error, self._stop_event = False, None, None
         self._thread = threading.Thread(target=self._run, name=f'mock-plc-{self._port}', daemon=True)
         self._thread.start()
@@ -355,25 +409,34 @@ class MockPlcServer:
                                 writer: asyncio.StreamWriter) -> None:
         """One client connection: request, answer, in order (Modbus TCP, MBAP framing)."""
         self._writers.add(writer)
+        connection = next(self._connection_ids)
         try:
             while True:
-                header = await reader.readexactly(_MBAP.size)
+                # Nothing for IDLE_S, or a request cut short: a dead peer's connection is closed
+                # (and vents if it held the write claim), as the PLC program reaps its sockets.
+                first = await asyncio.wait_for(reader.readexactly(1), IDLE_S)
+                header = first + await asyncio.wait_for(reader.readexactly(_MBAP.size - 1), PARTIAL_S)
                 tid, protocol, length, unit = _MBAP.unpack(header)
                 if protocol != 0 or not 2 <= length <= MAX_PDU + 1:
                     return  # not Modbus TCP: drop the connection, as a device does
-                pdu = await reader.readexactly(length - 1)
+                pdu = await asyncio.wait_for(reader.readexactly(length - 1), PARTIAL_S)
                 if unit != self.map.unit_id:
                     continue  # another unit id: no answer at all; the connection stays open
-                answer = self._holding.handle(pdu)
+                answer = self._holding.handle(pdu, connection)
                 writer.write(_MBAP.pack(tid, 0, len(answer) + 1, unit) + answer)
                 await writer.drain()
-        except (asyncio.IncompleteReadError, ConnectionError):
-            return  # the client went away
+        except (asyncio.IncompleteReadError, ConnectionError, asyncio.TimeoutError):
+            return  # the client went away, or fell silent
         except asyncio.CancelledError:
             return  # stop(): the connection is closed below
         finally:
             self._writers.discard(writer)
             writer.close()
+            with self._lock:
+                if self._holding.connection_closed(connection) and self._sim.watchdog.armed:
+                    # Tripped by the close, not by the time: the outputs vent at once.
+                    self._sim.watchdog.armed = False
+                    self._sim.watchdog.trips += 1
 
     async def _scan_loop(self) -> None:
         period = 1.0 / self.update_hz
@@ -398,8 +461,26 @@ class MockPlcServer:
             result = self._sim.scan(list(m.decode(counts)), h.holding[m.heartbeat_register], now_s)
             if result.vent:
                 h.force_commands_zero()
+            self._claim_scan(now_s)
             for a, p in zip(m.measured_registers, result.measured_kpa):
                 h.input[a] = min(max(int(round(p * m.counts_per_kpa)), 0), REGISTER_MAX)
+
+    def _claim_scan(self, now_s: float) -> None:
+        """The write claim at a scan (lock held), as the PLC program's Core::scan: only the
+        holder's heartbeat arms the watchdog; a holder silent for the watchdog's time loses it."""
+        h, watchdog = self._holding, self._sim.watchdog
+        heartbeat = h.holding[self.map.heartbeat_register]
+        if self._scan_heartbeat is not None and heartbeat != self._scan_heartbeat:
+            self._owner_heard_s = now_s
+            if h.owner is None and watchdog.armed:   # its writer closed before this scan
+                watchdog.armed = False
+                h.force_commands_zero()
+        self._scan_heartbeat = heartbeat
+        if h.claim_pending:
+            h.claim_pending = False
+            self._owner_heard_s = now_s
+        if h.owner is not None and now_s - self._owner_heard_s >= watchdog.timeout_s:
+            h.owner = None
 
     # ---- records
     def records(self) -> dict:
@@ -414,6 +495,7 @@ class MockPlcServer:
                 'out_of_map_count': len(h.out_of_map_writes), 'out_of_map_writes': h.out_of_map_writes[:MAX_LISTED],
                 'stale_count': len(h.stale_writes), 'stale_writes': h.stale_writes[:MAX_LISTED],
                 'watchdog_trips': self._sim.watchdog.trips,
+                'busy_count': h.busy, 'owner_lost_count': h.owner_lost,
             }
 
     def save_records(self) -> None:

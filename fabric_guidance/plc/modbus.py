@@ -229,6 +229,12 @@ class PlcClient:
         if code == 1:
             return (f'exception 01 {name} ({method}): the PLC program does not implement this '
                     f'Modbus function; it must answer function codes 3, 4, 6 and 16')
+        if code == 6:
+            return (f'exception 06 {name} for {table} registers {span}: another Modbus client '
+                    f'holds this PLC\'s write claim (a second plc_output, a tool writing to it, or '
+                    f'this client\'s own earlier connection the PLC has not yet seen close); one '
+                    f'writer at a time. The claim is freed when that connection closes or its '
+                    f'heartbeat stops for the watchdog time (docs/plc.md)')
         if code == 3:
             return (f'exception 03 {name} for {table} registers {span}: the PLC program refuses '
                     f'this quantity or value')

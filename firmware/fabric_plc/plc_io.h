@@ -8,6 +8,7 @@
 #include <Client.h>
 
 #include "src/plc_core.h"
+#include "src/plc_link.h"
 
 namespace plc {
 
@@ -18,15 +19,18 @@ void io_scan(Core& core, uint32_t now_ms);
 // Every outputs to 0 V (vent), whatever the core says.
 void io_vent();
 
-// Per-connection frame assembly (the W5500 has 8 sockets; the sketch keeps one per socket).
-struct Connection {
-  uint8_t buffer[kMaxAdu];
-  uint16_t length;
-  uint32_t last_byte_ms;
+// An Arduino Client (EthernetClient) as plc_link.h's Link: serve_once() through it never
+// waits on the network. A Client without availableForWrite() (Print's default: 0) is never
+// written to: its connection is closed as stalled, never a blocking write.
+struct ClientLink {
+  Client& client;
+  int available() { return client.available(); }
+  int read(uint8_t* buf, size_t n) { return client.read(buf, n); }
+  int availableForWrite() { return client.availableForWrite(); }
+  size_t write(const uint8_t* buf, size_t n) { return client.write(buf, n); }
+  // EthernetClient::connected() is false once the peer closed and nothing is left to read.
+  bool peer_open() { return client.connected() != 0; }
 };
-// Reads what the client has, answers each complete frame; false: drop the connection
-// (broken frame, or a partial frame older than 1 s).
-bool io_serve(Core& core, Client& client, Connection& connection, uint32_t now_ms);
 
 }  // namespace plc
 

@@ -16,6 +16,8 @@
 #include <math.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <linux/sockios.h>
+#include <sys/ioctl.h>
 #include <poll.h>
 #include <signal.h>
 #include <stdio.h>
@@ -29,14 +31,13 @@
 #include <vector>
 
 #include "plc_core.h"
+#include "plc_link.h"
 #include "scaling.h"
 
 namespace {
 
 volatile sig_atomic_t g_stop = 0;
 void on_signal(int) { g_stop = 1; }
-
-const size_t kMaxClients = 16;
 
 struct Options {
   std::string host = "127.0.0.1";
@@ -110,9 +111,59 @@ uint32_t now_ms() {
   return static_cast<uint32_t>(ts.tv_sec * 1000u + ts.tv_nsec / 1000000);
 }
 
-struct Client {
+// The W5500 of the M-Duino has 8 sockets, one of them listening: 7 clients at most. Its
+// send buffer is 2 KB per socket; the host's is set to the same, so that a client that stops
+// reading fills it as soon as it would fill the device's.
+const size_t kMaxClients = 7;
+const int kSendBuffer = 2048;
+
+// A non-blocking POSIX socket with the calls plc_link.h needs (EthernetClient's meanings).
+struct PosixLink {
   int fd = -1;
-  std::vector<uint8_t> buffer;
+  int available() {
+    int n = 0;
+    return ioctl(fd, FIONREAD, &n) == 0 ? n : 0;
+  }
+  int read(uint8_t* buf, size_t n) {
+    ssize_t k = recv(fd, buf, n, MSG_DONTWAIT);
+    return k > 0 ? static_cast<int>(k) : 0;
+  }
+  int availableForWrite() {
+    // The kernel reports twice the buffer it was given (bookkeeping included); the queue is
+    // what is sent and not yet acknowledged, as the W5500's free size counts it.
+    int size = 0, queued = 0;
+    socklen_t len = sizeof(size);
+    if (getsockopt(fd, SOL_SOCKET, SO_SNDBUF, &size, &len) != 0) return 0;
+    if (ioctl(fd, SIOCOUTQ, &queued) != 0) return 0;
+    int free_bytes = size / 2 - queued;
+    return free_bytes > 0 ? free_bytes : 0;
+  }
+  size_t write(const uint8_t* buf, size_t n) {
+    ssize_t k = send(fd, buf, n, MSG_DONTWAIT | MSG_NOSIGNAL);
+    return k > 0 ? static_cast<size_t>(k) : 0;
+  }
+  bool peer_open() {
+    uint8_t b;
+    ssize_t k = recv(fd, &b, 1, MSG_PEEK | MSG_DONTWAIT);
+    return k > 0 || (k < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR));
+  }
+};
+
+// Connections closed by the program, per plc::Verdict (kKeep unused).
+uint32_t reaped[5] = {0, 0, 0, 0, 0};
+// The longest time one pass spent on the sockets (accept and every connection) [us]: what a
+// blocking call would show, without the scheduler's delays between passes on a busy host.
+uint32_t longest_serve_us = 0;
+
+uint64_t now_us() {
+  timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1000000u + static_cast<uint64_t>(ts.tv_nsec) / 1000u;
+}
+
+struct Client {
+  PosixLink link;
+  plc::Connection connection;
 };
 
 // The regulators: the pressure follows the analog output's set point as a first-order lag.
@@ -139,7 +190,7 @@ void list_json(std::string& s, const uint16_t list[][2], uint32_t count) {
 
 // Records (records.py fields) + what reached the outputs. Written atomically (rename).
 void write_state(const Options& o, const plc::Core& core, const std::vector<uint16_t>& max_out,
-                 uint32_t scans) {
+                 uint32_t scans, uint32_t longest_scan_ms) {
   if (o.state.empty()) return;
   const plc::Records& r = core.records();
   std::string s = "{";
@@ -160,8 +211,17 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   list_json(s, r.stale_list, r.stale);
   s += ", \"unsequenced_count\": " + std::to_string(r.unsequenced);
   s += ", \"watchdog_trips\": " + std::to_string(r.watchdog_trips);
+  s += ", \"busy_count\": " + std::to_string(r.busy);
+  s += ", \"owner_lost_count\": " + std::to_string(r.owner_lost);
+  s += ", \"owner\": " + std::to_string(core.owner());
+  s += ", \"closed\": {\"peer_closed\": " + std::to_string(reaped[plc::kPeerClosed]) +
+       ", \"idle\": " + std::to_string(reaped[plc::kIdle]) +
+       ", \"stalled\": " + std::to_string(reaped[plc::kStalled]) +
+       ", \"bad_frame\": " + std::to_string(reaped[plc::kBadFrame]) + "}";
   s += ", \"vented\": " + std::string(core.vented() ? "true" : "false");
   s += ", \"scans\": " + std::to_string(scans);
+  s += ", \"longest_scan_ms\": " + std::to_string(longest_scan_ms);
+  s += ", \"longest_serve_us\": " + std::to_string(longest_serve_us);
   s += ", \"output_counts\": [";
   for (int ch = 0; ch < o.channels; ++ch) {
     s += (ch ? ", " : "") + std::to_string(core.output_counts(static_cast<uint8_t>(ch)));
@@ -180,28 +240,6 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   if (rename(tmp.c_str(), o.state.c_str()) != 0) {
     fprintf(stderr, "plc_host: cannot rename to %s: %s\n", o.state.c_str(), strerror(errno));
   }
-}
-
-// Consumes whole frames from the client's buffer; false: close the connection.
-bool serve(plc::Core& core, Client& c) {
-  while (c.buffer.size() >= plc::kMbapLength) {
-    size_t length = (static_cast<size_t>(c.buffer[4]) << 8) | c.buffer[5];
-    if (length < 2 || length > plc::kMaxAdu - 6) return false;  // not Modbus TCP: cannot resync
-    size_t total = 6 + length;
-    if (c.buffer.size() < total) return true;
-    uint8_t out[plc::kMaxAdu];
-    size_t n = core.handle(c.buffer.data(), total, out, sizeof(out));
-    if (core.bad_frame()) return false;
-    c.buffer.erase(c.buffer.begin(), c.buffer.begin() + static_cast<long>(total));
-    size_t sent = 0;
-    while (sent < n) {
-      ssize_t k = send(c.fd, out + sent, n - sent, MSG_NOSIGNAL);
-      if (k < 0 && errno == EINTR) continue;
-      if (k <= 0) return false;
-      sent += static_cast<size_t>(k);
-    }
-  }
-  return true;
 }
 
 }  // namespace
@@ -240,16 +278,25 @@ int main(int argc, char** argv) {
   std::vector<uint16_t> max_out(o.channels, 0);
   std::vector<Client> clients;
   uint32_t scans = 0, last_scan = now_ms(), last_state = last_scan;
+  // The longest time between two scans: how long the watchdog could not run.
+  uint32_t longest_scan_ms = 0;
   std::string written;  // the state's outputs + counters last written: rewrite only on change
   core.scan(last_scan);
-  write_state(o, core, max_out, scans);
+  write_state(o, core, max_out, scans, longest_scan_ms);
   printf("listening on %s:%d\n", o.host.c_str(), ntohs(addr.sin_port));
   fflush(stdout);
 
+  plc::ConnectionId next_id = 1;
+  auto drop = [&](std::vector<Client>::iterator it, plc::Verdict why) {
+    close(it->link.fd);  // no linger: returns at once
+    core.connection_closed(it->connection.id);
+    ++reaped[why];
+    return clients.erase(it);
+  };
   while (!g_stop) {
     std::vector<pollfd> fds;
     fds.push_back(pollfd{listener, POLLIN, 0});
-    for (const Client& c : clients) fds.push_back(pollfd{c.fd, POLLIN, 0});
+    for (const Client& c : clients) fds.push_back(pollfd{c.link.fd, POLLIN, 0});
     uint32_t t = now_ms();
     long wait = static_cast<long>(o.scan_ms) - static_cast<long>(t - last_scan);
     int ready = poll(fds.data(), fds.size(), wait > 0 ? static_cast<int>(wait) : 0);
@@ -257,44 +304,44 @@ int main(int argc, char** argv) {
       perror("plc_host: poll");
       break;
     }
-    if (ready > 0) {
-      if (fds[0].revents & POLLIN) {
-        int fd = accept(listener, nullptr, nullptr);
-        if (fd >= 0 && clients.size() < kMaxClients) {
-          setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
-          Client c;
-          c.fd = fd;
-          clients.push_back(c);
-        } else if (fd >= 0) {
-          close(fd);  // as a device with all its sockets in use
+    t = now_ms();
+    const uint64_t serve_start_us = now_us();
+    if (ready > 0 && (fds[0].revents & POLLIN)) {
+      int fd = accept4(listener, nullptr, nullptr, SOCK_NONBLOCK);
+      if (fd >= 0) {
+        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+        setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &kSendBuffer, sizeof(kSendBuffer));
+        if (clients.size() >= kMaxClients) {
+          // Every socket taken: the longest-silent one that does not hold the write claim
+          // makes room (a dead peer's socket must not lock the next client out).
+          auto idlest = clients.end();
+          for (auto it = clients.begin(); it != clients.end(); ++it) {
+            if (it->connection.id == core.owner()) continue;
+            if (idlest == clients.end() ||
+                static_cast<uint32_t>(t - it->connection.last_rx_ms) >
+                    static_cast<uint32_t>(t - idlest->connection.last_rx_ms)) {
+              idlest = it;
+            }
+          }
+          if (idlest != clients.end()) drop(idlest, plc::kIdle);
         }
+        Client c;
+        c.link.fd = fd;
+        plc::open_connection(c.connection, next_id++, t);
+        clients.push_back(c);
       }
-      for (size_t i = 1; i < fds.size(); ++i) {
-        if (!(fds[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
-        Client& c = clients[i - 1];
-        uint8_t chunk[512];
-        ssize_t k = recv(c.fd, chunk, sizeof(chunk), 0);
-        bool keep_open = k > 0;
-        if (keep_open) {
-          c.buffer.insert(c.buffer.end(), chunk, chunk + k);
-          keep_open = serve(core, c);
-        } else if (k < 0 && (errno == EINTR || errno == EAGAIN)) {
-          keep_open = true;
-        }
-        if (!keep_open) {
-          close(c.fd);
-          c.fd = -1;
-        }
-      }
-      std::vector<Client> open;
-      for (Client& c : clients) {
-        if (c.fd >= 0) open.push_back(c);
-      }
-      clients.swap(open);
     }
+    // Every connection every pass (also the silent ones: their idle time is checked).
+    for (auto it = clients.begin(); it != clients.end();) {
+      plc::Verdict v = plc::serve_once(core, it->link, it->connection, t);
+      it = v == plc::kKeep ? it + 1 : drop(it, v);
+    }
+    const uint64_t served_us = now_us() - serve_start_us;
+    if (served_us > longest_serve_us) longest_serve_us = static_cast<uint32_t>(served_us);
     t = now_ms();
     if (static_cast<uint32_t>(t - last_scan) >= static_cast<uint32_t>(o.scan_ms)) {
       double dt = static_cast<double>(t - last_scan);
+      if (t - last_scan > longest_scan_ms) longest_scan_ms = t - last_scan;
       last_scan = t;
       core.scan(t);
       ++scans;
@@ -309,6 +356,8 @@ int main(int argc, char** argv) {
         core.set_measured(static_cast<uint8_t>(ch), plc::input_to_counts(plc::counts_to_input(p)));
       }
       const plc::Records& r = core.records();
+      now_state += std::to_string(r.busy) + "," + std::to_string(r.owner_lost) + "," +
+                   std::to_string(core.owner()) + ",";
       now_state += std::to_string(r.stale + r.unsequenced) + "," +
                    std::to_string(r.watchdog_trips) + "," +
                    std::to_string(r.out_of_map) + "," + std::to_string(r.over_limit);
@@ -316,15 +365,15 @@ int main(int argc, char** argv) {
       if (now_state != written || static_cast<uint32_t>(t - last_state) >= 100) {
         written = now_state;
         last_state = t;
-        write_state(o, core, max_out, scans);
+        write_state(o, core, max_out, scans, longest_scan_ms);
       }
     }
   }
   // Shutdown: the outputs vent (the device loses power the same way).
   core.power_up();
   core.scan(now_ms());
-  for (const Client& c : clients) close(c.fd);
+  for (const Client& c : clients) close(c.link.fd);
   close(listener);
-  write_state(o, core, max_out, scans);
+  write_state(o, core, max_out, scans, longest_scan_ms);
   return 0;
 }

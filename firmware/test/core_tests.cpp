@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "plc_core.h"
+#include "plc_link.h"
 #include "scaling.h"
 
 namespace {
@@ -28,6 +29,7 @@ const char* current_test = "";
 const uint8_t kUnit = 1;
 const uint8_t kN = 18;
 const uint16_t kPmax = 3750;
+const plc::ConnectionId kConn = 1;  // the one client of most tests
 
 plc::Config config() { return plc::Config{kUnit, kN, kPmax, 500}; }
 
@@ -72,7 +74,7 @@ Bytes write6_pdu(uint16_t address, uint16_t value) {
 // The PDU of the answer (empty: no answer).
 Bytes ask(plc::Core& core, const Bytes& frame) {
   uint8_t out[plc::kMaxAdu];
-  size_t n = core.handle(frame.data(), frame.size(), out, sizeof(out));
+  size_t n = core.handle(kConn, frame.data(), frame.size(), out, sizeof(out));
   if (n == 0) return Bytes();
   return Bytes(out + plc::kMbapLength, out + n);
 }
@@ -103,7 +105,7 @@ void test_mbap_echo_and_read_holding() {
   plc::Core core(config());
   uint8_t out[plc::kMaxAdu];
   Bytes f = adu(read_pdu(3, 0, kN + 2), kUnit, 0xbeef);
-  size_t n = core.handle(f.data(), f.size(), out, sizeof(out));
+  size_t n = core.handle(kConn, f.data(), f.size(), out, sizeof(out));
   CHECK(n == plc::kMbapLength + 2 + 2 * (kN + 2));
   CHECK(out[0] == 0xbe && out[1] == 0xef && out[2] == 0 && out[3] == 0);
   CHECK(((out[4] << 8) | out[5]) == static_cast<int>(n - 6));
@@ -358,7 +360,7 @@ void test_fuzzed_frames_stay_in_bounds() {
     frame[6] = kUnit;
     frame[7] = (i % 3 == 0) ? 16 : frame[7];
     uint8_t out[plc::kMaxAdu];
-    size_t n = core.handle(frame, len, out, sizeof(out));
+    size_t n = core.handle(kConn, frame, len, out, sizeof(out));
     CHECK(n <= plc::kMaxAdu);
     core.scan(static_cast<uint32_t>(i));
     for (uint8_t ch = 0; ch < kN; ++ch) {
@@ -368,6 +370,147 @@ void test_fuzzed_frames_stay_in_bounds() {
       }
     }
   }
+}
+
+Bytes ask_from(plc::Core& core, plc::ConnectionId connection, const Bytes& pdu) {
+  uint8_t out[plc::kMaxAdu];
+  Bytes f = adu(pdu);
+  size_t n = core.handle(connection, f.data(), f.size(), out, sizeof(out));
+  if (n == 0) return Bytes();
+  return Bytes(out + plc::kMbapLength, out + n);
+}
+
+void test_a_second_connection_is_refused_with_06_whole() {
+  plc::Core core(config());
+  uint32_t t = arm(core, 0);  // kConn holds the claim
+  ask_pdu(core, command_pdu({500}, 10));
+  CHECK(is_exception(ask_from(core, 2, command_pdu({3000}, 2000)), 16, 6));
+  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 1, 4242)), 6, 6));
+  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 2, 1)), 6, 2));  // 02 before 06
+  CHECK(ask_from(core, 2, read_pdu(3, 0, 1)).size() == 4);               // reads are anyone's
+  core.scan(t + 10);
+  CHECK(core.holding(0) == 500 && core.holding(kN + 1) != 4242 && core.records().busy == 2);
+}
+
+void test_the_holder_s_close_vents_and_frees_the_claim() {
+  plc::Core core(config());
+  uint32_t t = arm(core, 0);
+  ask_pdu(core, command_pdu({2000}, 40000));
+  core.scan(t + 10);
+  CHECK(core.output_counts(0) == 2000);
+  core.connection_closed(2);  // not the holder: nothing
+  CHECK(core.output_counts(0) == 2000 && core.owner() == kConn);
+  core.connection_closed(kConn);
+  CHECK(core.vented() && core.output_counts(0) == 0 && core.holding(0) == 0 &&
+        core.owner() == 0 && core.records().owner_lost == 1);
+  // The next writer claims; its first number is taken though far behind the last one.
+  CHECK(ask_from(core, 2, command_pdu({700}, 5)).size() == 5 && core.holding(kN) == 5);
+  CHECK(core.owner() == 2);
+  ask_from(core, 2, write6_pdu(kN + 1, static_cast<uint16_t>(core.holding(kN + 1) + 1)));
+  ask_from(core, 2, command_pdu({700}, 6));
+  core.scan(t + 20);
+  CHECK(!core.vented() && core.output_counts(0) == 700);
+}
+
+void test_a_silent_holder_loses_the_claim_with_the_watchdog() {
+  plc::Core core(config());
+  uint32_t t = arm(core, 0);
+  ask_pdu(core, command_pdu({2000}, 1));
+  for (uint32_t k = 1; k < 60; ++k) {  // another client's heartbeats, refused, every 10 ms
+    ask_from(core, 2, write6_pdu(kN + 1, static_cast<uint16_t>(1000 + k)));
+    core.scan(t + 10 * k);
+    if (10 * k < 500) CHECK(core.owner() == kConn && core.output_counts(0) == 2000);
+    // Vented and free at the watchdog's time; then the other client's next write claims it,
+    // and its heartbeat arms a watchdog whose commands were zeroed: nothing reaches an output.
+    if (10 * k >= 500) CHECK(core.owner() != kConn && core.output_counts(0) == 0);
+    if (10 * k == 500) CHECK(core.owner() == 0 && core.vented());
+  }
+  CHECK(core.records().watchdog_trips == 1 && core.owner() == 2);
+}
+
+void test_a_claim_without_a_heartbeat_expires() {
+  plc::Core core(config());
+  core.scan(0);
+  ask_pdu(core, command_pdu({1000}, 1));  // claims, never beats
+  core.scan(100);
+  CHECK(core.owner() == kConn && core.vented());
+  core.scan(599);
+  CHECK(core.owner() == kConn);
+  core.scan(600);
+  CHECK(core.owner() == 0);
+  CHECK(ask_from(core, 2, write6_pdu(kN + 1, 9)).size() == 5 && core.owner() == 2);
+}
+
+// A platform connection for serve_once: what arrived, room to send, the peer's state.
+struct FakeLink {
+  Bytes in;
+  Bytes sent;
+  int room = 2048;
+  bool open = true;
+  int writes = 0;
+  int available() { return static_cast<int>(in.size()); }
+  int read(uint8_t* buf, size_t n) {
+    if (n > in.size()) n = in.size();
+    memcpy(buf, in.data(), n);
+    in.erase(in.begin(), in.begin() + static_cast<long>(n));
+    return static_cast<int>(n);
+  }
+  int availableForWrite() { return room; }
+  size_t write(const uint8_t* buf, size_t n) {
+    ++writes;
+    sent.insert(sent.end(), buf, buf + n);
+    return n;
+  }
+  bool peer_open() { return open || !in.empty(); }
+};
+
+void test_serve_once_answers_one_request_per_pass() {
+  plc::Core core(config());
+  plc::Connection c;
+  plc::open_connection(c, kConn, 0);
+  FakeLink link;
+  Bytes two = adu(read_pdu(3, 0, 1));
+  Bytes second = adu(read_pdu(3, 0, 2));
+  two.insert(two.end(), second.begin(), second.end());
+  link.in = two;
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kKeep);   // the header
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kKeep);   // the rest: answered
+  CHECK(link.writes == 1 && link.in.size() == second.size());
+  CHECK(plc::serve_once(core, link, c, 2) == plc::kKeep);
+  CHECK(plc::serve_once(core, link, c, 2) == plc::kKeep);
+  CHECK(link.writes == 2 && link.in.empty());
+}
+
+void test_serve_once_never_writes_what_does_not_fit() {
+  plc::Core core(config());
+  plc::Connection c;
+  plc::open_connection(c, kConn, 0);
+  FakeLink link;
+  link.room = 10;  // an answer of 7 + 2 + 2 * 20 bytes does not fit: the peer stopped reading
+  link.in = adu(read_pdu(3, 0, kN + 2));
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kKeep);
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kStalled && link.writes == 0);
+}
+
+void test_serve_once_reaps_dead_and_idle_connections() {
+  plc::Core core(config());
+  plc::Connection c;
+  plc::open_connection(c, kConn, 0);
+  FakeLink link;
+  CHECK(plc::serve_once(core, link, c, plc::kIdleMs - 1) == plc::kKeep);
+  CHECK(plc::serve_once(core, link, c, plc::kIdleMs) == plc::kIdle);
+  plc::open_connection(c, kConn, 0);
+  link.in = Bytes(5, 0);  // half a header, then nothing
+  CHECK(plc::serve_once(core, link, c, 0) == plc::kKeep);
+  CHECK(plc::serve_once(core, link, c, plc::kPartialFrameMs - 1) == plc::kKeep);
+  CHECK(plc::serve_once(core, link, c, plc::kPartialFrameMs) == plc::kIdle);
+  plc::open_connection(c, kConn, 0);
+  link.open = false;
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kPeerClosed);
+  plc::open_connection(c, kConn, 0);
+  link.open = true;
+  link.in = {0, 1, 0, 0, 0x40, 0, 1};  // a length no Modbus TCP frame has
+  CHECK(plc::serve_once(core, link, c, 1) == plc::kBadFrame);
 }
 
 }  // namespace
@@ -400,6 +543,13 @@ int main() {
   RUN(test_input_registers_carry_measured);
   RUN(test_scaling);
   RUN(test_fuzzed_frames_stay_in_bounds);
+  RUN(test_a_second_connection_is_refused_with_06_whole);
+  RUN(test_the_holder_s_close_vents_and_frees_the_claim);
+  RUN(test_a_silent_holder_loses_the_claim_with_the_watchdog);
+  RUN(test_a_claim_without_a_heartbeat_expires);
+  RUN(test_serve_once_answers_one_request_per_pass);
+  RUN(test_serve_once_never_writes_what_does_not_fit);
+  RUN(test_serve_once_reaps_dead_and_idle_connections);
   printf("core_tests: %d checks, %d failed\n", checks, failures);
   return failures == 0 ? 0 : 1;
 }

@@ -48,10 +48,16 @@ void Core::power_up() {
   last_heartbeat_ = 0;
   last_change_ms_ = 0;
   bad_frame_ = false;
+  owner_ = 0;
+  claim_pending_ = false;
+  owner_heard_ms_ = 0;
+  handling_ = 0;
 }
 
-size_t Core::handle(const uint8_t* req, size_t len, uint8_t* out, size_t cap) {
+size_t Core::handle(ConnectionId connection, const uint8_t* req, size_t len, uint8_t* out,
+                    size_t cap) {
   bad_frame_ = false;
+  handling_ = connection;
   if (cap < kMaxAdu) return 0;
   // MBAP: transaction id (2), protocol id (2, always 0), length (2: unit id + PDU), unit id.
   if (len < kMbapLength + 1 || be16(req + 2) != 0 || be16(req + 4) != len - 6) {
@@ -112,6 +118,7 @@ size_t Core::write_single(const uint8_t* pdu, size_t len, uint8_t* pdu_out) {
     ++records_.out_of_map;
     return exception(pdu[0], kIllegalDataAddress, pdu_out);
   }
+  if (!may_write(handling_)) return exception(pdu[0], kServerDeviceBusy, pdu_out);
   apply_write(address, pdu + 3, 1);
   memcpy(pdu_out, pdu, 5);  // the normal answer echoes the request, also when it was undone
   return 5;
@@ -131,9 +138,44 @@ size_t Core::write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out) {
     ++records_.out_of_map;
     return exception(pdu[0], kIllegalDataAddress, pdu_out);
   }
+  if (!may_write(handling_)) return exception(pdu[0], kServerDeviceBusy, pdu_out);
   apply_write(start, pdu + 6, quantity);
   memcpy(pdu_out, pdu, 5);
   return 5;
+}
+
+bool Core::may_write(ConnectionId connection) {
+  if (owner_ != 0 && owner_ != connection) {
+    // Refused whole, heartbeat included: another client's heartbeat must never keep the
+    // watchdog armed for commands it did not write.
+    ++records_.busy;
+    return false;
+  }
+  if (owner_ == 0 && connection != 0) {
+    owner_ = connection;
+    claim_pending_ = true;
+    // A new writer's numbers have no relation to the last one's: its first is taken, as after
+    // power-up. Writes of an earlier connection are refused above, so none can overtake it.
+    has_reference_ = false;
+  }
+  return true;
+}
+
+void Core::connection_closed(ConnectionId connection) {
+  if (connection == 0 || connection != owner_) return;
+  owner_ = 0;
+  claim_pending_ = false;
+  ++records_.owner_lost;
+  if (armed_) ++records_.watchdog_trips;  // tripped by the close, not by the time
+  vent_now();
+}
+
+void Core::vent_now() {
+  armed_ = false;
+  for (uint8_t ch = 0; ch < config_.channels; ++ch) {
+    holding_[ch] = 0;
+    outputs_[ch] = 0;
+  }
 }
 
 void Core::apply_write(uint16_t start, const uint8_t* be_values, uint16_t count) {
@@ -187,10 +229,21 @@ void Core::scan(uint32_t now_ms) {
   } else if (heartbeat != last_heartbeat_) {
     last_heartbeat_ = heartbeat;
     last_change_ms_ = now_ms;
-    armed_ = true;
+    // Only the claim holder can write the heartbeat, so a change is its proof of life.
+    armed_ = owner_ != 0;
+    owner_heard_ms_ = now_ms;
   } else if (armed_ && static_cast<uint32_t>(now_ms - last_change_ms_) >= config_.watchdog_ms) {
     armed_ = false;
     ++records_.watchdog_trips;
+  }
+  if (claim_pending_) {  // the claim's time: the first scan that sees it
+    claim_pending_ = false;
+    owner_heard_ms_ = now_ms;
+  }
+  // An owner silent for the watchdog's time (a half-open link, a client that stopped) loses
+  // the claim: another client may then write. The watchdog has vented by then.
+  if (owner_ != 0 && static_cast<uint32_t>(now_ms - owner_heard_ms_) >= config_.watchdog_ms) {
+    owner_ = 0;
   }
   for (uint8_t ch = 0; ch < config_.channels; ++ch) {
     if (!armed_) holding_[ch] = 0;

@@ -24,7 +24,11 @@ enum Exception : uint8_t {
   kIllegalFunction = 0x01,
   kIllegalDataAddress = 0x02,
   kIllegalDataValue = 0x03,
+  kServerDeviceBusy = 0x06,  // a write from a connection that does not hold the write claim
 };
+
+// A connection as the platform numbers it (never reused while the program runs); 0 is none.
+typedef uint32_t ConnectionId;
 
 struct Config {
   uint8_t unit_id;        // Modbus unit id this endpoint answers to (1..247)
@@ -46,7 +50,9 @@ struct Records {
   uint32_t out_of_map;           // write requests refused with exception 02
   uint32_t stale;                // sequenced writes refused as not newer
   uint32_t unsequenced;          // command writes without a sequence number, refused
-  uint32_t watchdog_trips;       // armed -> tripped transitions
+  uint32_t watchdog_trips;       // armed -> tripped transitions (silence, or the holder's close)
+  uint32_t busy;                 // writes refused with exception 06: another connection's claim
+  uint32_t owner_lost;           // the claim holder's connection closed (vented if armed)
   uint16_t max_written[kMaxChannels];  // largest count ever sent per channel (before the clamp)
   uint16_t over_limit_list[kMaxListed][2];  // (address, value)
   uint16_t out_of_map_list[kMaxListed][2];  // (first address, first value)
@@ -61,11 +67,18 @@ class Core {
   // The records are kept (a restart of the program is not a new test).
   void power_up();
 
-  // One Modbus TCP request (MBAP header + PDU, `len` bytes) -> the answer in `out` (capacity
-  // `cap`, at least kMaxAdu). Returns the answer's length; 0 means no answer at all: another
+  // One Modbus TCP request (MBAP header + PDU, `len` bytes) from `connection` -> the answer in
+  // `out` (capacity `cap`, at least kMaxAdu). A write is taken only from the connection that
+  // holds the write claim (the first to write while it is free claims it); any other gets
+  // exception 06 and changes nothing. Returns the answer's length; 0 means no answer at all: another
   // unit id, or a frame that is not Modbus TCP (the caller then drops the connection if
   // bad_frame() says so).
-  size_t handle(const uint8_t* req, size_t len, uint8_t* out, size_t cap);
+  size_t handle(ConnectionId connection, const uint8_t* req, size_t len, uint8_t* out,
+                size_t cap);
+  // The platform closed `connection` (the peer left, or it was reaped). If it held the write
+  // claim: every command register to 0 and the outputs vented now, the claim free.
+  void connection_closed(ConnectionId connection);
+  ConnectionId owner() const { return owner_; }
   // True when the last handle() saw a broken MBAP header (protocol id, length): the stream
   // cannot be re-synchronised, the connection should be closed.
   bool bad_frame() const { return bad_frame_; }
@@ -93,8 +106,12 @@ class Core {
                         bool holding);
   size_t write_single(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
   size_t write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
+  // False (and exception 06 in pdu_out) when `connection` may not write now; claims a free
+  // claim for it.
+  bool may_write(ConnectionId connection);
   // Applies a write that lies inside the holding registers: the gate, the clamp, the records.
   void apply_write(uint16_t start, const uint8_t* be_values, uint16_t count);
+  void vent_now();
 
   Config config_;
   uint16_t holding_[kMaxChannels + 2];
@@ -107,6 +124,10 @@ class Core {
   uint16_t last_heartbeat_;
   uint32_t last_change_ms_;
   bool bad_frame_;
+  ConnectionId owner_;       // holds the write claim; 0: free
+  bool claim_pending_;       // claimed since the last scan (its time is taken there)
+  uint32_t owner_heard_ms_;  // the claim, or the owner's last heartbeat change
+  ConnectionId handling_;    // the connection of the request being handled
   Records records_;
 };
 
