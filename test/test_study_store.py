@@ -225,3 +225,11 @@ def test_analyze_refuses_a_folder_that_is_no_study_in_one_line(tmp_path, capsys)
     assert analyze.main([str(tmp_path / 's')]) == 0
     out = capsys.readouterr().out
     assert 'accuracy: h_error_deg' in out and 'accuracy: v_error_deg' in out
+
+
+def test_docs_study_describes_every_column_and_parameter():
+    text = (HERE.parent / 'docs' / 'study.md').read_text()
+    for name, (unit, _) in COLUMNS.items():
+        assert f'| `{name}` | {unit} |' in text, f'docs/study.md: no row for the column {name} ({unit})'
+    for name in DESIGN.as_dict():
+        assert f'| `{name}` |' in text, f'docs/study.md: no row for the parameter {name}'
