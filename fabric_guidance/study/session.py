@@ -42,6 +42,8 @@ PRESS_KEYS = ('stamp', 'received', 'resolved', 'source', 'gaze_t', 'error_deg', 
               'accepted', 'reason')
 #: The columns a session fills (store adds the rest).
 ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLUMNS)
+#: The most gaze samples kept, whatever their stamps (2 s at 1 kHz).
+MAX_GAZE_SAMPLES = 2000
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
 
@@ -105,7 +107,8 @@ class Session:
         self._phase = 'idle' if self.blocks else 'done'
         self._bi = 0                       # block index
         self._ti = 0                       # trial index within the block
-        self._history: deque[GazeSample] = deque()
+        # bounded by time (gaze_history_s) and, whatever the stamps, by count
+        self._history: deque[GazeSample] = deque(maxlen=MAX_GAZE_SAMPLES)
         self._rest_end: float | None = None
         self._paused_from: str | None = None
         self._last_stamp: float | None = None
@@ -324,6 +327,9 @@ class Session:
         if self._pending is not None and t >= self._pending.stamp + d.max_press_age_s:
             self._resolve(t, step)
         tr = self._trial
+        if tr is not None and t >= tr['end'] and self._pending is not None and self._pending.stamp <= tr['end']:
+            self._resolve(t, step)      # pressed in time: judged on the samples there are
+            tr = self._trial
         if tr is not None and t >= tr['end']:
             if d.protocol == 'speed':
                 self._finish_speed(t, step)
