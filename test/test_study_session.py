@@ -264,3 +264,18 @@ def test_the_gaze_history_has_a_hard_cap():
     for k in range(3 * 2000):
         s.gaze(20.0 + k * 1e-6, 0.0, 0.0)        # stamps a microsecond apart: time alone would keep all
     assert len(s._history) == 2000
+
+
+def test_the_context_goes_into_the_rows_and_can_change():
+    s = accuracy_session()
+    s.set_context(clock_state='synced', calibration_file='P1.yaml', calibration_sha256='ab' * 32)
+    with pytest.raises(ValueError, match='unknown key'):
+        s.set_context(colour='red')
+    t = into_trial(s)
+    first = s.skip(t + 1.0).rows[0]
+    s.set_context(clock_state='free')
+    s.tick(t + 3.0)
+    second = s.skip(t + 4.0).rows[0]
+    assert (first['clock_state'], second['clock_state']) == ('synced', 'free')
+    assert second['calibration_file'] == 'P1.yaml' and second['gaze_source'] == 'test'
+    assert Session(s.design, []).start(0.0).refused == 'nothing to run: every block of this session is done'

@@ -99,11 +99,8 @@ class Session:
         for b in self.blocks:
             if b.protocol != design.protocol:
                 raise ValueError(f'block {b.key}: protocol {b.protocol}, the design is {design.protocol}')
-        context = dict(context or {})
-        unknown = sorted(set(context) - set(CONTEXT_COLUMNS) - {'scene'})
-        if unknown:
-            raise ValueError(f'session context: unknown key(s) {", ".join(unknown)}')
-        self.context = context
+        self.context: dict = {}
+        self.set_context(**(context or {}))
         self._phase = 'idle' if self.blocks else 'done'
         self._bi = 0                       # block index
         self._ti = 0                       # trial index within the block
@@ -117,6 +114,14 @@ class Session:
         self._last_result = ''
         self._dummy_set = 0
         self._trial: dict | None = None
+
+    def set_context(self, **values) -> None:
+        """Change what the next rows carry (e.g. the clock state as it changes); ValueError for a
+        key that is not a context column."""
+        unknown = sorted(set(values) - set(CONTEXT_COLUMNS) - {'scene'})
+        if unknown:
+            raise ValueError(f'session context: unknown key(s) {", ".join(unknown)}')
+        self.context.update(values)
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -161,10 +166,12 @@ class Session:
     def start(self, t: float) -> Step:
         """Begin: set the first block's condition, vent, rest, then its first trial."""
         step = Step()
-        if self._phase != 'idle':
+        if not self.blocks:
+            step.refused = 'nothing to run: every block of this session is done'
+        elif self._phase != 'idle':
             step.refused = f'the session has already started (phase {self._phase})'
-            return step
-        self._enter_block(t, step)
+        if step.refused is None:
+            self._enter_block(t, step)
         return step
 
     def tick(self, t: float) -> Step:
