@@ -18,7 +18,8 @@ from rclpy.time import Time
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
-from fabric_guidance.core import Calibration, ChannelMap, ray_orientation
+from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
+from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance.nodes.pressure_controller import PressureController
 from fabric_guidance.process_graph import CONFIG, fresh_domain_id
 
@@ -31,9 +32,9 @@ OK = TransitionCallbackReturn.SUCCESS
 FAST_CAL = dict(calibration_steps=3, calibration_dwell_s=0.5, calibration_rest_s=0.5, calibration_window_s=0.1)
 
 
-def direction(yaw_deg):
-    y = math.radians(yaw_deg)
-    return np.array([math.cos(y), math.sin(y), 0.0])
+def direction(yaw_deg, pitch_deg=0.0):
+    y, p = math.radians(yaw_deg), math.radians(pitch_deg)
+    return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
 
 
 class Rig:
@@ -51,7 +52,7 @@ class Rig:
             self.sent.append(np.array(node.command_msg.data))
         node.publish = capture
 
-    def gaze(self, yaw_deg=0.0, dt=1 / 30):
+    def gaze(self, yaw_deg=0.0, pitch_deg=0.0, dt=1 / 30):
         """One gaze sample dt after the last (it steps the node, step_on_gaze)."""
         self.clock += dt
         if self.ros_time:
@@ -59,7 +60,7 @@ class Rig:
         msg = PoseStamped()
         msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
         o = msg.pose.orientation
-        o.x, o.y, o.z, o.w = ray_orientation(direction(yaw_deg))
+        o.x, o.y, o.z, o.w = ray_orientation(direction(yaw_deg, pitch_deg))
         self.node.on_gaze(msg)
 
     def gazes(self, seconds, yaw_deg=0.0):
@@ -299,3 +300,47 @@ def test_a_missing_calibration_file_configures_without_one_and_a_new_wearer_cali
         assert 'no previous calibration of alice' in status[-1], status[-1]
         assert 'is kept' not in status[-1]
         assert not (tmp_path / 'calibrations' / 'alice.yaml').exists()
+
+
+ALICE = [PowerLaw(18.0, 0.7, 22.0), PowerLaw(25.0, 0.6, 18.0), PowerLaw(45.0, 0.5, 28.0), PowerLaw(35.0, 0.6, 30.0)]
+SIGN = {'left': (1, 0), 'right': (-1, 0), 'down': (0, -1), 'up': (0, 1)}
+
+
+def answer(rig, laws, seconds):
+    """The wearer of `laws` looking where each command turns them, for `seconds` of gaze."""
+    for _ in range(int(round(seconds * 30))):
+        per_dir = CMAP.to_directions(rig.sent[-1], 'suit') if rig.sent else np.zeros(4)
+        yaw = pitch = 0.0
+        for d, p, law in zip(DIRECTIONS, per_dir, laws):
+            if p > 0:
+                angle = law.theta(p, 375.0)
+                yaw, pitch = yaw + SIGN[d][0] * angle, pitch + SIGN[d][1] * angle
+        rig.gaze(yaw, pitch)
+
+
+def test_a_session_sets_wearer_and_condition_then_calibrates_and_guides_at_once(tmp_path):
+    """What a study session does over set_parameters: a new participant (no file) and a
+    condition in one call, start_calibration, and guidance on the new file from the next step."""
+    with controller(tmp_path, **FAST_CAL) as rig:
+        results = rig.node.set_parameters_atomically([Parameter('wearer', value='p01'),
+                                                      Parameter('condition', value=2)])
+        assert results.successful, results.reason
+        assert rig.node.calibration is None, "another person's calibration is dropped"
+        rig.gazes(0.2)
+        assert rig.start_calibration().success
+        answer(rig, ALICE, 9.0)
+        path = tmp_path / 'calibrations' / 'p01.yaml'
+        assert rig.node.procedure is None and path.is_file()
+        assert rig.node.calibration.wearer == 'p01'
+        rig.target('t1', 40.0)
+        rig.gazes(0.2)
+        fitted = Calibration.load(path).laws[0].pressure(40.0)
+        assert rig.last()['L1'] == pytest.approx(fitted) and abs(fitted - ALICE[0].pressure(40.0)) < 5.0
+
+
+def test_a_bag_recorded_before_the_clock_field_still_replays():
+    """controller_input of 18 values (before `clock`): decoded with the stall watch on t."""
+    from fabric_guidance.bag.controller_io import FIELDS, decode_input
+    data = [0.0] * (len(FIELDS) - 1)
+    assert decode_input(data).clock is None
+    assert decode_input(data + [5.0]).clock == 5.0
