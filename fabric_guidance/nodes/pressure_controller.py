@@ -256,7 +256,7 @@ class PressureController(LiveParameters, ManagedNode):
         """What a failed calibration leaves in use, truthfully."""
         if self.calibration is None:
             return f'no previous calibration of {self.wearer}: no guidance until one succeeds'
-        return f'the calibration in use ({self.calibration.wearer}) is kept'
+        return f'the previous calibration is kept ({self.calibration.wearer})'
 
     def end_calibration(self, why: str) -> None:
         """End a running calibration now, failed (the caller vents)."""
