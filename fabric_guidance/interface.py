@@ -142,7 +142,8 @@ TOPICS: tuple[Topic, ...] = (
           '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '
-          '`failed: <reason>; the previous calibration is kept`'),
+          '`failed: <reason>; the previous calibration is kept (<its wearer>)` or, with none, '
+          '`failed: <reason>; no previous calibration of <wearer>: no guidance until one succeeds`'),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
           'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
           'bag_recorder, headset_display', '',

@@ -123,6 +123,16 @@ def test_the_schedule_is_the_seeds_and_covers_every_kind_each_round():
     assert all(p.deadline_s is None or p.hold_s > p.deadline_s for p in a)
 
 
+def test_every_round_ends_with_the_operators_calls_and_a_seeds_first_faults_stay():
+    a = chaos.schedule(7, 42)
+    rounds = [a[:21], a[21:42]]     # 18 process, link and gaze faults, 2 operator's calls, 1 second writer
+    for r in rounds:
+        assert [p.action for p in r[-3:]] == ['disable', 'vent_cycle', 'two_writers']
+        assert r[-3].phase == 'calibration' and r[-3].deadline_s == chaos.OPERATOR_VENT_S
+    # The faults before them are drawn as before the operator's calls existed (seed 19's five).
+    assert [p.kind for p in chaos.schedule(19, 5)] == [p.kind for p in chaos.schedule(19, 40)[:5]]
+
+
 # ------------------------------------------------------------------- the supervisor alone
 @pytest.mark.graph
 def test_the_supervisor_restarts_a_killed_node_and_stop_all_leaves_nothing(tmp_path):
@@ -165,3 +175,21 @@ def test_a_short_seeded_chaos_run_holds_every_invariant(tmp_path, capsys):
     assert killed and all(f['enabled_after_s'] is not None for f in killed)
     assert summary['restarts'] >= 3   # the controller, the bridge, the display
     assert '| fault | count |' in (tmp_path / 'chaos.md').read_text()
+
+
+@pytest.mark.graph
+def test_the_operators_enable_false_and_vent_cycle_hold_until_enable(tmp_path):
+    """enable false during a calibration, and vent then deactivate/activate: every register at 0
+    within OPERATOR_VENT_S of the call, nothing applied before the operator's enable (read from
+    the mock PLC's register log), guidance back after it."""
+    plan = [chaos.Planned('disable', (), 'calibration', 1.6), chaos.Planned('vent_cycle', (), 'guidance', 1.6),
+            chaos.Planned('vent_cycle', (), 'calibration', 1.6)]
+    rows, violations = chaos.run_chaos(0, len(plan), tmp_path, print, plan=plan)
+    assert violations == []
+    summary = json.loads((tmp_path / 'chaos.json').read_text())
+    assert len(summary['faults_run']) == 3
+    for f in summary['faults_run']:
+        assert f['vent_s'] is not None and f['vent_s'] <= chaos.OPERATOR_VENT_S, f
+        assert f['enabled_after_s'] is not None and f['enabled_after_s'] >= 1.6, f
+        print(f"{f['kind']} ({f['phase']}): registers at 0 {f['vent_s']:.3f} s after the call "
+              f"(deadline {chaos.OPERATOR_VENT_S:.3f} s)")

@@ -214,6 +214,42 @@ def test_pressure_controller_guides_only_while_active_and_refuses_a_bad_file(tmp
         graph.stop_all(check=False)
 
 
+def test_an_operators_vent_holds_through_deactivate_and_activate(tmp_path):
+    """A controller that guides once active (start_enabled true, the simulated graph's) is vented
+    by the operator, then deactivated and activated: it stays vented with gaze and target
+    present until the operator's enable."""
+    from std_srvs.srv import Trigger
+    from test_node_pressure_controller import SIM_CAL, FakeUpstream, channels_equal
+    graph = Graph(tmp_path / 'logs')
+    probe = upstream = None
+    try:
+        graph.start('pressure_controller', PARAMS_FILES, calibration_file='config/calibrations/sim-wearer.yaml',
+                    calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)
+        probe = Probe(graph.domain_id)
+        commands = probe.subscribe(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
+        upstream = FakeUpstream(probe)
+        f40 = SIM_CAL.laws[0].pressure(40.0)
+        upstream.activate('t1', 40.0)
+        wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 30.0, what='guiding')
+        t0 = time.monotonic()
+        assert probe.call(Trigger, '/vent', Trigger.Request()).success
+        wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
+        TIMES.record('pressure_controller vent -> zeros published', time.monotonic() - t0, 1.0)
+        assert transition(probe, 'pressure_controller', Transition.TRANSITION_DEACTIVATE)[0]
+        assert transition(probe, 'pressure_controller', Transition.TRANSITION_ACTIVATE)[0]
+        n = len(commands)
+        wait_until(lambda: len(commands) > n + 30, 10.0, what='a second of commands once active again')
+        assert all(not np.any(m.data) for m in commands[n:]), 'guiding again without the operator\'s enable'
+        assert probe.call(SetBool, f'/{ENABLE}', SetBool.Request(data=True)).success
+        wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding once enabled')
+    finally:
+        if upstream is not None:
+            upstream.close()
+        if probe is not None:
+            probe.close()
+        graph.stop_all(check=False)
+
+
 def test_a_transition_that_raises_goes_through_error_processing_and_releases():
     """rclpy turns an exception in a transition into error processing: ManagedNode releases
     (vents) there and ends unconfigured, from where configure works again."""

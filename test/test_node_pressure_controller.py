@@ -376,3 +376,41 @@ def test_a_wearer_who_makes_no_progress_is_vented_and_told_why(controller):
     f30 = SIM_CAL.laws[0].pressure(30.0)
     wait_until(lambda: channels_equal(probe, {'L1': f30, 'L2': f30}), 10.0,
                what='guiding to the next target')
+
+
+def set_parameters(probe, **values):
+    """`ros2 param set` as a service call: the results, one per parameter."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+    return probe.call(SetParameters, '/pressure_controller/set_parameters', request).results
+
+
+def test_parameters_set_over_the_service_take_effect_at_once_or_are_refused(controller):
+    """p_max_kpa lowered through the parameter service clamps the next commands; above the
+    start-up ceiling and read-only parameters are refused with the reason; condition 3 moves
+    guidance to the arm at once."""
+    graph, probe, upstream, commands = controller
+    guide_to_left40(upstream, probe, 'guiding')
+    t0 = time.monotonic()
+    (result,) = set_parameters(probe, p_max_kpa=100.0)
+    assert result.successful, result.reason
+    wait_until(lambda: channels_equal(probe, {'L1': 100.0, 'L2': 100.0}) or channels_equal(probe, {}), 2.0,
+               what='the new limit in force')
+    n = len(commands)
+    print(f'p_max_kpa 100 in force {time.monotonic() - t0:.3f} s after the call')
+    for step in range(20):            # the error grows: Eq. 5 raises the pressure up to the limit
+        upstream.yaw = -0.5 * step
+        time.sleep(0.02)
+    wait_until(lambda: len(commands) > n + 20, 5.0, what='commands under the new limit')
+    assert max(max(m.data) for m in commands[n:]) <= 100.0
+    (above,) = set_parameters(probe, p_max_kpa=400.0)
+    assert not above.successful and 'ceiling' in above.reason, above.reason
+    (read_only,) = set_parameters(probe, step_on_gaze=False)
+    assert not read_only.successful
+    upstream.yaw = 0.0
+    assert set_parameters(probe, p_max_kpa=375.0, condition=3)[0].successful
+    upstream.activate('t2', 0.0, 20.0)
+    f_up = SIM_CAL.laws[3].pressure(20.0)
+    wait_until(lambda: channels_equal(probe, {'arm_i': f_up, 'arm_iv': f_up}, tol=1e-3), 10.0,
+               what='condition 3 set at run time: arm (i) and (iv) at f_up(20)')

@@ -14,12 +14,16 @@ that step's pressure_command, with this fixed layout (index: meaning):
   11     enabled     1: guidance enabled (not disabled or vented by service)
   12     has_target  1: an active target name and a position published after it
   13     reset       1: the controller was vented since the previous step (new target,
-                     its position, enable false, vent service): Eq. 5 starts again
+                     its position, enable, vent service): Eq. 5 starts again, a stall is
+                     forgotten; 2: vented by deactivate/activate: Eq. 5 starts again, a
+                     latched stall and the stall watch are kept
   14     calibrating 1: Algorithm 1 runs; the command is the calibration's, not Eq. 5's
   15     condition   guidance condition 1-4
   16     step        number of this control step since start-up (0-based)
   17     command     index of the pressure_command this step publishes, counting every
                      command the node published (services and shutdown included), 0-based
+  18     clock       the node's steady clock at the step [s]: what the stall watch ran on
+                     (a bag recorded before it has 18 values: the replay uses t)
 
 The length is INPUT_SIZE; layout.dim is one dimension (size and stride INPUT_SIZE) whose label is
 FIELDS joined by commas (the names above, as nodes/array_layout.py labels every array of the
@@ -44,10 +48,13 @@ PARAMETERS_SCHEMA = 1
 
 T, ORIGIN, DIRECTION, TARGET = 0, slice(1, 4), slice(4, 7), slice(7, 10)
 FRESH, ENABLED, HAS_TARGET, RESET, CALIBRATING, CONDITION, STEP, COMMAND = range(10, 18)
-INPUT_SIZE = 18
+CLOCK = 18
+INPUT_SIZE = 19
+#: Before the steady clock was recorded.
+LEGACY_INPUT_SIZE = 18
 FIELDS = ('t', 'origin_x', 'origin_y', 'origin_z', 'direction_x', 'direction_y', 'direction_z',
           'target_x', 'target_y', 'target_z', 'fresh', 'enabled', 'has_target', 'reset', 'calibrating',
-          'condition', 'step', 'command')
+          'condition', 'step', 'command', 'clock')
 assert len(FIELDS) == INPUT_SIZE
 
 
@@ -59,21 +66,23 @@ def encode_input(inp: StepInput) -> list[float]:
         return nan3 if v is None else [float(x) for x in v]
     return ([float(inp.t)] + vec(inp.origin) + vec(inp.direction) + vec(inp.target) +
             [float(inp.fresh), float(inp.enabled), float(inp.has_target), float(inp.reset),
-             float(inp.calibrating), float(inp.condition), float(inp.step), float(inp.command)])
+             float(inp.calibrating), float(inp.condition), float(inp.step), float(inp.command),
+             float(inp.t if inp.clock is None else inp.clock)])
 
 
 def decode_input(data: Sequence[float]) -> StepInput:
     """controller_input's data back to the step's inputs; ValueError for a wrong length."""
     d = np.asarray(data, dtype=float)
-    if d.shape != (INPUT_SIZE,):
+    if d.shape not in ((INPUT_SIZE,), (LEGACY_INPUT_SIZE,)):
         raise ValueError(f'controller_input must hold {INPUT_SIZE} values, got {d.shape}')
 
     def vec(s):
         v = d[s]
         return None if np.isnan(v).any() else v.copy()
     return StepInput(float(d[T]), vec(ORIGIN), vec(DIRECTION), vec(TARGET), bool(d[FRESH]),
-                     bool(d[ENABLED]), bool(d[HAS_TARGET]), bool(d[RESET]), bool(d[CALIBRATING]),
-                     int(d[CONDITION]), int(d[STEP]), int(d[COMMAND]))
+                     bool(d[ENABLED]), bool(d[HAS_TARGET]), int(d[RESET]), bool(d[CALIBRATING]),
+                     int(d[CONDITION]), int(d[STEP]), int(d[COMMAND]),
+                     float(d[CLOCK]) if d.size > CLOCK else None)
 
 
 def channel_map_dict(cmap: ChannelMap) -> dict:

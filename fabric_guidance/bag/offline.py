@@ -23,7 +23,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..core.control_step import StepInput, guidance_step, safe_command
+from ..core.control_step import StepInput, apply_reset, guidance_step, safe_command
 from .controller_io import CONTROLLER_INPUT, CONTROLLER_PARAMETERS, decode_input, setup_from_dict, with_overrides
 from ..core.safe_input import excerpt, parse_yaml
 from .reader import raw_messages
@@ -235,8 +235,7 @@ def replay(rec: Recording, overrides: Mapping[str, Any] | None = None) -> Replay
         result.steps += 1
         if inp.reset:
             synced = True
-            if controller is not None:
-                controller.vent()
+            apply_reset(controller, inp)
         if inp.calibrating:
             result.calibrating += 1
             continue

@@ -11,14 +11,17 @@ first or respawned, waits for the operator's enable, which this run calls.
 
 Each fault is drawn from the seed: SIGKILL, or SIGSTOP then SIGCONT, of each node in turn and
 of two at once; the Modbus link dropping every byte or delayed beyond the request timeout; the
-gaze stream paused or flooded; a second Modbus writer (second_writer.py, closing each round).
-Each is injected while the suit is pressurised, during guidance or during a calibration
-(start_calibration), then healed, and guidance must come back.
+gaze stream paused or flooded; the operator's own calls: `enable false` during a calibration,
+and `vent` followed by a lifecycle deactivate and activate; a second Modbus writer
+(second_writer.py, closing each round). Each is injected while the suit is pressurised, during
+guidance or during a calibration (start_calibration), then healed (for the operator's calls: by
+the operator's `enable`), and guidance must come back.
 
 Invariants, from the register log alone (plc/register_log.py), checked after every fault and
 again at the end: no command above P_MAX ever sent; every fault that must vent has every
 register at 0 within its deadline (docs/safety.md); after a controller restart, once vented,
-nothing nonzero is applied before the operator's enable; at the end no process of the graph is
+nothing nonzero is applied before the operator's enable, and the same after the operator's
+`enable false` or `vent` (deactivate and activate included); at the end no process of the graph is
 left (every pid gone, children included); a second writer is refused while plc_output holds the
 PLC, and once it holds it and dies the suit vents within the watchdog's deadline and its command
 never comes back. Output: progress per fault, then a table of every
@@ -90,6 +93,9 @@ RECOVERY_DEADLINE_S = 45.0
 #: A restarted controller is watched this long, vented and disabled, before the operator's
 #: enable: the window in which the enable gate must hold.
 GATE_WATCH_S = 1.0
+#: The operator's enable false or vent: the controller publishes zeros in the service call,
+#: plc_output writes them at its next cycle; delivery slack.
+OPERATOR_VENT_S = WRITE_PERIOD_S + 0.5
 #: How long a lasting fault (a stop, a link or gaze fault) holds [s]: longer than any deadline,
 #: so that the vent is seen to hold.
 HOLD_S = (1.6, 2.6)
@@ -102,6 +108,11 @@ ACTIVE = re.compile(r'\]: (configured and )?active( \(autostart\))?$', re.M)
 TARGET = [1.5321, 1.2856, 1.2]
 
 
+#: The operator's calls a round ends with (after the shuffled faults, so that a seed's first
+#: faults stay what they were).
+OPERATOR = ('disable', 'vent_cycle')
+
+
 def pair_deadline(nodes) -> float | None:
     """Two nodes at once: each node's own way of venting is independent of the other's, so the
     suit is vented by the latest of the deadlines that apply; None when neither must vent."""
@@ -112,7 +123,8 @@ def pair_deadline(nodes) -> float | None:
 @dataclass(frozen=True)
 class Planned:
     """One fault of the schedule."""
-    action: str                 # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, two_writers
+    action: str                 # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, disable, vent_cycle,
+                                # two_writers
     nodes: tuple[str, ...] = ()
     phase: str = 'guidance'     # guidance or calibration
     hold_s: float = 2.0         # how long a stop, a link fault or a gaze fault lasts
@@ -125,6 +137,8 @@ class Planned:
                 'link_delay': f'Modbus link delayed {LINK_DELAY_S:g} s each way',
                 'gaze_pause': 'gaze stream paused',
                 'gaze_flood': f'gaze stream flooded ({FLOOD_RATE_HZ:.0f} datagrams/s)',
+                'disable': 'enable false during a calibration',
+                'vent_cycle': 'operator vent, then deactivate and activate',
                 'two_writers': 'a second Modbus writer holds the PLC, then falls silent'}[self.action]
 
     @property
@@ -132,16 +146,16 @@ class Planned:
         if self.action in ('kill', 'stop'):
             return pair_deadline(self.nodes)
         return {'link_drop': WATCHDOG_VENT_S, 'link_delay': LINK_DELAY_VENT_S,
-                'gaze_pause': GAZE_STALE_VENT_S, 'gaze_flood': None,
-                'two_writers': WATCHDOG_VENT_S}[self.action]
+                'gaze_pause': GAZE_STALE_VENT_S, 'gaze_flood': None, 'disable': OPERATOR_VENT_S,
+                'vent_cycle': OPERATOR_VENT_S, 'two_writers': WATCHDOG_VENT_S}[self.action]
 
 
 def schedule(seed: int, faults: int) -> list[Planned]:
     """`faults` faults from `seed`: rounds of every kind once (each node killed and stopped in
     turn, a pair killed and a pair stopped, every link and gaze fault), each round shuffled;
-    phase and hold drawn per fault; a second writer closes each round (drawn from its own
-    generator: the other faults of a seed stay as they were). The same seed gives the same
-    schedule."""
+    phase and hold drawn per fault; then the operator's calls (OPERATOR), enable false always
+    during a calibration; a second writer closes each round (drawn from its own generator: the
+    other faults of a seed stay as they were). The same seed gives the same schedule."""
     rng = random.Random(seed)
     extra = random.Random(f'{seed}-two-writers')
     out: list[Planned] = []
@@ -154,6 +168,9 @@ def schedule(seed: int, faults: int) -> list[Planned]:
         for action, nodes in kinds:
             out.append(Planned(action, tuple(nodes), rng.choice(('guidance', 'calibration')),
                                round(rng.uniform(HOLD_S[0], HOLD_S[1]), 2)))
+        for action in OPERATOR:
+            phase = 'calibration' if action == 'disable' else rng.choice(('guidance', 'calibration'))
+            out.append(Planned(action, (), phase, round(rng.uniform(HOLD_S[0], HOLD_S[1]), 2)))
         out.append(Planned('two_writers', ('plc_output',), extra.choice(('guidance', 'calibration')),
                            round(extra.uniform(HOLD_S[0], HOLD_S[1]), 2)))
     return out[:faults]
@@ -253,6 +270,12 @@ class ChaosLab:
         self.probe = Probe(g.domain_id, 'chaos_operator')
         self.wait_active('pressure_controller', 60.0)
         self.enable()
+        # The operator's other services discovered now: an operator fault is timed from the
+        # request, not from this probe's discovery of the service.
+        from lifecycle_msgs.srv import ChangeState
+        from std_srvs.srv import Trigger
+        for srv_type, name in ((Trigger, '/vent'), (ChangeState, '/pressure_controller/change_state')):
+            self.probe._client(srv_type, name, 30.0)
         self.wait_pressurised(RECOVERY_DEADLINE_S, 'first guidance')
 
     def close(self) -> list[str]:
@@ -304,6 +327,24 @@ class ChaosLab:
             raise AssertionError(f'enable refused: {response.message}')
         return t
 
+    def disable(self) -> None:
+        from std_srvs.srv import SetBool
+        response = self.probe.call(SetBool, '/enable', SetBool.Request(data=False), timeout=3.0, attempts=5)
+        if not response.success:
+            raise AssertionError(f'enable false refused: {response.message}')
+
+    def vent_cycle(self) -> None:
+        """The operator's vent, then a lifecycle deactivate and activate of the controller."""
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+        from std_srvs.srv import Trigger
+        if not self.probe.call(Trigger, '/vent', Trigger.Request(), timeout=3.0, attempts=5).success:
+            raise AssertionError('vent refused')
+        for transition in (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE):
+            request = ChangeState.Request(transition=Transition(id=transition))
+            if not self.probe.call(ChangeState, '/pressure_controller/change_state', request, timeout=10.0).success:
+                raise AssertionError(f'lifecycle transition {transition} refused')
+
     def start_calibration(self) -> None:
         from std_srvs.srv import Trigger
         response = self.probe.call(Trigger, '/start_calibration', Trigger.Request(), timeout=3.0, attempts=5)
@@ -344,6 +385,10 @@ class ChaosLab:
             self.gaze.mode = 'pause'
         elif p.action == 'gaze_flood':
             self.gaze.mode = 'flood'
+        elif p.action == 'disable':
+            self.disable()
+        elif p.action == 'vent_cycle':
+            self.vent_cycle()
         # A lasting fault holds for hold_s (a fixed fault duration, not a wait for anything).
         if p.action != 'kill':
             time.sleep(max(0.0, t0 + p.hold_s - time.monotonic()))
@@ -356,6 +401,9 @@ class ChaosLab:
             self.proxy.heal()
         elif p.action in ('gaze_pause', 'gaze_flood'):
             self.gaze.mode = 'send'
+        elif p.action in OPERATOR:
+            # Only the operator's enable ends it: the log is judged for nothing applied before it.
+            out.t_enable = self.enable()
         elif p.action == 'kill':
             for n in p.nodes:
                 wait_until(lambda: g.restart_count(n) > restarts[n], RECOVERY_DEADLINE_S, what=f'{n} restarted')
@@ -447,11 +495,14 @@ def markdown(rows: list[dict], seed: int, faults: int, violations: list[str]) ->
     return '\n'.join(lines) + '\n'
 
 
-def run_chaos(seed: int, faults: int, out: Path, say) -> tuple[list[dict], list[str]]:
-    """The run; returns the table's rows and every broken invariant ([] when all held)."""
+def run_chaos(seed: int, faults: int, out: Path, say,
+              plan: list[Planned] | None = None) -> tuple[list[dict], list[str]]:
+    """The run; returns the table's rows and every broken invariant ([] when all held). plan:
+    these faults instead of the seed's schedule (a test of chosen kinds)."""
     out = Path(out).resolve()   # the nodes run in the package's folder: their paths must not be relative
     out.mkdir(parents=True, exist_ok=True)
-    plan = schedule(seed, faults)
+    plan = schedule(seed, faults) if plan is None else list(plan)
+    faults = len(plan)
     lab = ChaosLab(out, say)
     outcomes: list[Outcome] = []
     violations: list[str] = []

@@ -18,13 +18,19 @@ from .feedback import GuidanceController
 from .geometry import target_direction
 from .power_law import PowerLaw
 
-__all__ = ['ControllerSetup', 'StepInput', 'build_controller', 'controller_gain', 'guidance_step', 'safe_command',
-           'why_not_guide']
+__all__ = ['RESET_KEEP_STALL', 'RESET_VENT', 'ControllerSetup', 'StepInput', 'apply_reset', 'build_controller',
+           'controller_gain', 'guidance_step', 'safe_command', 'why_not_guide']
+
+
+#: StepInput.reset: a vent since the previous step that forgets a latched stall (a new target,
+#: a service call), or one that keeps it (deactivate, activate: an interruption, not a decision).
+RESET_VENT, RESET_KEEP_STALL = 1, 2
 
 
 @dataclass
 class StepInput:
-    """What one control step used."""
+    """What one control step used. t: Eq. 5's time (ROS time: a replay's /clock); clock: the
+    steady clock the safety bounds run on (the stall watch), None: t."""
     t: float
     origin: np.ndarray | None
     direction: np.ndarray | None
@@ -32,11 +38,12 @@ class StepInput:
     fresh: bool
     enabled: bool
     has_target: bool
-    reset: bool
+    reset: int          # 0, RESET_VENT or RESET_KEEP_STALL (a bool: RESET_VENT)
     calibrating: bool
     condition: int
     step: int
     command: int
+    clock: float | None = None
 
 
 class _SetupMethods:
@@ -116,6 +123,12 @@ def safe_command(channels: np.ndarray, p_max: float) -> np.ndarray:
     return np.clip(channels, 0.0, p_max)
 
 
+def apply_reset(controller: GuidanceController | None, inp: StepInput) -> None:
+    """The vent recorded in inp.reset, as the node applied it between steps."""
+    if inp.reset and controller is not None:
+        controller.vent(forget_stall=inp.reset != RESET_KEEP_STALL)
+
+
 def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
                   inp: StepInput) -> tuple[np.ndarray, str, bool]:
     """One Eq. 5 control step (not calibration): (channel pressures before the P_MAX clip,
@@ -128,7 +141,8 @@ def guidance_step(setup: ControllerSetup, controller: GuidanceController | None,
             controller.vent(forget_stall=False)   # only a new target or a service forgets a stall
         return zeros, reason, False
     try:
-        direction_pressures = controller.update(inp.direction, target_direction(inp.origin, inp.target), inp.t)
+        direction_pressures = controller.update(inp.direction, target_direction(inp.origin, inp.target), inp.t,
+                                                inp.clock)
     except ValueError as exc:
         controller.vent(forget_stall=False)
         return zeros, f'invalid input: {exc}', True

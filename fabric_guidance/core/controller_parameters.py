@@ -7,6 +7,11 @@ ControllerSpec), the recorded YAML of a bag (bag/controller_io.py), and docs/int
 pressure_controller table (`python -m fabric_guidance.core.controller_parameters --markdown`;
 test_controller_parameters compares). Adding a knob is one entry here plus its use.
 
+At run time (`ros2 param set`, a study session's set_parameters) every parameter either takes
+effect at once, as its `live` text says, or is read-only (refused by rcl with its reason): none
+is accepted and ignored. The node's on-set-parameters callback applies them; docs/interfaces.md
+shows each row's `live` text.
+
 Names carry their unit as ROS parameters do (`p_max_kpa`, `rate_threshold_dps`). A name that
 was renamed stays readable under its old name (Parameter.old_names) with one warning.
 """
@@ -39,6 +44,8 @@ class Parameter:
     low_open: bool = False
     choices: tuple = ()
     read_only: bool = False
+    #: What setting it at run time does (the node applies it at once); '' for read-only ones.
+    live: str = ''
     #: Part of the control step's setup (ControllerSetup) and of the recorded YAML.
     setup: bool = False
     #: Also a key of a scene's controller section (sim/scene.py).
@@ -65,59 +72,78 @@ class Parameter:
         return str(d)
 
 
+_STEP = ('vents; the next step runs Eq. 5 with it (controller_parameters republished); refused during a '
+         'calibration')
+_NEXT_CAL = 'the next calibration; refused during one'
+
 #: Every pressure_controller parameter, in the node's declaration order.
 PARAMETERS: tuple[Parameter, ...] = (
     Parameter('condition', 1, 'guidance condition: 1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
-              '4 speech', low=1, high=4, setup=True),
+              '4 speech', low=1, high=4, setup=True,
+              live='vents; the layout (condition 3: the arm) or speech (4) from the next step; refused during a '
+              'calibration'),
     Parameter('gain', PAPER_GAIN, 'adjustment gain G of Eq. 5 (the paper: 0.05)', '-', 0.0, 10.0,
-              setup=True, scene=True),
+              setup=True, scene=True, live=_STEP),
     Parameter('p_max_kpa', PAPER_P_MAX, 'no command above this leaves the node (the paper: 375 kPa)', 'kPa',
-              0.0, 1000.0, low_open=True, setup=True, scene=True),
+              0.0, 1000.0, low_open=True, setup=True, scene=True,
+              live='the very next command is clamped to it; never above the value the node started with (its '
+              'ceiling); lowering ends a running calibration, raising is refused during one'),
     Parameter('control_rate_hz', 30.0, 'Eq. 5 steps per second without gaze steps; with step_on_gaze the '
               'least: the timer steps whenever no step ran for a period (it vents on a stale gaze)', 'Hz',
-              1.0, 1000.0, setup=True, scene=True),
+              1.0, 1000.0, setup=True, scene=True, live='the timer restarts at the new rate; ' + _STEP),
     Parameter('gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long', 's', 0.01, 10.0,
-              setup=True, scene=True),
+              setup=True, scene=True, live=_STEP),
     Parameter('rate_deadband_dps', 0.0, 'rate_estimator sign only: de/dt must exceed this to count as '
-              'growing (0: the paper)', 'deg/s', 0.0, 1000.0, setup=True, scene=True),
+              'growing (0: the paper)', 'deg/s', 0.0, 1000.0, setup=True, scene=True, live=_STEP),
     Parameter('guidance_frame', REST, "origin of Eq. 5's angles: rest (the calibration's rest gaze) or "
               'target (the gaze when a target begins); docs/guidance.md', choices=FRAMES, setup=True,
-              scene=True, legacy=TARGET),
+              scene=True, legacy=TARGET, live=_STEP),
     Parameter('rate_estimator', FILTERED, '"the error grows": filtered (low-passed de/dt above '
               "rate_threshold_dps) or sign (the paper's literal test)", choices=ESTIMATORS, setup=True,
-              scene=True, legacy=SIGN),
+              scene=True, legacy=SIGN, live=_STEP),
     Parameter('rate_filter_tau_s', RATE_FILTER_TAU_S, 'time constant of the de/dt filter', 's', 0.001, 10.0,
-              setup=True, scene=True, legacy=RATE_FILTER_TAU_S),
+              setup=True, scene=True, legacy=RATE_FILTER_TAU_S, live=_STEP),
     Parameter('rate_threshold_dps', RATE_THRESHOLD_DPS, 'filtered de/dt must exceed this (default: 3 sd '
               'of 1.5 deg tracker noise at 30 Hz)', 'deg/s', 0.001, 1000.0, setup=True, scene=True,
-              legacy=RATE_THRESHOLD_DPS),
+              legacy=RATE_THRESHOLD_DPS, live=_STEP),
     Parameter('stall_timeout_s', STALL_TIMEOUT_S, 'vent when the gaze made no progress toward the target '
-              'for this long; 0 = never', 's', 0.0, 3600.0, setup=True, legacy=None, zero_is_none=True),
+              'for this long; 0 = never', 's', 0.0, 3600.0, setup=True, legacy=None, zero_is_none=True,
+              live=_STEP),
     Parameter('calibration_file', '', "the wearer's calibration file (YAML); '' = none: no guidance until "
-              'calibrated'),
+              'calibrated (a file that does not exist at configure: none, with one line)',
+              live='loaded and used from the next step (vents), or refused with the reason; refused during a '
+              'calibration'),
     Parameter('calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
-              "'' = ~/.fabric_guidance/calibrations"),
-    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path)"),
-    Parameter('calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)', '-', 3, 50),
-    Parameter('calibration_dwell_s', 3.0, 'time at each pressure step', 's', 0.05, 60.0),
-    Parameter('calibration_rest_s', 3.0, 'vented rest before each direction', 's', 0.05, 60.0),
+              "'' = ~/.fabric_guidance/calibrations", live=_NEXT_CAL),
+    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path)",
+              live='checked as a file name; another wearer vents and drops the calibration in use, loading '
+              '<calibration_dir>/<wearer>.yaml if it exists (else no guidance until calibrated); refused '
+              'during a calibration'),
+    Parameter('calibration_steps', 10, 'pressure steps per direction (Algorithm 1: 10)', '-', 3, 50, live=_NEXT_CAL),
+    Parameter('calibration_dwell_s', 3.0, 'time at each pressure step', 's', 0.05, 60.0, live=_NEXT_CAL),
+    Parameter('calibration_rest_s', 3.0, 'vented rest before each direction', 's', 0.05, 60.0, live=_NEXT_CAL),
     Parameter('calibration_window_s', 0.5, 'the recorded angle is the median over the last part of a '
-              'dwell', 's', 0.01, 60.0),
-    Parameter('calibration_min_r2', 0.8, 'refuse a direction whose fit explains less', '-', -1e9, 1.0),
-    Parameter('calibration_min_span_deg', 5.0, 'refuse a direction whose angles span less', 'deg', 0.0, 180.0),
+              'dwell', 's', 0.01, 60.0, live=_NEXT_CAL),
+    Parameter('calibration_min_r2', 0.8, 'refuse a direction whose fit explains less', '-', -1e9, 1.0,
+              live=_NEXT_CAL),
+    Parameter('calibration_min_span_deg', 5.0, 'refuse a direction whose angles span less', 'deg', 0.0, 180.0,
+              live=_NEXT_CAL),
     Parameter('calibration_max_reversal_deg', 2.0, 'refuse a direction whose angle falls more than this '
-              'below an earlier one', 'deg', 0.0, 180.0),
+              'below an earlier one', 'deg', 0.0, 180.0, live=_NEXT_CAL),
     Parameter('calibration_max_rmse_kpa', PAPER_P_MAX / 10.0, 'refuse a direction whose fit RMSE is larger',
-              'kPa', 0.0, 1000.0),
-    Parameter('channel_map_file', '', "channel map (YAML); '' = the package's config/hardware/channel_map.yaml"),
-    Parameter('speak', True, 'condition 4: also speak the phrase with espeak-ng if installed'),
+              'kPa', 0.0, 1000.0, live=_NEXT_CAL),
+    Parameter('channel_map_file', '', "channel map (YAML); '' = the package's config/hardware/channel_map.yaml "
+              '(the channel order is fixed for the process: restart the node to change it)', read_only=True),
+    Parameter('speak', True, 'condition 4: also speak the phrase with espeak-ng if installed',
+              live='the next phrase'),
     Parameter('use_wearer_gain', False, "beyond the paper: G from the wearer's calibration file "
-              '(adjustment_gain) when it has one', setup=True, legacy=False),
+              '(adjustment_gain) when it has one', setup=True, legacy=False, live=_STEP),
     Parameter('follow_moving_target', False, 'beyond the paper: shift the pressure with f(theta_t) as a '
-              '(live) target moves', setup=True, legacy=False),
-    Parameter('start_enabled', True, 'guide as soon as activated; false: vented and disabled until the operator '
-              'calls enable (the lab launch with respawn: a restarted controller waits for the operator)',
-              read_only=True),
+              '(live) target moves', setup=True, legacy=False, live=_STEP),
+    Parameter('start_enabled', True, 'the enable latch when the process starts: true guides once active (the '
+              'simulated graph, the demo); false: vented and disabled until the operator calls enable (the lab '
+              'launch with respawn: a restarted controller waits for the operator). Only enable and vent move '
+              'the latch afterwards; no lifecycle transition or parameter does', read_only=True),
     Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
               "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
               "paper's rate; false: the timer alone)", read_only=True),
@@ -127,6 +153,9 @@ PARAMETERS: tuple[Parameter, ...] = (
 )
 
 BY_NAME: dict[str, Parameter] = {p.name: p for p in PARAMETERS}
+assert all(bool(p.live) != p.read_only for p in PARAMETERS), 'each parameter: live or read-only'
+#: Parameters only the next calibration reads (refused while one runs).
+CALIBRATION: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.live == _NEXT_CAL)
 SETUP: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.setup)
 SCENE: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.scene)
 _OLD = {old: p.name for p in PARAMETERS for old in p.old_names}
@@ -189,6 +218,8 @@ def markdown() -> str:
             what += f' (one of: {", ".join(p.choices)})'
         elif p.low is not None:
             what += f' (range {"(" if p.low_open else "["}{p.low:g}, {p.high:g}])'
+        if p.live:
+            what += f'. Set at run time: {p.live}'
         default_text = 'from the channel map' if p.name == 'channels' else p.docs_default
         lines.append(f'| {node} | {name} | {default_text} | {p.unit if p.unit != "-" else ""} | {what} |')
     return '\n'.join(lines) + '\n'
@@ -198,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     return markdown_main('fabric_guidance.core.controller_parameters', markdown, argv)
 
 
-__all__ = ['BY_NAME', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown', 'renamed']
+__all__ = ['BY_NAME', 'CALIBRATION', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown',
+           'renamed']
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -115,7 +115,10 @@ class StallWatch:
 
     Progress is a fall of the error angle (gaze to target, low-passed with RATE_FILTER_TAU_S so
     that one noisy sample is not progress) by progress_deg below the best so far; being within
-    near_deg of the target counts as progress. A clock that jumps back restarts the watch.
+    near_deg of the target counts as progress. A clock that jumps back restarts the watch. The
+    live node feeds it the steady clock (a bound on a safety path must not wait on /clock), and
+    an interruption (stale gaze, a blink) does not restart it: the time without progress counts
+    across the gap.
     """
 
     def __init__(self, timeout_s: float | None = STALL_TIMEOUT_S,
@@ -303,21 +306,25 @@ class GuidanceController:
         #: until vent() (a new target, a service call); an interruption keeps it (vent(False)).
         self.stalled = ''
 
-    def begin(self, gaze: Sequence[float]) -> None:
-        """Start guidance toward a new target with the wearer's gaze now (g0 in frame TARGET)."""
+    def begin(self, gaze: Sequence[float], restart_stall: bool = True) -> None:
+        """Start guidance toward a new target with the wearer's gaze now (g0 in frame TARGET).
+        restart_stall False: resuming after an interruption, the stall watch keeps counting."""
         angles_between(gaze, gaze)  # validates the vector
         self.initial_gaze = self.rest_gaze if self.frame == REST else np.asarray(gaze, dtype=float)
-        self.stall.reset()
+        if restart_stall:
+            self.stall.reset()
         for d in self.directions:
             d.reset()
 
     def vent(self, forget_stall: bool = True) -> np.ndarray:
         """Zero every direction; the next update starts from f(theta_t) again. forget_stall
-        False (the gaze went stale, guidance disabled for a moment) keeps a stall latched."""
+        False (the gaze went stale, guidance disabled or deactivated for a moment) keeps a stall
+        latched and the stall watch counting: a wearer who blinks every second is still one who
+        makes no progress."""
         self.initial_gaze = None
         if forget_stall:
             self.stalled = ''
-        self.stall.reset()
+            self.stall.reset()
         for d in self.directions:
             d.reset()
         return np.zeros(len(DIRECTIONS))
@@ -326,8 +333,10 @@ class GuidanceController:
     def pressures(self) -> np.ndarray:
         return np.array([d.pressure for d in self.directions])
 
-    def update(self, gaze: Sequence[float], target: Sequence[float], t: float) -> np.ndarray:
+    def update(self, gaze: Sequence[float], target: Sequence[float], t: float,
+               clock_s: float | None = None) -> np.ndarray:
         """Pressures (left, right, down, up) in kPa for the current gaze and target directions.
+        t: Eq. 5's time; clock_s: the stall watch's (the node's steady clock), t when None.
 
         Raises ValueError (a GeometryError for degenerate vectors) for invalid input, with
         the state unchanged; the caller vents.
@@ -336,7 +345,7 @@ class GuidanceController:
             angles_between(gaze, target)   # still refuses invalid input
             return np.zeros(len(DIRECTIONS))
         if self.initial_gaze is None:
-            self.begin(gaze)
+            self.begin(gaze, restart_stall=False)   # vent() restarted it if it had to
         at = angles_between(self.initial_gaze, target)
         a = angles_between(self.initial_gaze, gaze)
         _finite(t, 'time')
@@ -349,7 +358,7 @@ class GuidanceController:
             cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
             error = math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz),
                                             ax * bx + ay * by + az * bz))
-            if self.stall.update(error, t):
+            if self.stall.update(error, t if clock_s is None else _finite(clock_s, 'clock')):
                 self.stalled = (f'no progress toward the target for {self.stall.timeout_s:g} s '
                                 f'(error {self.stall.error:.1f} deg, best '
                                 f'{self.stall.best:.1f} deg): vented until the next target '

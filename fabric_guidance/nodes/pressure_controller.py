@@ -9,6 +9,16 @@ Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `chann
             speech (String, condition 4), calibration_status (String), /diagnostics
 Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
 
+The enable latch: `enable false` and `vent` stop every pressure the node sends, a running
+calibration included (it ends, failed, and the suit vents at once), and only `enable true` lifts
+the latch. No lifecycle transition, parameter, new calibration or start_calibration does (a
+disabled controller refuses to calibrate); start_enabled is the latch's value when the process
+starts (the lab launch with respawn: false, so a restarted controller waits for the operator).
+
+Parameters set at run time take effect at once or are refused with the reason (the table in
+core/controller_parameters.py says which and what each does; on_set_parameters applies them).
+p_max_kpa can be lowered at any time and raised no higher than the value the node started with.
+
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
 
@@ -20,9 +30,12 @@ Eq. 5 adds G once per step, so with step_on_gaze it acts once per gaze sample (t
 
 Time: the t of Eq. 5 is the node clock, so with use_sim_time:=true it is the bag's /clock (a
 replay), and a clock that jumps back (a looping replay) restarts Eq. 5's derivative in the core.
-The control timer and gaze staleness run on the steady clock, whatever the ROS clock does: a
-ROS-time timer can stay silent after /clock jumps back, and a gaze judged fresh on a stopped
-sim clock would keep the suit pressurised after a replay ends. Safety never waits on /clock.
+The control timer, gaze staleness, the no-progress (stall) watch and the calibration's schedule
+run on the steady clock, whatever the ROS clock does: a ROS-time timer can stay silent after
+/clock jumps back, and a gaze judged fresh, a stall never reached or a calibration step never
+ended on a stopped (or absent) sim clock would keep the suit pressurised. Safety never waits on
+/clock; controller_input records the steady time of each step so the offline replay reruns the
+stall watch as it ran.
 """
 from __future__ import annotations
 
@@ -51,52 +64,50 @@ from ..core.power_law import load_fit_libraries
 from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
-from ..core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
+from ..core.control_step import RESET_KEEP_STALL, RESET_VENT, ControllerSetup, StepInput, guidance_step, safe_command
 from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
                          DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
                          VENT)
 from ..paths import resolve
 from .array_layout import named_layout
 from .diagnostics import publish_diagnostics, status
+from .controller_settings import LiveParameters
 from .managed import ManagedNode
 from .parameters import declare_table
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
 
-class PressureController(ManagedNode):
+class PressureController(LiveParameters, ManagedNode):
     """Eq. 5 as a lifecycle node (nodes/managed.py): configure loads the channel map and the
     calibration; only while active does it step and guide; deactivate, cleanup, shutdown and
     error processing publish a vent. Topics and services exist in every state (the latched
     target is known at activation; `vent` always answers)."""
 
-    def __init__(self):
-        super().__init__('pressure_controller')
+    def __init__(self, **kwargs):
+        super().__init__('pressure_controller', **kwargs)
         # Every parameter from the one table (core/controller_parameters.py); `channels` at the
         # first configure, once the channel map it mirrors is loaded.
+        # self.v: the values in force, kept by on_set_parameters (everything reads them from here).
         self.v = v = declare_table(self, PARAMETERS[:-1])
-        self.condition = condition(v['condition'])
-        self.gain, self.p_max, self.gaze_timeout = v['gain'], v['p_max_kpa'], v['gaze_timeout_s']
-        self.wearer = check_wearer(v['wearer'], 'parameter "wearer"')
-        self.cal_steps, self.cal_dwell = v['calibration_steps'], v['calibration_dwell_s']
-        self.cal_rest, self.cal_window = v['calibration_rest_s'], v['calibration_window_s']
-        self.acceptance = Acceptance(v['calibration_min_r2'], v['calibration_min_span_deg'],
-                                     v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa'])
-        self.speak, self.step_on_gaze = v['speak'], v['step_on_gaze']
-        self.cal_dir = (Path(v['calibration_dir']).expanduser() if v['calibration_dir']
-                        else Path.home() / '.fabric_guidance' / 'calibrations')
-        self.layout = self.condition.layout or 'suit'
+        check_wearer(v['wearer'], 'parameter "wearer"')
+        condition(v['condition'])
+        #: The hardware ceiling: p_max_kpa as the node started (the lab's params file); at run
+        #: time it can be lowered and raised back, never above this.
+        self.ceiling_kpa = v['p_max_kpa']
         self.channel_map = self.calibration = self.setup = self.controller = None
         self.zeros = np.zeros(0)
         self.control_timer = None
+        self._declaring = False
 
-        self.enabled = True
+        #: The enable latch (module doc): only enable and vent move it after this.
+        self.enabled = v['start_enabled']
         self.gaze_origin = self.gaze_direction = None
         self.gaze_received = -float('inf')   # self.now_s(): the steady clock
         self.step_count = 0
         self.last_step_s = -float('inf')      # self.now_s() of the latest step
         self.command_count = 0
-        self.reset_pending = False            # vented between steps (recorded in controller_input)
+        self.reset_pending = 0                # RESET_VENT, RESET_KEEP_STALL between steps (controller_input)
         self.target = None
         self.target_name = ''
         self.awaiting_target = False          # a new name came; wait for a position published after it
@@ -122,6 +133,45 @@ class PressureController(ManagedNode):
         self.create_service(Trigger, VENT, self.on_vent)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0, self.publish_diagnostics, clock=self.steady)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+
+    # ---- the values in force
+    @property
+    def condition(self):
+        return condition(self.v['condition'])
+
+    @property
+    def layout(self) -> str:
+        return self.condition.layout or 'suit'
+
+    @property
+    def p_max(self) -> float:
+        return self.v['p_max_kpa']
+
+    @property
+    def gaze_timeout(self) -> float:
+        return self.v['gaze_timeout_s']
+
+    @property
+    def wearer(self) -> str:
+        return self.v['wearer']
+
+    def cal_dir_of(self, value: str) -> Path:
+        return Path(value).expanduser() if value else Path.home() / '.fabric_guidance' / 'calibrations'
+
+    @property
+    def cal_dir(self) -> Path:
+        return self.cal_dir_of(self.v['calibration_dir'])
+
+    def read_calibration(self, cal_file: str) -> Calibration | None:
+        """The calibration of a calibration_file value ('' none); FileNotFoundError, or the
+        loader's error naming the file and field."""
+        if not cal_file:
+            return None
+        path = resolve(cal_file, '')
+        if not path.is_file():
+            raise FileNotFoundError(f'calibration file {path}: does not exist')
+        return Calibration.load(path)
 
     # ---- lifecycle
     def configure(self) -> None:
@@ -140,13 +190,22 @@ class PressureController(ManagedNode):
                                       f'differ from the parameter "channels" {list(channels)} of the first '
                                       'configure; restart the node to change the channel order')
         else:
-            declare_table(self, PARAMETERS[-1:], channels=list(channel_map.channels))
+            self._declaring = True
+            try:
+                declare_table(self, PARAMETERS[-1:], channels=list(channel_map.channels))
+            finally:
+                self._declaring = False
         cal_file = v['calibration_file']
-        calibration = Calibration.load(resolve(cal_file, '')) if cal_file else None
-        setup = {p.name: v[p.name] for p in SETUP}
-        setup['stall_timeout_s'] = setup['stall_timeout_s'] or None   # ROS has no null: 0 = never
+        try:
+            calibration = self.read_calibration(cal_file)
+        except FileNotFoundError as exc:
+            # A first-time wearer has no file yet: the node comes up to calibrate them.
+            calibration = None
+            self.get_logger().warning(f'{exc}: no calibration; call start_calibration to calibrate '
+                                      f'{self.wearer} (written to {self.cal_dir / (self.wearer + ".yaml")})')
+            cal_file = ''
         self.channel_map, self.calibration = channel_map, calibration
-        self.setup = ControllerSetup(calibration=calibration, channel_map=channel_map, **setup)
+        self.setup = self.make_setup(calibration, v)
         self.zeros = np.zeros(len(channel_map.channels))
         self.command_msg.layout = named_layout(channel_map.channels)
         self.warn_origin(calibration)
@@ -155,18 +214,29 @@ class PressureController(ManagedNode):
         # Algorithm 1's fit runs in this node: its scipy import now, not inside a control step
         # (it takes 1-2 s, longer than gaze_timeout_s: the calibration would fail on it).
         load_fit_libraries()
+        self.start_timer()
+        self.get_logger().info(
+            f'condition {self.condition.number} ({self.condition.name}), G = {v["gain"]}, P_MAX = {self.p_max} kPa, '
+            f'calibration: {cal_file or "none"}' + ('' if self.enabled else '; disabled until enable'))
+
+    def make_setup(self, calibration: Calibration | None, values) -> ControllerSetup:
+        setup = {p.name: values[p.name] for p in SETUP}
+        setup['stall_timeout_s'] = setup['stall_timeout_s'] or None   # ROS has no null: 0 = never
+        return ControllerSetup(calibration=calibration, channel_map=self.channel_map, **setup)
+
+    def start_timer(self) -> None:
+        if self.control_timer is not None:
+            self.destroy_timer(self.control_timer)
         self.period_s = 1.0 / self.setup.control_rate_hz
         self.control_timer = self.create_timer(self.period_s, self.on_timer, clock=self.steady)
-        self.get_logger().info(
-            f'condition {self.condition.number} ({self.condition.name}), G = {self.gain}, P_MAX = {self.p_max} kPa, '
-            f'calibration: {cal_file or "none"}')
 
     def activate(self) -> None:
-        self.enabled = self.v['start_enabled']
-        self.vent_controller()     # Eq. 5 starts afresh from the gaze at activation
+        # The enable latch stays as it is: a deactivate/activate is no operator's enable. Eq. 5
+        # starts afresh from the gaze at activation; a latched stall stays latched.
+        self.vent_controller(forget_stall=False)
 
     def deactivate(self) -> None:
-        self.vent_all('deactivated')
+        self.vent_all('deactivated', forget_stall=False)
 
     def release(self) -> None:
         self.vent_all('released')
@@ -175,16 +245,27 @@ class PressureController(ManagedNode):
             self.control_timer = None
         self.controller = self.setup = self.calibration = None
 
-    def vent_all(self, why: str) -> None:
+    def vent_all(self, why: str, forget_stall: bool = True) -> None:
         """Vent now: the controller's state, a running calibration, and a zero command out."""
-        self.vent_controller()
-        if self.procedure is not None:   # no step will follow to end it: end it here
-            self.procedure = None
-            self.last_status = f'failed: {why}; the previous calibration is kept'
-            self.status_pub.publish(String(data=self.last_status))
-            self.get_logger().error(f'calibration {self.last_status}')
+        self.vent_controller(forget_stall)
+        self.end_calibration(why)
         if self.zeros.size:
             self.publish(self.zeros)
+
+    def kept(self) -> str:
+        """What a failed calibration leaves in use, truthfully."""
+        if self.calibration is None:
+            return f'no previous calibration of {self.wearer}: no guidance until one succeeds'
+        return f'the previous calibration is kept ({self.calibration.wearer})'
+
+    def end_calibration(self, why: str) -> None:
+        """End a running calibration now, failed (the caller vents)."""
+        if self.procedure is None:
+            return
+        self.procedure = None
+        self.last_status = f'failed: {why}; {self.kept()}'
+        self.status_pub.publish(String(data=self.last_status))
+        self.get_logger().error(f'calibration {self.last_status}')
 
     def warn_origin(self, cal: Calibration | None) -> None:
         if cal is not None and cal.origin_warning and self.setup.guidance_frame == REST:
@@ -203,11 +284,13 @@ class PressureController(ManagedNode):
         """The clock gaze staleness is judged on: always the steady clock (see the module doc)."""
         return time.monotonic()
 
-    def vent_controller(self) -> None:
-        """Vent between steps (recorded as `reset` in the next controller_input)."""
-        self.reset_pending = True
+    def vent_controller(self, forget_stall: bool = True) -> None:
+        """Vent between steps (recorded as `reset` in the next controller_input: RESET_VENT when
+        any vent since the last step forgot a stall, else RESET_KEEP_STALL)."""
+        keep = not forget_stall and self.reset_pending != RESET_VENT
+        self.reset_pending = RESET_KEEP_STALL if keep else RESET_VENT
         if self.controller is not None:
-            self.controller.vent()
+            self.controller.vent(forget_stall)
 
     # ---- inputs
     def on_gaze(self, msg: PoseStamped) -> None:
@@ -222,7 +305,7 @@ class PressureController(ManagedNode):
             return
         self.gaze_origin, self.gaze_direction = origin, direction
         self.gaze_received = self.now_s()
-        if self.step_on_gaze and self.active:
+        if self.v['step_on_gaze'] and self.active:
             self.step()
 
     def on_timer(self) -> None:
@@ -259,21 +342,28 @@ class PressureController(ManagedNode):
         if self.procedure is not None:
             response.success, response.message = False, 'a calibration is already running'
             return response
+        if not self.enabled:
+            response.success = False
+            response.message = 'cannot calibrate: guidance disabled (enable false or vent): call enable first'
+            return response
         if self.now_s() - self.gaze_received > self.gaze_timeout:
             response.success = False
             response.message = f'cannot calibrate: no valid gaze in the last {self.gaze_timeout} s'
             return response
+        v = self.v
         try:
             self.procedure = CalibrationProcedure(
-                self.wearer, p_max=self.p_max, steps=self.cal_steps, dwell_s=self.cal_dwell, rest_s=self.cal_rest,
-                record_window_s=min(self.cal_window, self.cal_dwell, self.cal_rest),
-                acceptance=self.acceptance)
+                self.wearer, p_max=self.p_max, steps=v['calibration_steps'], dwell_s=v['calibration_dwell_s'],
+                rest_s=v['calibration_rest_s'],
+                record_window_s=min(v['calibration_window_s'], v['calibration_dwell_s'], v['calibration_rest_s']),
+                acceptance=Acceptance(v['calibration_min_r2'], v['calibration_min_span_deg'],
+                                      v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa']))
         except ValueError as exc:
             response.success, response.message = False, f'cannot calibrate: {exc}'
             return response
         response.success = True
-        response.message = (f'calibrating {self.wearer}: {len(DIRECTIONS)} directions x {self.cal_steps} steps, '
-                            f'about {self.procedure.duration_s:.0f} s')
+        response.message = (f'calibrating {self.wearer}: {len(DIRECTIONS)} directions x {v["calibration_steps"]} '
+                            f'steps, about {self.procedure.duration_s:.0f} s')
         self.get_logger().info(response.message)
         return response
 
@@ -283,18 +373,18 @@ class PressureController(ManagedNode):
             response.message = f'cannot enable: the node is {self.state_label} (activate it first)'
             return response
         self.enabled = bool(request.data)
-        # Disabling vents; enabling starts afresh (and forgets a no-progress stop).
-        self.vent_controller()
-        response.success, response.message = True, 'guidance enabled' if self.enabled else 'guidance disabled (vented)'
+        if self.enabled:   # enabling starts afresh (and forgets a no-progress stop)
+            self.vent_controller()
+            response.success, response.message = True, 'guidance enabled'
+            return response
+        # Disabling is a latch like vent: a running calibration ends and the suit vents now.
+        self.vent_all('disabled by request (enable false)')
+        response.success, response.message = True, 'guidance disabled (vented); call enable to guide again'
         return response
 
     def on_vent(self, request, response):
         self.enabled = False
-        self.vent_controller()
-        if self.procedure is not None:
-            self.procedure.fail('vented by request')
-        if self.zeros.size:
-            self.publish(self.zeros)
+        self.vent_all('vented by request')
         response.success, response.message = True, 'vented; call enable to guide again'
         return response
 
@@ -311,18 +401,22 @@ class PressureController(ManagedNode):
     def step(self) -> None:
         t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
         fresh = self.now_s() - self.gaze_received <= self.gaze_timeout
+        clock = self.now_s()   # the steady clock: the stall watch and the calibration's schedule
+        if self.procedure is not None and not self.enabled:   # no pressure past the latch, whatever set it
+            self.end_calibration('guidance disabled')
         inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.enabled,
                         bool(self.target_name) and self.target is not None, self.reset_pending,
-                        self.procedure is not None, self.condition.number, self.step_count, self.command_count)
-        self.reset_pending = False
+                        self.procedure is not None, self.condition.number, self.step_count, self.command_count,
+                        clock)
+        self.reset_pending = 0
         self.step_count += 1
-        self.last_step_s = self.now_s()
+        self.last_step_s = clock
         # The exact inputs of this step, right before its command (offline replay reruns them).
         if self.input_pub.get_subscription_count():   # volatile: unheard, it would be dropped anyway
             self.input_msg.data = array('d', encode_input(inp))
             self.input_pub.publish(self.input_msg)
         if self.procedure is not None:
-            self.publish(self.calibration_step(t, fresh))
+            self.publish(self.calibration_step(clock, fresh))
             return
         if self.speech_due and fresh and self.target is not None:
             self.say()
@@ -343,25 +437,26 @@ class PressureController(ManagedNode):
         text = phrase(angles.horizontal, angles.vertical)
         self.speech_pub.publish(String(data=text))
         self.get_logger().info(f'speech for {self.target_name}: "{text}"')
-        if self.speak and shutil.which('espeak-ng'):
+        if self.v['speak'] and shutil.which('espeak-ng'):
             subprocess.Popen(['espeak-ng', text], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
-    def calibration_step(self, t: float, fresh: bool) -> np.ndarray:
+    def calibration_step(self, clock: float, fresh: bool) -> np.ndarray:
+        """Algorithm 1's step at `clock`, the steady clock: a stopped /clock cannot freeze a step."""
         proc = self.procedure
         if not fresh:
             proc.fail(f'the gaze stream stopped for more than {self.gaze_timeout} s')
-        cmd = proc.tick(t, self.gaze_direction if fresh else None)
+        cmd = proc.tick(clock, self.gaze_direction if fresh else None)
         direction_pressures = np.zeros(len(DIRECTIONS))
         if cmd.direction is not None:
             direction_pressures[DIRECTIONS.index(cmd.direction)] = cmd.pressure
         # While resting (vented, facing front) the wearer is told which direction comes next.
         where = cmd.direction or (f'before {proc.direction}' if proc.direction else '')
-        text = (f'{cmd.phase} {where} step {cmd.step}/{self.cal_steps} '
+        text = (f'{cmd.phase} {where} step {cmd.step}/{len(proc.schedule)} '
                 f'{cmd.pressure:.0f} kPa {100 * cmd.progress:.0f}%')
         if cmd.phase == DONE:
             text = self.finish_calibration()
         elif cmd.phase == FAILED:
-            text = f'failed: {proc.error}; the previous calibration is kept'
+            text = f'failed: {proc.error}; {self.kept()}'
             self.get_logger().error(f'calibration {text}')
             self.procedure = None
             attempt = proc.attempt(self.calibration)
@@ -383,7 +478,7 @@ class PressureController(ManagedNode):
             path = cal.save(self.cal_dir / f'{self.wearer}.yaml')
         except (ValueError, OSError) as exc:
             self.get_logger().error(f'calibration not saved: {exc}')
-            return f'failed: {exc}; the previous calibration is kept'
+            return f'failed: {exc}; {self.kept()}'
         self.calibration = cal
         self.setup.calibration = cal
         self.warn_origin(cal)
