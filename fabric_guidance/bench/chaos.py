@@ -123,8 +123,8 @@ def pair_deadline(nodes) -> float | None:
 @dataclass(frozen=True)
 class Planned:
     """One fault of the schedule."""
-    action: str                 # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, disable, vent_cycle,
-                                # two_writers
+    # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, disable, vent_cycle, two_writers
+    action: str
     nodes: tuple[str, ...] = ()
     phase: str = 'guidance'     # guidance or calibration
     hold_s: float = 2.0         # how long a stop, a link fault or a gaze fault lasts
