@@ -20,7 +20,7 @@ import pytest
 from rosgraph import ROOT
 
 HOLOLENS = ROOT / 'hololens'
-EXE = HOLOLENS / 'build' / 'HeadsetHarness.exe'
+EXE = HOLOLENS / 'build~' / 'HeadsetHarness.exe'
 #: How long the harness may take to bind and say so (mono's start-up on a loaded machine).
 START_DEADLINE_S = 20.0
 
