@@ -23,6 +23,8 @@ PRESSURE_COMMAND = 'pressure_command'
 MEASURED_PRESSURE = 'measured_pressure'
 SPEECH = 'speech'
 CALIBRATION_STATUS = 'calibration_status'
+CALIBRATION_STATE = 'calibration_state'
+CONFIRM = 'confirm'
 DIAGNOSTICS = '/diagnostics'
 CONTROLLER_INPUT = 'controller_input'
 CONTROLLER_PARAMETERS = 'controller_parameters'
@@ -143,6 +145,15 @@ TOPICS: tuple[Topic, ...] = (
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '
           '`failed: <reason>; the previous calibration is kept`'),
+    Topic(CALIBRATION_STATE, 'std_msgs/msg/String', LATCHED, 'pressure_controller', 'headset_display, the study',
+          "the live calibration's progress and outcome as fields: phase (`idle`, `rest`, `apply`, `done`, "
+          '`failed`, `refused`), direction, step of steps, pressure [kPa], progress 0..1, file, report, error, '
+          'previous_kept ([calibration state](#calibration-state)); the sentence on `calibration_status` is '
+          'for people', type_note='(one JSON object)'),
+    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge', '',
+          "the wearer's confirm press (\"I am there\"): stamp = when it was pressed (the headset's capture "
+          'time on the PC clock, as `gaze`; the receive time before the clock is estimated), frame_id = '
+          "its source (`headset`: the clicker or an air tap, [headset_wire_format.md](headset_wire_format.md))"),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
           'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
           'bag_recorder, headset_display', '',

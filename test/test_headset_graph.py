@@ -12,6 +12,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 import transforms3d
 import yaml
@@ -52,6 +53,7 @@ class Bridge:
         self.gaze = self.probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
         self.head = self.probe.subscribe(PoseStamped, interface.HEAD_POSE, qos.SENSOR_QOS)
         self.diagnostics = self.probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+        self.confirm = self.probe.subscribe(Header, interface.CONFIRM, qos.EVENT_QOS)
         # Listening, and matched to the probe: no sample is published before the probe hears it.
         wait_until(lambda: 'listening on' in self.graph.log('gaze_bridge'), 30.0, what='gaze_bridge listening')
         wait_until(lambda: self.probe.hears(interface.GAZE) and self.probe.hears(interface.HEAD_POSE), 30.0,
@@ -223,6 +225,45 @@ def test_an_asymmetric_path_shifts_the_estimate_by_half_the_difference(tmp_path,
                          f'{bound_ms:.2f} ms')
     assert statistics.median(errors) == pytest.approx(12.5, abs=3.0)
     assert np.percentile(np.abs(errors), 95) <= bound_ms + 2.0   # (stalls of the sender: see above)
+
+
+def test_a_confirm_press_arrives_once_with_its_capture_time(tmp_path, bridge_at):
+    """The compiled headset presses confirm on command behind 150 ms of uplink delay: `confirm`
+    carries the moment of the press (the proxy's receipt, before the delay), not its arrival."""
+    listen = free_port(socket.SOCK_DGRAM)
+    proxy = DelayProxy(0.150, 0.005, 0.0, seed=3)
+    try:
+        proxy.headset = ('127.0.0.1', listen)
+        b = bridge_at(proxy.down_port)
+        proxy.bridge = ('127.0.0.1', b.port)
+        wait_until(lambda: b.probe.hears(interface.CONFIRM), 30.0, what='the probe matched to confirm')
+        harness = Harness(tmp_path / 'confirm.log', '--uplink', f'127.0.0.1:{proxy.up_port}', '--listen',
+                          f'127.0.0.1:{listen}', '--rate', '60', '--duration', '20', '--commands', 'stdin')
+        try:
+            wait_until(lambda: b.values().get('clock_state') == 'synchronised'
+                       and int(b.values().get('clock_exchanges', 0)) >= 5, 15.0, what='the clock synchronised')
+            harness.command('confirm')
+            wait_until(lambda: len(proxy.confirms) >= 3 and b.confirm, 10.0, what='the press at the bridge')
+            harness.command('confirm')
+            wait_until(lambda: len(b.confirm) >= 2, 10.0, what='the second press')
+            wait_until(lambda: int(b.values().get('confirm_repeats', 0)) >= 4, 10.0, what='the repeats counted')
+        finally:
+            harness.stop()
+    finally:
+        proxy.close()
+    presses = [e for e in harness.log() if 'confirm' in e]
+    assert [e['confirm'] for e in presses] == [0, 1]
+    assert len(b.confirm) == 2, 'each press published once though sent three times'
+    assert [press for press, _ in proxy.confirms] == [0, 0, 0, 1, 1, 1]
+    bound_ms = float(b.values()['clock_bound_ms'])
+    for press_id, msg in enumerate(b.confirm):
+        assert msg.frame_id == 'headset'
+        pressed = min(t for p, t in proxy.confirms if p == press_id)   # the first send, before the delay
+        error_ms = (msg.stamp.sec + msg.stamp.nanosec * 1e-9 - pressed) * 1e3
+        CLOCK_FIGURES.append(f'confirm press {press_id} behind 150 ms of uplink delay: stamp minus the press '
+                             f'{error_ms:+.2f} ms (bound {bound_ms:.2f} ms)')
+        # A receipt stamp would be 150 ms late; a stall between the press and its send makes it look early.
+        assert -20.0 <= error_ms <= bound_ms + 5.0, (press_id, error_ms, bound_ms)
 
 
 # --- the display downlink -------------------------------------------------------------------
