@@ -140,7 +140,7 @@ TOPICS: tuple[Topic, ...] = (
           'wearer_sim', "regulators' measured kPa, same order and label"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
           'wearer_sim (with a scene, condition 4), headset_display', "condition 4's phrase, once per target"),
-    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'headset_display',
+    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'people (`ros2 topic echo`)',
           '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '

@@ -12,13 +12,13 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
-from std_msgs.msg import Header
+from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 import transforms3d
 import yaml
 
 from fabric_guidance import interface
-from fabric_guidance.core import display_wire
+from fabric_guidance.core import calibration_state, display_wire
 from fabric_guidance.core.geometry import azimuth_deg, elevation_deg, ray_direction
 from fabric_guidance.nodes import qos
 from headset_harness import DelayProxy, Harness, build_harness, pose_line, unity_euler_quat
@@ -369,6 +369,7 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
                                             calibration_window_s=0.1, wearer='still'))],
             '--uplink', f'127.0.0.1:{gaze_port}', '--rate', '30') as (graph, harness), \
             Probe(graph.domain_id) as probe:
+        states = probe.subscribe(String, interface.CALIBRATION_STATE, qos.LATCHED_QOS)
         wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
                    interval=0.5, what='start_calibration accepted')
         wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in harness.messages('prompt')),
@@ -378,3 +379,45 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
     assert 'Face front and rest' in texts
     steps = [m for m in prompts if m['text'].startswith('Hold still: left')]
     assert {(m['step'], m['steps']) for m in steps} >= {(1, 3), (2, 3), (3, 3)}
+    # Every prompt shown is the prompt of a calibration_state the controller published.
+    expected = {calibration_state.prompt(calibration_state.decode(m.data)) for m in states}
+    assert {(m['text'], m['step'], m['steps']) for m in prompts} <= expected, expected
+    decoded = [calibration_state.decode(m.data) for m in states]
+    assert decoded[0].phase == 'idle' and decoded[0].wearer == 'still'
+    applied = [d for d in decoded if d.phase == 'apply' and d.direction == 'left']
+    assert sorted({d.step for d in applied}) == [1, 2, 3] and all(d.steps == 3 and d.pressure_kpa > 0 for d in applied)
+    running = [d for d in decoded if d.running]
+    assert all(0.0 <= a.progress <= b.progress <= 1.0 for a, b in zip(running, running[1:]))
+
+
+def test_the_prompt_comes_from_calibration_state_whatever_the_sentence_says(tmp_path):
+    """headset_display reads the fields, not the sentence: a sentence in another wording (or the
+    old one, with no calibration running) changes nothing; the structured state alone does."""
+    with display_session(tmp_path, [], '--frames', '0') as (graph, harness), Probe(graph.domain_id) as probe:
+        status = probe.node.create_publisher(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
+        state = probe.node.create_publisher(String, interface.CALIBRATION_STATE, qos.LATCHED_QOS)
+        wait_until(lambda: state.get_subscription_count() >= 1, 20.0,
+                   what='headset_display subscribed to calibration_state')
+        # The sentence the display used to parse, without a structured state: no prompt.
+        status.publish(String(data='apply left step 2/3 20 kPa 40%'))
+        wait_until(lambda: len(harness.messages('prompt')) >= 2, 20.0, what='two refreshes of the prompt')
+        assert {m['text'] for m in harness.messages('prompt')} == {''}
+        # The structured state with the sentence reworded: the prompt follows the fields.
+        applying = calibration_state.CalibrationState('alice', 'apply', 'left', 2, 3, 20.0, 0.4)
+        status.publish(String(data='Links: Schritt 2 von 3, 20 kPa'))
+        state.publish(String(data=calibration_state.encode(applying)))
+        wait_until(lambda: any(m['text'] == 'Hold still: left, step 2 of 3' for m in harness.messages('prompt')),
+                   20.0, what='the prompt of the structured state')
+        resting = calibration_state.CalibrationState('alice', 'rest', 'right', 0, 3, 0.0, 0.5)
+        state.publish(String(data=calibration_state.encode(resting)))
+        wait_until(lambda: harness.messages('prompt')[-1]['text'] == 'Face front and rest', 20.0, what='rest')
+        # A malformed state is refused with one counted warning; the prompt stays.
+        state.publish(String(data='{"version":1,"phase":"apply"}'))
+        status.publish(String(data='done: somewhere'))
+        wait_until(lambda: 'calibration_state field' in graph.log('headset_display'), 20.0, what='the warning')
+        done = calibration_state.CalibrationState('alice', 'done', file='/c/alice.yaml', report='/c/alice.txt',
+                                                  progress=1.0, steps=3)
+        state.publish(String(data=calibration_state.encode(done)))
+        wait_until(lambda: harness.messages('prompt')[-1]['text'] == '', 20.0, what='the prompt cleared')
+    shown = [m['text'] for m in harness.messages('prompt')]
+    assert 'Face front and rest' in shown and not any('Links' in t or 'somewhere' in t for t in shown)
