@@ -91,6 +91,7 @@ def test_a_refused_fit_a_failure_and_an_unsaved_result_say_so():
     assert cs.decode(cs.encode(vented)).phase == 'failed'
     assert cs.prompt(vented) == ('', 0, 0)
     from fabric_guidance.core.calibration import CalibrationCommand
-    unsaved = cs.of_procedure('bob', CalibrationProcedure('bob', steps=3), CalibrationCommand('done', None, 0.0, 0, 1.0),
+    unsaved = cs.of_procedure('bob', CalibrationProcedure('bob', steps=3),
+                              CalibrationCommand('done', None, 0.0, 0, 1.0),
                               error='not saved: [Errno 28] No space left on device', previous_kept=True)
     assert (unsaved.phase, unsaved.file, unsaved.previous_kept) == ('failed', '', True)

@@ -23,7 +23,7 @@ def test_the_build_output_is_not_tracked_and_unity_does_not_import_it():
     # a DLL of the core there would define its types twice (CS0433); the tests and the harness
     # (no assembly definition, a Main each) would be warned about.
     assert 'BUILD := build~' in (HOLOLENS / 'Makefile').read_text()
-    outside = [p for p in HOLOLENS.rglob('*.cs') if not any(part.endswith('~') for part in p.relative_to(HOLOLENS).parts)
-               and p.relative_to(HOLOLENS).parts[0] != 'Runtime']
+    parts = [p.relative_to(HOLOLENS).parts for p in HOLOLENS.rglob('*.cs')]
+    outside = [p for p in parts if p[0] != 'Runtime' and not any(part.endswith('~') for part in p)]
     assert not outside, outside
     assert EXE.parent.name.endswith('~') and EXE.is_relative_to(HOLOLENS)

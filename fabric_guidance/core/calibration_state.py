@@ -75,7 +75,8 @@ def _fail(name: str, why: str):
 def _check(d: dict) -> dict:
     unknown = sorted(set(d) - set(_TYPES))
     if unknown:
-        raise CalibrationStateError(f'calibration_state has unknown fields {unknown} (version {VERSION} has {list(FIELDS)})')
+        raise CalibrationStateError(f'calibration_state has unknown fields {unknown} '
+                                    f'(version {VERSION} has {list(FIELDS)})')
     for name, kind in _TYPES.items():
         if name not in d:
             _fail(name, 'missing')

@@ -234,7 +234,8 @@ class HeadsetDisplay(Node):
         level = DiagnosticStatus.WARN if self.send_errors else DiagnosticStatus.OK
         values = {'destination': f'{self.destination[0]}:{self.destination[1]}', 'active': self.active,
                   'targets': len(self.targets), 'dummy_set': self.dummy_set, 'send_errors': self.send_errors,
-                  'bytes_sent': self.bytes_sent, 'bad_calibration_states': self.bad_states, **{f'sent_{k}': n for k, n in self.sent.items()}}
+                  'bytes_sent': self.bytes_sent, 'bad_calibration_states': self.bad_states,
+                  **{f'sent_{k}': n for k, n in self.sent.items()}}
         message = f'{sum(self.sent.values())} display messages sent' + (
             f', {self.send_errors} failed' if self.send_errors else '')
         publish_diagnostics(self, self._diag_pub, [status(self, 'display', level, message, values)])
