@@ -228,10 +228,12 @@ def test_an_asymmetric_path_shifts_the_estimate_by_half_the_difference(tmp_path,
 
 
 def test_a_confirm_press_arrives_once_with_its_capture_time(tmp_path, bridge_at):
-    """The compiled headset presses confirm on command behind 150 ms of uplink delay: `confirm`
-    carries the moment of the press (the proxy's receipt, before the delay), not its arrival."""
+    """The compiled headset presses confirm on command behind 100 ms of delay each way: `confirm`
+    carries the moment of the press (the proxy's receipt, before the delay), not its arrival
+    (which a receipt stamp would show, 100 ms later). Symmetric delays: an asymmetric path would
+    shift the stamp by half the difference, as any two-way clock exchange does."""
     listen = free_port(socket.SOCK_DGRAM)
-    proxy = DelayProxy(0.150, 0.005, 0.0, seed=3)
+    proxy = DelayProxy(0.100, 0.100, 0.0, seed=3)
     try:
         proxy.headset = ('127.0.0.1', listen)
         b = bridge_at(proxy.down_port)
@@ -260,10 +262,10 @@ def test_a_confirm_press_arrives_once_with_its_capture_time(tmp_path, bridge_at)
         assert msg.frame_id == 'headset'
         pressed = min(t for p, t in proxy.confirms if p == press_id)   # the first send, before the delay
         error_ms = (msg.stamp.sec + msg.stamp.nanosec * 1e-9 - pressed) * 1e3
-        CLOCK_FIGURES.append(f'confirm press {press_id} behind 150 ms of uplink delay: stamp minus the press '
-                             f'{error_ms:+.2f} ms (bound {bound_ms:.2f} ms)')
-        # A receipt stamp would be 150 ms late; a stall between the press and its send makes it look early.
-        assert -20.0 <= error_ms <= bound_ms + 5.0, (press_id, error_ms, bound_ms)
+        CLOCK_FIGURES.append(f'confirm press {press_id} behind 100 ms each way: stamp minus the press '
+                             f'{error_ms:+.2f} ms (bound {bound_ms:.2f} ms; a receipt stamp: +100 ms)')
+        # 40 ms: scheduling on a loaded machine (a stall between the press and its send makes it look early).
+        assert abs(error_ms) <= 40.0, (press_id, error_ms, bound_ms)
 
 
 # --- the display downlink -------------------------------------------------------------------
