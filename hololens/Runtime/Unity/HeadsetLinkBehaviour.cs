@@ -48,7 +48,9 @@ namespace FabricGuidance.Headset.Unity
 
         void Update()
         {
-            Transform head = Camera.main.transform;
+            Camera main = Camera.main;
+            if (main == null) return;   // no head this frame (a scene without a MainCamera tag): nothing to send
+            Transform head = main.transform;
             Vector3 p = head.position;
             Quaternion q = head.rotation;
             Session.Update(eyes, new Vec3(p.x, p.y, p.z), new Quat(q.x, q.y, q.z, q.w));
