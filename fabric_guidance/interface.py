@@ -23,6 +23,8 @@ PRESSURE_COMMAND = 'pressure_command'
 MEASURED_PRESSURE = 'measured_pressure'
 SPEECH = 'speech'
 CALIBRATION_STATUS = 'calibration_status'
+CALIBRATION_STATE = 'calibration_state'
+CONFIRM = 'confirm'
 DIAGNOSTICS = '/diagnostics'
 CONTROLLER_INPUT = 'controller_input'
 CONTROLLER_PARAMETERS = 'controller_parameters'
@@ -138,12 +140,21 @@ TOPICS: tuple[Topic, ...] = (
           'wearer_sim', "regulators' measured kPa, same order and label"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
           'wearer_sim (with a scene, condition 4), headset_display', "condition 4's phrase, once per target"),
-    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'headset_display',
+    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'people (`ros2 topic echo`)',
           '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '
           '`failed: <reason>; the previous calibration is kept (<its wearer>)` or, with none, '
           '`failed: <reason>; no previous calibration of <wearer>: no guidance until one succeeds`'),
+    Topic(CALIBRATION_STATE, 'std_msgs/msg/String', LATCHED, 'pressure_controller', 'headset_display, the study',
+          "the live calibration's progress and outcome as fields: phase (`idle`, `rest`, `apply`, `done`, "
+          '`failed`, `refused`), direction, step of steps, pressure [kPa], progress 0..1, file, report, error, '
+          'previous_kept ([calibration state](#calibration-state)); the sentence on `calibration_status` is '
+          'for people', type_note='(one JSON object)'),
+    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge', '',
+          "the wearer's confirm press (\"I am there\"): stamp = when it was pressed (the headset's capture "
+          'time on the PC clock, as `gaze`; the receive time before the clock is estimated), frame_id = '
+          "its source (`headset`: the clicker or an air tap, [headset_wire_format.md](headset_wire_format.md))"),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
           'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
           'bag_recorder, headset_display', '',

@@ -20,7 +20,7 @@ import pytest
 from rosgraph import ROOT
 
 HOLOLENS = ROOT / 'hololens'
-EXE = HOLOLENS / 'build' / 'HeadsetHarness.exe'
+EXE = HOLOLENS / 'build~' / 'HeadsetHarness.exe'
 #: How long the harness may take to bind and say so (mono's start-up on a loaded machine).
 START_DEADLINE_S = 20.0
 
@@ -42,6 +42,7 @@ class Harness:
     def __init__(self, log_path: Path, *args: str, env: dict | None = None):
         self.log_path = Path(log_path)
         self.proc = subprocess.Popen(['mono', str(EXE), '--log', str(self.log_path), *args],
+                                     stdin=subprocess.PIPE if 'stdin' in args else subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env=dict(os.environ, **(env or {})))
         sel = selectors.DefaultSelector()
@@ -53,6 +54,11 @@ class Harness:
             self.proc.kill()
             raise AssertionError(f'the harness did not start: {line!r} {self.proc.stderr.read()}')
         self.port = int(line.split(':')[-1])
+
+    def command(self, line: str) -> None:
+        """A command on its standard input (started with --commands stdin), e.g. 'confirm'."""
+        self.proc.stdin.write(line + '\n')
+        self.proc.stdin.flush()
 
     def wait(self, timeout: float = 60.0) -> dict:
         """Its exit, and the counts of its last line (`harness: sent N, skipped N, ...`)."""
@@ -116,6 +122,7 @@ class DelayProxy:
         self.downlink.bind(('127.0.0.1', 0))
         self.up_port, self.down_port = self.uplink.getsockname()[1], self.downlink.getsockname()[1]
         self.arrivals: dict[int, float] = {}     # gaze seq -> time.time() when it reached the proxy
+        self.confirms: list[tuple[int, float]] = []   # (press_id, time.time()) of each confirm datagram
         self._queue: list = []
         self._lock = threading.Condition()
         self._stop = threading.Event()
@@ -137,6 +144,8 @@ class DelayProxy:
             now = time.time()
             if up and b'"seq"' in data and b'clock_echo' not in data:
                 self.arrivals[json.loads(data)['seq']] = now
+            elif up and b'"confirm"' in data:
+                self.confirms.append((json.loads(data)['press_id'], now))
             with self._lock:
                 delay = (self.up_s if up else self.down_s) + self.rng.uniform(0.0, self.jitter_s)
                 dest = self.bridge if up else self.headset

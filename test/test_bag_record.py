@@ -24,9 +24,10 @@ pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 CHANNELS = ChannelMap.load(config_path('hardware/channel_map.yaml')).channels
 
-#: Every topic a demo session publishes (calibration_status and speech: none in condition 1).
+#: Every topic a demo session publishes (calibration_status and speech: none in condition 1;
+#: calibration_state: the latched `idle` of pressure_controller's start).
 EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found', '/target_markers',
-            '/pressure_command', '/measured_pressure', '/diagnostics', '/controller_input',
+            '/calibration_state', '/pressure_command', '/measured_pressure', '/diagnostics', '/controller_input',
             '/controller_parameters'}
 
 

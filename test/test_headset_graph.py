@@ -12,12 +12,13 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
+from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 import transforms3d
 import yaml
 
 from fabric_guidance import interface
-from fabric_guidance.core import display_wire
+from fabric_guidance.core import calibration_state, display_wire
 from fabric_guidance.core.geometry import azimuth_deg, elevation_deg, ray_direction
 from fabric_guidance.nodes import qos
 from headset_harness import DelayProxy, Harness, build_harness, pose_line, unity_euler_quat
@@ -52,6 +53,7 @@ class Bridge:
         self.gaze = self.probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS)
         self.head = self.probe.subscribe(PoseStamped, interface.HEAD_POSE, qos.SENSOR_QOS)
         self.diagnostics = self.probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+        self.confirm = self.probe.subscribe(Header, interface.CONFIRM, qos.EVENT_QOS)
         # Listening, and matched to the probe: no sample is published before the probe hears it.
         wait_until(lambda: 'listening on' in self.graph.log('gaze_bridge'), 30.0, what='gaze_bridge listening')
         wait_until(lambda: self.probe.hears(interface.GAZE) and self.probe.hears(interface.HEAD_POSE), 30.0,
@@ -225,6 +227,47 @@ def test_an_asymmetric_path_shifts_the_estimate_by_half_the_difference(tmp_path,
     assert np.percentile(np.abs(errors), 95) <= bound_ms + 2.0   # (stalls of the sender: see above)
 
 
+def test_a_confirm_press_arrives_once_with_its_capture_time(tmp_path, bridge_at):
+    """The compiled headset presses confirm on command behind 100 ms of delay each way: `confirm`
+    carries the moment of the press (the proxy's receipt, before the delay), not its arrival
+    (which a receipt stamp would show, 100 ms later). Symmetric delays: an asymmetric path would
+    shift the stamp by half the difference, as any two-way clock exchange does."""
+    listen = free_port(socket.SOCK_DGRAM)
+    proxy = DelayProxy(0.100, 0.100, 0.0, seed=3)
+    try:
+        proxy.headset = ('127.0.0.1', listen)
+        b = bridge_at(proxy.down_port)
+        proxy.bridge = ('127.0.0.1', b.port)
+        wait_until(lambda: b.probe.hears(interface.CONFIRM), 30.0, what='the probe matched to confirm')
+        harness = Harness(tmp_path / 'confirm.log', '--uplink', f'127.0.0.1:{proxy.up_port}', '--listen',
+                          f'127.0.0.1:{listen}', '--rate', '60', '--duration', '20', '--commands', 'stdin')
+        try:
+            wait_until(lambda: b.values().get('clock_state') == 'synchronised'
+                       and int(b.values().get('clock_exchanges', 0)) >= 5, 15.0, what='the clock synchronised')
+            harness.command('confirm')
+            wait_until(lambda: len(proxy.confirms) >= 3 and b.confirm, 10.0, what='the press at the bridge')
+            harness.command('confirm')
+            wait_until(lambda: len(b.confirm) >= 2, 10.0, what='the second press')
+            wait_until(lambda: int(b.values().get('confirm_repeats', 0)) >= 4, 10.0, what='the repeats counted')
+        finally:
+            harness.stop()
+    finally:
+        proxy.close()
+    presses = [e for e in harness.log() if 'confirm' in e]
+    assert [e['confirm'] for e in presses] == [0, 1]
+    assert len(b.confirm) == 2, 'each press published once though sent three times'
+    assert [press for press, _ in proxy.confirms] == [0, 0, 0, 1, 1, 1]
+    bound_ms = float(b.values()['clock_bound_ms'])
+    for press_id, msg in enumerate(b.confirm):
+        assert msg.frame_id == 'headset'
+        pressed = min(t for p, t in proxy.confirms if p == press_id)   # the first send, before the delay
+        error_ms = (msg.stamp.sec + msg.stamp.nanosec * 1e-9 - pressed) * 1e3
+        CLOCK_FIGURES.append(f'confirm press {press_id} behind 100 ms each way: stamp minus the press '
+                             f'{error_ms:+.2f} ms (bound {bound_ms:.2f} ms; a receipt stamp: +100 ms)')
+        # 40 ms: scheduling on a loaded machine (a stall between the press and its send makes it look early).
+        assert abs(error_ms) <= 40.0, (press_id, error_ms, bound_ms)
+
+
 # --- the display downlink -------------------------------------------------------------------
 
 @contextlib.contextmanager
@@ -328,6 +371,7 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
                                             calibration_window_s=0.1, wearer='still'))],
             '--uplink', f'127.0.0.1:{gaze_port}', '--rate', '30') as (graph, harness), \
             Probe(graph.domain_id) as probe:
+        states = probe.subscribe(String, interface.CALIBRATION_STATE, qos.LATCHED_QOS)
         wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
                    interval=0.5, what='start_calibration accepted')
         wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in harness.messages('prompt')),
@@ -337,3 +381,45 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
     assert 'Face front and rest' in texts
     steps = [m for m in prompts if m['text'].startswith('Hold still: left')]
     assert {(m['step'], m['steps']) for m in steps} >= {(1, 3), (2, 3), (3, 3)}
+    # Every prompt shown is the prompt of a calibration_state the controller published.
+    expected = {calibration_state.prompt(calibration_state.decode(m.data)) for m in states}
+    assert {(m['text'], m['step'], m['steps']) for m in prompts} <= expected, expected
+    decoded = [calibration_state.decode(m.data) for m in states]
+    assert decoded[0].phase == 'idle' and decoded[0].wearer == 'still'
+    applied = [d for d in decoded if d.phase == 'apply' and d.direction == 'left']
+    assert sorted({d.step for d in applied}) == [1, 2, 3] and all(d.steps == 3 and d.pressure_kpa > 0 for d in applied)
+    running = [d for d in decoded if d.running]
+    assert all(0.0 <= a.progress <= b.progress <= 1.0 for a, b in zip(running, running[1:]))
+
+
+def test_the_prompt_comes_from_calibration_state_whatever_the_sentence_says(tmp_path):
+    """headset_display reads the fields, not the sentence: a sentence in another wording (or the
+    old one, with no calibration running) changes nothing; the structured state alone does."""
+    with display_session(tmp_path, [], '--frames', '0') as (graph, harness), Probe(graph.domain_id) as probe:
+        status = probe.node.create_publisher(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
+        state = probe.node.create_publisher(String, interface.CALIBRATION_STATE, qos.LATCHED_QOS)
+        wait_until(lambda: state.get_subscription_count() >= 1, 20.0,
+                   what='headset_display subscribed to calibration_state')
+        # The sentence the display used to parse, without a structured state: no prompt.
+        status.publish(String(data='apply left step 2/3 20 kPa 40%'))
+        wait_until(lambda: len(harness.messages('prompt')) >= 2, 20.0, what='two refreshes of the prompt')
+        assert {m['text'] for m in harness.messages('prompt')} == {''}
+        # The structured state with the sentence reworded: the prompt follows the fields.
+        applying = calibration_state.CalibrationState('alice', 'apply', 'left', 2, 3, 20.0, 0.4)
+        status.publish(String(data='Links: Schritt 2 von 3, 20 kPa'))
+        state.publish(String(data=calibration_state.encode(applying)))
+        wait_until(lambda: any(m['text'] == 'Hold still: left, step 2 of 3' for m in harness.messages('prompt')),
+                   20.0, what='the prompt of the structured state')
+        resting = calibration_state.CalibrationState('alice', 'rest', 'right', 0, 3, 0.0, 0.5)
+        state.publish(String(data=calibration_state.encode(resting)))
+        wait_until(lambda: harness.messages('prompt')[-1]['text'] == 'Face front and rest', 20.0, what='rest')
+        # A malformed state is refused with one counted warning; the prompt stays.
+        state.publish(String(data='{"version":1,"phase":"apply"}'))
+        status.publish(String(data='done: somewhere'))
+        wait_until(lambda: 'calibration_state field' in graph.log('headset_display'), 20.0, what='the warning')
+        done = calibration_state.CalibrationState('alice', 'done', file='/c/alice.yaml', report='/c/alice.txt',
+                                                  progress=1.0, steps=3)
+        state.publish(String(data=calibration_state.encode(done)))
+        wait_until(lambda: harness.messages('prompt')[-1]['text'] == '', 20.0, what='the prompt cleared')
+    shown = [m['text'] for m in harness.messages('prompt')]
+    assert 'Face front and rest' in shown and not any('Links' in t or 'somewhere' in t for t in shown)

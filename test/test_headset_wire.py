@@ -10,7 +10,7 @@ import pytest
 from fabric_guidance.core import display_wire as dw
 from fabric_guidance.core.clock_sync import (MAX_DATAGRAM_BYTES, ClockEcho, ClockEstimator, answer_ping,
                                              encode_ping, parse_ping, parse_uplink)
-from fabric_guidance.core.gaze_wire import GazeSample, WireFormatError, encode_datagram
+from fabric_guidance.core.gaze_wire import Confirm, GazeSample, WireFormatError, encode_confirm, encode_datagram
 
 IDS = st.text(min_size=0, max_size=80)
 POINT = st.tuples(*[st.floats(-1e4, 1e4, allow_nan=False)] * 3)
@@ -181,3 +181,41 @@ def test_memory_stays_bounded_whatever_the_ping_rate():
     for i in range(10000):
         est.add(ClockEcho(i, i * 1e-3, 5.0 + i * 1e-3, 5.0 + i * 1e-3), i * 1e-3 + 1e-4)
     assert est.exchanges <= 4096
+
+
+# --- the confirm press (uplink) -----------------------------------------------------------------
+
+@given(st.integers(0, 2 ** 32 - 1), st.floats(-1e12, 1e12, allow_nan=False))
+def test_a_confirm_press_round_trips(press_id, stamp):
+    press = parse_uplink(encode_confirm(press_id, stamp), 1024)
+    assert press == Confirm(press_id, stamp)
+
+
+@pytest.mark.parametrize('body, reason, field', [
+    ('"press_id":1', 'missing_field', 'stamp'),
+    ('"stamp":1', 'missing_field', 'press_id'),
+    ('"press_id":1.0,"stamp":1', 'type', 'press_id'),
+    ('"press_id":true,"stamp":1', 'type', 'press_id'),
+    ('"press_id":-1,"stamp":1', 'range', 'press_id'),
+    ('"press_id":4294967296,"stamp":1', 'range', 'press_id'),
+    ('"press_id":' + '9' * 500 + ',"stamp":1', 'range', 'press_id'),
+    ('"press_id":1,"stamp":"3.5"', 'type', 'stamp'),
+    ('"press_id":1,"stamp":null', 'type', 'stamp'),
+    ('"press_id":1,"stamp":1e400', 'non_finite', 'stamp'),
+    ('"press_id":1,"stamp":NaN', 'non_finite', 'stamp'),
+])
+def test_a_bad_confirm_is_rejected_naming_its_field(body, reason, field):
+    with pytest.raises(WireFormatError) as err:
+        parse_uplink(('{"version":1,"kind":"confirm",' + body + '}').encode(), 1024)
+    assert err.value.reason == reason and field in str(err.value)
+
+
+def test_a_confirm_of_another_version_or_kind_is_not_a_confirm():
+    with pytest.raises(WireFormatError) as err:
+        parse_uplink(b'{"version":2,"kind":"confirm","press_id":1,"stamp":1}', 1024)
+    assert err.value.reason == 'version'
+    with pytest.raises(WireFormatError) as err:
+        parse_uplink(b'{"version":1,"kind":"Confirm","press_id":1,"stamp":1}', 1024)
+    assert err.value.reason == 'kind'
+    # Unknown fields are ignored, as in every uplink message.
+    assert parse_uplink(b'{"version":1,"kind":"confirm","press_id":7,"stamp":2,"hand":"left"}', 1024) == Confirm(7, 2.0)

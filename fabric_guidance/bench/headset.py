@@ -75,7 +75,7 @@ def capture_to_register(work: Path, say, rate_hz: float, n: int, warmup_s: float
         log = work / 'harness.log'
         # Synchronised before the measured frames: the bridge pings every 0.2 s.
         proc = subprocess.run(
-            ['mono', str(HOLOLENS / 'build' / 'HeadsetHarness.exe'), '--uplink', f'127.0.0.1:{pkg.gaze_port}',
+            ['mono', str(HOLOLENS / 'build~' / 'HeadsetHarness.exe'), '--uplink', f'127.0.0.1:{pkg.gaze_port}',
              '--listen', f'127.0.0.1:{listen}', '--poses', str(poses), '--rate', str(rate_hz),
              '--frames', str(frames), '--duration', str(frames / rate_hz + 2.0), '--seq-start', str(SEQ_START),
              '--clock-offset', '0', '--log', str(log)], capture_output=True, text=True, timeout=frames / rate_hz + 60)

@@ -27,8 +27,8 @@ import math
 
 import numpy as np
 
-from .gaze_wire import (GazeSample, WireFormatError, _integer, _number, decode_object, message_kind,
-                        sample_from_object)
+from .gaze_wire import (CONFIRM_KIND, Confirm, GazeSample, WireFormatError, _integer, _number, confirm_from_object,
+                        decode_object, message_kind, sample_from_object)
 
 #: Downlink and uplink datagrams other than gaze are at most this long [bytes].
 MAX_DATAGRAM_BYTES = 1200
@@ -95,16 +95,19 @@ def echo_from_object(msg: dict) -> ClockEcho:
     return ClockEcho(_ping_seq(msg), *values)
 
 
-def parse_uplink(data: bytes, max_size: int) -> GazeSample | ClockEcho:
-    """Any uplink datagram: a gaze sample (no kind, or kind gaze) or a clock_echo.
+def parse_uplink(data: bytes, max_size: int) -> GazeSample | ClockEcho | Confirm:
+    """Any uplink datagram: a gaze sample (no kind, or kind gaze), a clock_echo or a confirm press.
 
     Raises WireFormatError and nothing else; an unknown kind is reason 'kind'. Every uplink
     datagram counts against max_size (gaze_bridge's max_datagram_bytes; an echo is ~120 bytes),
     checked first as for a gaze sample.
     """
     msg = decode_object(data, max_size)
-    if message_kind(msg, 'gaze') == ECHO_KIND:
+    kind = message_kind(msg, 'gaze')
+    if kind == ECHO_KIND:
         return echo_from_object(msg)
+    if kind == CONFIRM_KIND:
+        return confirm_from_object(msg)
     return sample_from_object(msg)
 
 

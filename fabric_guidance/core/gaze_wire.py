@@ -39,6 +39,8 @@ REASONS: tuple[str, ...] = ('oversize', 'encoding', 'json', 'not_object', 'versi
                             'missing_field', 'type', 'non_finite', 'zero_vector', 'range')
 #: The uplink `kind` of a gaze sample, and what a datagram without `kind` is.
 GAZE_KIND = 'gaze'
+#: The uplink `kind` of the wearer's confirm press (docs/headset_wire_format.md).
+CONFIRM_KIND = 'confirm'
 
 
 class WireFormatError(ValueError):
@@ -196,6 +198,31 @@ def sample_from_object(msg: dict) -> GazeSample:
         head_orientation=_frozen_array((-qz / qnorm, qx / qnorm, -qy / qnorm, qw / qnorm)),
         eye_tracking_valid=valid,
     )
+
+
+@dataclass(frozen=True)
+class Confirm:
+    """One confirm press: press_id (uint32, +1 per press, the same in its repeats) and stamp, the
+    headset clock when it was pressed (the clock of the gaze stamp) [s]."""
+
+    press_id: int
+    stamp: float
+
+
+def confirm_from_object(msg: dict) -> Confirm:
+    """The Confirm of a decoded uplink object whose kind is confirm (version already checked)."""
+    press_id = _integer(msg, 'press_id', ('range', f'press_id of {_INT_CHARS}+ digits is outside 0..{SEQ_MODULUS - 1}'))
+    if not 0 <= press_id < SEQ_MODULUS:
+        raise WireFormatError('range', f'press_id {press_id} is outside 0..{SEQ_MODULUS - 1}')
+    return Confirm(press_id, _number(_field(msg, 'stamp'), 'stamp'))
+
+
+def encode_confirm(press_id: int, stamp: float) -> bytes:
+    """The confirm datagram of one press (what the headset sends); checked like a received one."""
+    msg = {'version': WIRE_VERSION, 'kind': CONFIRM_KIND, 'press_id': operator.index(press_id), 'stamp': float(stamp)}
+    data = json.dumps(msg, separators=(',', ':'), allow_nan=True).encode('utf-8')
+    confirm_from_object(decode_object(data))
+    return data
 
 
 def encode_datagram(seq: int, stamp: float, gaze_origin: Sequence[float],

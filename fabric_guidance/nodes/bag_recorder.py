@@ -4,7 +4,8 @@ lab launch or the demo graph (`fabric-guidance demo --record DIR`); no rosbag2 i
 
 Subscribes  every topic of fabric_guidance/bag/topics.py TOPICS (or the `topics` parameter):
             gaze, head_pose, target, active_target, target_found, target_markers,
-            pressure_command, measured_pressure, speech, calibration_status, /diagnostics,
+            pressure_command, measured_pressure, speech, calibration_status, calibration_state,
+            confirm, /diagnostics,
             controller_input, controller_parameters; each with its publishers' QoS (latched ones
             transient local)
 Publishes   /diagnostics (diagnostic_msgs/DiagnosticArray) every diagnostics_period_s:

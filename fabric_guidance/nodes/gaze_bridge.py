@@ -23,15 +23,21 @@ from capture to receipt. A headset clock that runs backwards, a sender restart o
 time that cannot be (in the future, or older than MAX_DELAY_S) restarts the estimate or falls
 back to the receive time for that sample; nothing is published with a stamp it cannot stand by.
 
+A `confirm` datagram (the wearer's clicker or air tap) is published once per press on `confirm`
+(std_msgs/Header): the headset sends each press three times with one press_id, and the bridge
+keeps the last CONFIRM_MEMORY (press_id, stamp) pairs to publish each once. Its stamp is the
+press's capture time converted exactly as a gaze sample's is, frame_id CONFIRM_SOURCE.
+
 Publishing happens on the receiver thread (rclpy publishers are thread-safe), so the rate
 does not depend on the executor; nothing is logged per sample. /diagnostics reports the
 counters every diagnostics_period_s.
 
 Published:  gaze (geometry_msgs/PoseStamped, x axis along the gaze ray), head_pose
-            (geometry_msgs/PoseStamped), /diagnostics (diagnostic_msgs/DiagnosticArray).
+            (geometry_msgs/PoseStamped), confirm (std_msgs/Header), /diagnostics (diagnostic_msgs/DiagnosticArray).
 """
 from __future__ import annotations
 
+from collections import deque
 import ipaddress
 import socket
 import struct
@@ -42,16 +48,17 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from std_msgs.msg import Header
 
 from rclpy.duration import Duration
 
 from fabric_guidance.core.clock_sync import ClockEcho, ClockEstimator, encode_ping, parse_uplink
-from fabric_guidance.core.gaze_wire import REASONS, SeqStatus, SequenceTracker, WireFormatError
+from fabric_guidance.core.gaze_wire import REASONS, Confirm, SeqStatus, SequenceTracker, WireFormatError
 from fabric_guidance.core.geometry import GeometryError, ray_orientation
-from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
+from fabric_guidance.interface import CONFIRM, DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare
-from fabric_guidance.nodes.qos import SENSOR_QOS
+from fabric_guidance.nodes.qos import EVENT_QOS, SENSOR_QOS
 from fabric_guidance.nodes.spin import run
 
 #: Receive buffer asked for (the kernel caps it at net.core.rmem_max): ~10 s of samples at 90 Hz
@@ -71,6 +78,10 @@ BRIDGE_REASONS: tuple[str, ...] = ('sender', 'late', 'stale', 'eye_tracking_inva
 #: (CLOCK_REALTIME, struct timespec) as ancillary data.
 SO_TIMESTAMPNS = 35
 _TIMESPEC = struct.Struct('@qq')
+#: frame_id of a confirm press from the headset (the study's other sources name themselves).
+CONFIRM_SOURCE = 'headset'
+#: Presses remembered to publish each once (a press is sent three times, 20 ms apart).
+CONFIRM_MEMORY = 64
 
 
 class GazeBridge(Node):
@@ -143,9 +154,13 @@ class GazeBridge(Node):
         self._delays: list[float] = []      # one-way delays of this period [s], at most DELAY_BUFFER
         self._stamp_fallbacks = 0           # captures not believed: stamped on receipt
         self._captured = 0                  # published with the capture time
+        self._confirm_seen: deque = deque(maxlen=CONFIRM_MEMORY)   # (press_id, stamp) published
+        self._confirms = 0                  # presses published
+        self._confirm_repeats = 0           # repeats of a press already published
 
         self._gaze_pub = self.create_publisher(PoseStamped, GAZE, SENSOR_QOS)
         self._head_pub = self.create_publisher(PoseStamped, HEAD_POSE, SENSOR_QOS)
+        self._confirm_pub = self.create_publisher(Header, CONFIRM, EVENT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
 
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
@@ -252,6 +267,9 @@ class GazeBridge(Node):
                 self._echoes += 1
                 self._headset_clock.add(sample, received_mono)
             return
+        if type(sample) is Confirm:
+            self._confirm(sample, received_mono, now)
+            return
         with lock:
             self._received += 1
             seq_status = self._tracker.update(sample.seq)
@@ -290,9 +308,21 @@ class GazeBridge(Node):
         with lock:
             self._published += 1
 
-    def _stamp(self, capture_headset: float, received_mono: float, now):
+    def _confirm(self, press: Confirm, received_mono: float, now) -> None:
+        key = (press.press_id, press.stamp)
+        with self._lock:
+            if key in self._confirm_seen:
+                self._confirm_repeats += 1
+                return
+            self._confirm_seen.append(key)
+            stamp = self._stamp(press.stamp, received_mono, now, record=False)
+            self._confirms += 1
+        self._confirm_pub.publish(Header(stamp=stamp, frame_id=CONFIRM_SOURCE))
+
+    def _stamp(self, capture_headset: float, received_mono: float, now, record: bool = True):
         """The header stamp of a sample: its capture time in ROS time when the clock estimate
-        allows, else `now` (its receipt). Called with the lock held."""
+        allows, else `now` (its receipt). Called with the lock held. record: count it in the
+        gaze's delay figures."""
         estimate = self._headset_clock.estimate()
         if estimate is None or self.stamp_source != 'capture':
             return now.to_msg()
@@ -307,9 +337,10 @@ class GazeBridge(Node):
             self._stamp_fallbacks += 1
             return now.to_msg()
         delay = max(delay, 0.0)   # within the bound of zero: no stamp in the future
-        if len(self._delays) < DELAY_BUFFER:
-            self._delays.append(delay)
-        self._captured += 1
+        if record:
+            if len(self._delays) < DELAY_BUFFER:
+                self._delays.append(delay)
+            self._captured += 1
         return (now - Duration(nanoseconds=int(delay * 1e9))).to_msg()
 
     def _ping(self) -> None:
@@ -341,6 +372,7 @@ class GazeBridge(Node):
             estimate, clock_restarts, echoes = clock.estimate(), clock.restarts, self._echoes
             clock_rejected = sum(clock.rejected.values())
             captured, fallbacks = self._captured, self._stamp_fallbacks
+            confirms, confirm_repeats = self._confirms, self._confirm_repeats
         last_received, last_published, last_seq_received, last_seq_lost, last_time = self._last
         self._last = (received, published, seq_received, seq_lost, now)
         dt = max(now - last_time, 1e-9)
@@ -373,6 +405,8 @@ class GazeBridge(Node):
             'receive_rate_hz': f'{new_received / dt:.1f}',
             'publish_rate_hz': f'{new_published / dt:.1f}',
             'receive_buffer_bytes': self.receive_buffer_bytes,
+            'confirms': confirms,
+            'confirm_repeats': confirm_repeats,
             **self._clock_values(estimate, now, delays, echoes, clock_restarts, clock_rejected, captured,
                                  fallbacks),
         }

@@ -10,8 +10,8 @@ UDP to headset_address:display_port, and nowhere else:
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
   active target, uniform in azimuth within +-dummy_azimuth_deg and in elevation within
   +-dummy_elevation_deg around the front, at the active target's distance;
-- prompt: Algorithm 1's steps from calibration_status ("Face front and rest", "Hold still:
-  <direction>, step i of n"), cleared when the calibration ends;
+- prompt: Algorithm 1's steps from calibration_state's fields (core.calibration_state.prompt:
+  "Face front and rest", "Hold still: <direction>, step i of n"), cleared when it ends;
 - phrase: condition 4's phrase from speech.
 
 targets, dummies, prompt and phrase are sent on change and again at refresh_hz, whole, so a
@@ -19,7 +19,7 @@ lost datagram or a restarted app is repaired within one refresh. /diagnostics co
 sent by kind and the send errors.
 
 Subscribed: target_markers (visualization_msgs/MarkerArray), active_target, target_found,
-            calibration_status, speech (std_msgs/String)
+            calibration_state, speech (std_msgs/String)
 Published:  /diagnostics; UDP datagrams to headset_address:display_port
 """
 from __future__ import annotations
@@ -27,7 +27,6 @@ from __future__ import annotations
 from collections import deque
 import ipaddress
 import math
-import re
 import socket
 import sys
 import time
@@ -38,8 +37,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from fabric_guidance.core import display_wire
-from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATUS, DIAGNOSTICS, SPEECH, TARGET_FOUND,
+from fabric_guidance.core import calibration_state, display_wire
+from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATE, DIAGNOSTICS, SPEECH, TARGET_FOUND,
                                        TARGET_MARKERS)
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare
@@ -51,9 +50,6 @@ EVENT_SENDS = 3
 EVENT_REPEAT_S = 0.02
 #: The marker namespace of the micromanipulator's live objects (target_selector).
 LIVE_NAMESPACE = 'live_targets'
-#: calibration_status lines (pressure_controller): rest before a direction, a step, the end.
-_REST = re.compile(r'rest before (\w+) step \d+/(\d+)')
-_STEP = re.compile(r'apply (\w+) step (\d+)/(\d+)')
 
 
 class HeadsetDisplay(Node):
@@ -99,11 +95,12 @@ class HeadsetDisplay(Node):
         self.sent = {kind: 0 for kind in display_wire.KINDS}
         self.send_errors = 0
         self.bytes_sent = 0
+        self.bad_states = 0
 
         self.create_subscription(MarkerArray, TARGET_MARKERS, self.on_markers, LATCHED_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active, LATCHED_QOS)
         self.create_subscription(String, TARGET_FOUND, self.on_found, EVENT_QOS)
-        self.create_subscription(String, CALIBRATION_STATUS, self.on_calibration, EVENT_QOS)
+        self.create_subscription(String, CALIBRATION_STATE, self.on_calibration, LATCHED_QOS)
         self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_timer(1.0 / refresh_hz, self.send_state)
@@ -216,17 +213,13 @@ class HeadsetDisplay(Node):
         self.event('found', msg.data)
 
     def on_calibration(self, msg: String) -> None:
-        text = msg.data
-        rest, step = _REST.match(text), _STEP.match(text)
-        if rest:
-            prompt = ('Face front and rest', 0, int(rest.group(2)))
-        elif step:
-            prompt = (f'Hold still: {step.group(1)}, step {step.group(2)} of {step.group(3)}',
-                      int(step.group(2)), int(step.group(3)))
-        elif text.startswith(('done', 'failed')):
-            prompt = ('', 0, 0)
-        else:
+        try:
+            state = calibration_state.decode(msg.data)
+        except calibration_state.CalibrationStateError as exc:
+            self.bad_states += 1
+            self.get_logger().warn(f'{exc}: the prompt is left as it is', throttle_duration_sec=10.0)
             return
+        prompt = calibration_state.prompt(state)
         if prompt != self.prompt:
             self.prompt = prompt
             self._send('prompt', text=prompt[0], step=prompt[1], steps=prompt[2])
@@ -241,7 +234,8 @@ class HeadsetDisplay(Node):
         level = DiagnosticStatus.WARN if self.send_errors else DiagnosticStatus.OK
         values = {'destination': f'{self.destination[0]}:{self.destination[1]}', 'active': self.active,
                   'targets': len(self.targets), 'dummy_set': self.dummy_set, 'send_errors': self.send_errors,
-                  'bytes_sent': self.bytes_sent, **{f'sent_{k}': n for k, n in self.sent.items()}}
+                  'bytes_sent': self.bytes_sent, 'bad_calibration_states': self.bad_states,
+                  **{f'sent_{k}': n for k, n in self.sent.items()}}
         message = f'{sum(self.sent.values())} display messages sent' + (
             f', {self.send_errors} failed' if self.send_errors else '')
         publish_diagnostics(self, self._diag_pub, [status(self, 'display', level, message, values)])

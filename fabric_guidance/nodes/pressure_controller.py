@@ -57,6 +57,7 @@ from std_srvs.srv import SetBool, Trigger
 from ..core import (Calibration, CalibrationProcedure, ChannelMap, GeometryError, GuidanceController,
                     angles_between, condition, phrase, ray_direction, target_direction)
 from ..core.calibration import DONE, FAILED, Acceptance
+from ..core import calibration_state
 from ..core.channels import ChannelMapError
 from ..core.controller_parameters import PARAMETERS, SETUP
 from ..core.feedback import REST
@@ -65,7 +66,7 @@ from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
 from ..core.control_step import RESET_KEEP_STALL, RESET_VENT, ControllerSetup, StepInput, guidance_step, safe_command
-from ..interface import (ACTIVE_TARGET, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
+from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
                          DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
                          VENT)
 from ..paths import resolve
@@ -124,6 +125,10 @@ class PressureController(LiveParameters, ManagedNode):
         self.parameters_pub = self.create_publisher(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
         self.speech_pub = self.create_publisher(String, SPEECH, EVENT_QOS)
         self.status_pub = self.create_publisher(String, CALIBRATION_STATUS, EVENT_QOS)
+        # The same progress as fields, latched (core/calibration_state.py); the sentence is for people.
+        self.state_pub = self.create_publisher(String, CALIBRATION_STATE, LATCHED_QOS)
+        self.state_pub.publish(String(data=calibration_state.encode(calibration_state.CalibrationState(self.wearer))))
+        self.saved = ('', '', '')   # file, fit report, error of the latest finish_calibration
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
         self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
@@ -265,6 +270,8 @@ class PressureController(LiveParameters, ManagedNode):
         self.procedure = None
         self.last_status = f'failed: {why}; {self.kept()}'
         self.status_pub.publish(String(data=self.last_status))
+        self.state_pub.publish(String(data=calibration_state.encode(
+            calibration_state.failed(self.wearer, why, self.calibration is not None))))
         self.get_logger().error(f'calibration {self.last_status}')
 
     def warn_origin(self, cal: Calibration | None) -> None:
@@ -469,6 +476,10 @@ class PressureController(LiveParameters, ManagedNode):
         if text != self.last_status:
             self.last_status = text
             self.status_pub.publish(String(data=text))
+            file, report, error = self.saved if cmd.phase == DONE else ('', '', '')
+            self.state_pub.publish(String(data=calibration_state.encode(calibration_state.of_procedure(
+                self.wearer, proc, cmd, file=file, report=report, error=error,
+                previous_kept=self.calibration is not None))))
         return self.channel_map.to_channels(direction_pressures, self.layout) if self.procedure else self.zeros
 
     def finish_calibration(self) -> str:
@@ -478,6 +489,7 @@ class PressureController(LiveParameters, ManagedNode):
             path = cal.save(self.cal_dir / f'{self.wearer}.yaml')
         except (ValueError, OSError) as exc:
             self.get_logger().error(f'calibration not saved: {exc}')
+            self.saved = ('', '', f'not saved: {exc}')
             return f'failed: {exc}; {self.kept()}'
         self.calibration = cal
         self.setup.calibration = cal
@@ -487,6 +499,7 @@ class PressureController(LiveParameters, ManagedNode):
         fits = ', '.join(f'{d} R^2 {cal.directions[d].fit.get("r2", float("nan")):.3f}' for d in DIRECTIONS)
         self.get_logger().info(f'calibration written to {path} ({fits})')
         txt, png = self.write_report(cal, path.parent, str(path))
+        self.saved = (str(path), str(txt), '')
         return f'done: {path}; fit report {txt}, {png}'
 
     def write_report(self, cal: Calibration, folder: Path, source: str):

@@ -46,6 +46,16 @@ namespace FabricGuidance.Headset
               .Append(Json.Number(v.Y)).Append(',').Append(Json.Number(v.Z)).Append(']');
         }
 
+        /// <summary>The confirm datagram of one press (docs/headset_wire_format.md): its press_id and
+        /// the headset clock when it was pressed (the clock of the gaze stamp).</summary>
+        public static byte[] EncodeConfirm(uint pressId, double stamp)
+        {
+            var sb = new StringBuilder(96);
+            sb.Append("{\"version\":1,\"kind\":\"confirm\",\"press_id\":").Append(pressId.ToString(CultureInfo.InvariantCulture))
+              .Append(",\"stamp\":").Append(Json.Number(stamp)).Append('}');
+            return Encoding.UTF8.GetBytes(sb.ToString());
+        }
+
         /// <summary>The clock_echo answering a ping: t1 exactly as the ping wrote it.</summary>
         public static byte[] EncodeEcho(uint pingSeq, string t1Text, double t2, double t3)
         {

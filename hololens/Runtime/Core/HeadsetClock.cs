@@ -5,6 +5,8 @@ using System.Diagnostics;
 
 namespace FabricGuidance.Headset
 {
+    /// <summary>The core calls Now() on its owner thread only (HeadsetLink's threading contract), so
+    /// a main-thread-only clock such as Unity's Time.realtimeSinceStartupAsDouble is fine.</summary>
     public interface IHeadsetClock
     {
         /// <summary>Seconds on the headset's monotonic clock.</summary>
@@ -12,8 +14,7 @@ namespace FabricGuidance.Headset
     }
 
     /// <summary>Stopwatch seconds since construction, plus an offset, at a rate of 1 + driftPpm * 1e-6.
-    /// In the app: offset 0, drift 0 (Unity's Time.realtimeSinceStartupAsDouble is the same kind
-    /// of clock). The harness sets both to stand for a headset whose clock is not the PC's.</summary>
+    /// The harness sets both to stand for a headset whose clock is not the PC's.</summary>
     public sealed class StopwatchClock : IHeadsetClock
     {
         readonly Stopwatch watch = Stopwatch.StartNew();

@@ -23,12 +23,14 @@ namespace FabricGuidance.Headset.Unity
 
         void Start()
         {
-            state = GetComponent<HeadsetLinkBehaviour>().Link.Display;
+            // The session (and its display state) exists before HeadsetLinkBehaviour.Start runs.
+            state = GetComponent<HeadsetLinkBehaviour>().Session.Display;
             state.EventShown += m => { if (m.Event == "found") { flashed = m.Target; flashUntil = Time.time + flashS; } };
         }
 
         void LateUpdate()   // after HeadsetLinkBehaviour.Update has pumped the messages
         {
+            if (state == null) return;
             Resize(targets, state.Targets.Count, targetDiameterM);
             for (int i = 0; i < state.Targets.Count; i++)
             {

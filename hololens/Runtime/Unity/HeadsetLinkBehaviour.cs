@@ -1,19 +1,16 @@
-// The Unity side of the headset link: owns the core's HeadsetLink, sends one gaze frame per
-// Update from whichever IGazeSource is on the same GameObject, and applies display messages on
-// the main thread (DisplayState.Pump) for DisplayRenderer. Everything else is in the core.
+// The Unity side of the headset link: a thin shell over the core's HeadsetSession (tested with
+// mono). The session exists as soon as anything asks for it (Session), so DisplayRenderer and
+// the confirm inputs work whichever component Unity starts first; Start opens the sockets;
+// Update pumps the downlink and sends one gaze frame from the IEyeGazeSource on this GameObject,
+// the head gaze (marked not valid) whenever the eyes are not tracked.
+// Threading: everything here runs on Unity's main thread, and the core calls the clock (Unity's
+// Time) and every callback there only (HeadsetLink's threading contract).
 using System.Net;
 using UnityEngine;
 
 namespace FabricGuidance.Headset.Unity
 {
-    /// <summary>A gaze sample in Unity world space; the two eye-gaze components implement it.</summary>
-    public interface IGazeSource
-    {
-        /// <summary>False when the device gives nothing this frame (the frame is not sent).</summary>
-        bool TryGetGaze(out Vector3 origin, out Vector3 direction, out bool eyeTrackingValid);
-    }
-
-    /// <summary>Unity's realtimeSinceStartupAsDouble: monotonic, the clock of stamp, t2 and t3.</summary>
+    /// <summary>Time.realtimeSinceStartupAsDouble: monotonic; the core reads it on the main thread only.</summary>
     sealed class UnityClock : IHeadsetClock
     {
         public double Now() { return Time.realtimeSinceStartupAsDouble; }
@@ -28,40 +25,46 @@ namespace FabricGuidance.Headset.Unity
         [Tooltip("This app's downlink port (the nodes' 'display_port')")]
         public int displayPort = 5006;
 
-        public HeadsetLink Link { get; private set; }
-        IGazeSource source;
+        HeadsetSession session;
+        IEyeGazeSource eyes;
+
+        /// <summary>The core session, made on first use (no sockets until Start).</summary>
+        public HeadsetSession Session
+        {
+            get
+            {
+                if (session == null)
+                    session = new HeadsetSession(IPAddress.Parse(pcAddress), gazePort, new IPEndPoint(IPAddress.Any, displayPort),
+                                                 new UnityClock());
+                return session;
+            }
+        }
 
         void Start()
         {
-            source = GetComponent<IGazeSource>();
-            // Clock reads from the receive thread: Time.realtimeSinceStartupAsDouble is safe
-            // there (unlike most of UnityEngine).
-            Link = new HeadsetLink(IPAddress.Parse(pcAddress), gazePort, new IPEndPoint(IPAddress.Any, displayPort),
-                                   new UnityClock());
-            Link.Start();
+            eyes = GetComponent<IEyeGazeSource>();
+            Session.Start();
         }
 
         void Update()
         {
-            Link.Display.Pump();
-            Vector3 origin, direction;
-            bool valid;
-            if (source == null || !source.TryGetGaze(out origin, out direction, out valid)) return;
-            Transform head = Camera.main.transform;
+            Camera main = Camera.main;
+            if (main == null) return;   // no head this frame (a scene without a MainCamera tag): nothing to send
+            Transform head = main.transform;
+            Vector3 p = head.position;
             Quaternion q = head.rotation;
-            Link.SendGaze(new GazeFrame
-            {
-                GazeOrigin = new Vec3(origin.x, origin.y, origin.z),
-                GazeDirection = new Vec3(direction.x, direction.y, direction.z),
-                HeadPosition = new Vec3(head.position.x, head.position.y, head.position.z),
-                HeadOrientation = new Quat(q.x, q.y, q.z, q.w),
-                EyeTrackingValid = valid,
-            });
+            Session.Update(eyes, new Vec3(p.x, p.y, p.z), new Quat(q.x, q.y, q.z, q.w));
+        }
+
+        /// <summary>The wearer pressed confirm (ConfirmInput calls it on a select / click).</summary>
+        public void Confirm()
+        {
+            Session.Confirm();
         }
 
         void OnDestroy()
         {
-            if (Link != null) Link.Dispose();
+            if (session != null) session.Dispose();
         }
     }
 }

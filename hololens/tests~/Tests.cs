@@ -33,6 +33,62 @@ static class Tests
         return DisplayWire.Decode(b, b.Length);
     }
 
+    /// <summary>The next datagram at `sock`, calling `pump` (the owner's frame) while it waits.</summary>
+    static string ReceiveWhilePumping(UdpClient sock, Func<int> pump, double seconds)
+    {
+        var deadline = DateTime.UtcNow.AddSeconds(seconds);
+        var from = new IPEndPoint(IPAddress.Any, 0);
+        while (DateTime.UtcNow < deadline)
+        {
+            pump();
+            if (sock.Available > 0) return Encoding.UTF8.GetString(sock.Receive(ref from));
+            Thread.Sleep(2);
+        }
+        throw new Exception("nothing arrived within " + seconds + " s");
+    }
+
+    /// <summary>A clock like Unity's Time: it throws on any thread but the one that made it (and
+    /// notes it, since an exception on the receive thread would go unseen).</summary>
+    sealed class MainThreadClock : IHeadsetClock
+    {
+        public readonly int Owner = Thread.CurrentThread.ManagedThreadId;
+        public int OffThread;
+        readonly StopwatchClock inner = new StopwatchClock(700.0);
+        public void Check(string what)
+        {
+            if (Thread.CurrentThread.ManagedThreadId == Owner) return;
+            Interlocked.Increment(ref OffThread);
+            throw new InvalidOperationException(what + " can only be called from the main thread");
+        }
+        public double Now() { Check("get_realtimeSinceStartupAsDouble"); return inner.Now(); }
+    }
+
+    /// <summary>DisplayRenderer without Unity: binds to a session's display in Start, draws in LateUpdate.</summary>
+    sealed class Renderer
+    {
+        DisplayState state;
+        public int Targets = -1;
+        public string Flashed = "";
+        public void Start(HeadsetSession session, MainThreadClock clock)
+        {
+            state = session.Display;
+            state.EventShown += m => { clock.Check("EventShown"); if (m.Event == "found") Flashed = m.Target; };
+        }
+        public void LateUpdate() { Targets = state.Targets.Count; }
+    }
+
+    sealed class EyeSource : IEyeGazeSource
+    {
+        public bool Tracked;
+        public Vec3 Origin, Direction;   // what the device returns, tracked or not
+        public bool TryGetEyeGaze(out Vec3 origin, out Vec3 direction)
+        {
+            origin = Origin;
+            direction = Direction;
+            return Tracked;
+        }
+    }
+
     static GazeFrame Frame(double x)
     {
         return new GazeFrame
@@ -43,7 +99,8 @@ static class Tests
         };
     }
 
-    static int Main()
+    /// <summary>All tests, or those whose name contains the first argument.</summary>
+    static int Main(string[] args)
     {
         Test("gaze numbers are invariant whatever the thread's culture", () =>
         {
@@ -231,18 +288,18 @@ static class Tests
             using (var link = new HeadsetLink(IPAddress.Loopback, ((IPEndPoint)pc.Client.LocalEndPoint).Port, new IPEndPoint(IPAddress.Loopback, 0), clock))
             {
                 link.Start();
-                pc.Client.ReceiveTimeout = 3000;
+                link.Pump();   // the owner reads the clock once: from then on pings are answered
                 byte[] ping = Encoding.UTF8.GetBytes("{\"version\":1,\"kind\":\"clock_ping\",\"ping_seq\":77,\"t1\":1234.5678901234567}");
                 double before = clock.Now();
                 pc.Send(ping, ping.Length, link.ListenEndPoint);
-                var from = new IPEndPoint(IPAddress.Any, 0);
-                string echo = Encoding.UTF8.GetString(pc.Receive(ref from));
+                string echo = ReceiveWhilePumping(pc, link.Pump, 3.0);
                 double after = clock.Now();
                 var o = Json.Parse(echo).Object;
                 Equal("clock_echo", o["kind"].String, "kind");
                 Equal("77", o["ping_seq"].Text, "ping_seq");
                 Equal("1234.5678901234567", o["t1"].Text, "t1 verbatim");
-                True(before <= o["t2"].Number && o["t2"].Number <= o["t3"].Number && o["t3"].Number <= after, "t2, t3 within the exchange: " + echo);
+                // t2 and t3 are Stopwatch ticks carried onto the clock: within a few microseconds of it.
+                True(before - 1e-4 <= o["t2"].Number && o["t2"].Number <= o["t3"].Number && o["t3"].Number <= after + 1e-4, "t2, t3 within the exchange: " + echo);
                 var deadline = DateTime.UtcNow.AddSeconds(3);   // counted just after the send returns
                 while (link.Echoes == 0 && DateTime.UtcNow < deadline) Thread.Sleep(1);
                 Equal(1, link.Echoes, "echoes");
@@ -278,9 +335,138 @@ static class Tests
             }
         });
 
+        Test("the clock and every callback are called on the owner thread only: the downlink survives Unity's clock", () =>
+        {
+            var clock = new MainThreadClock();
+            using (var pc = new UdpClient(new IPEndPoint(IPAddress.Loopback, 0)))
+            using (var link = new HeadsetLink(IPAddress.Loopback, ((IPEndPoint)pc.Client.LocalEndPoint).Port, new IPEndPoint(IPAddress.Loopback, 0), clock))
+            {
+                var received = new List<string>();
+                var rejected = new List<string>();
+                link.Received = m => { clock.Check("Received"); received.Add(m.Kind); };
+                link.Rejected = r => { clock.Check("Rejected"); rejected.Add(r); };
+                link.Display.EventShown += m => clock.Check("EventShown");
+                link.Start();
+                link.SendGaze(Frame(0));
+                for (uint n = 1; n <= 3; n++)
+                {
+                    byte[] ping = Encoding.UTF8.GetBytes("{\"version\":1,\"kind\":\"clock_ping\",\"ping_seq\":" + n + ",\"t1\":5}");
+                    pc.Send(ping, ping.Length, link.ListenEndPoint);
+                    string echo;
+                    do echo = ReceiveWhilePumping(pc, link.Pump, 3.0); while (!echo.Contains("clock_echo"));
+                    Equal(n.ToString(), Json.Parse(echo).Object["ping_seq"].Text, "the echo of ping " + n);
+                }
+                byte[] ev = Encoding.UTF8.GetBytes("{\"version\":1,\"kind\":\"event\",\"seq\":1,\"stamp\":1,\"event_id\":1,\"event\":\"found\",\"target\":\"a\"}");
+                byte[] junk = Encoding.UTF8.GetBytes("{\"version\":1,");
+                pc.Send(ev, ev.Length, link.ListenEndPoint);
+                pc.Send(junk, junk.Length, link.ListenEndPoint);
+                var deadline = DateTime.UtcNow.AddSeconds(3);
+                while ((rejected.Count == 0 || !received.Contains("event")) && DateTime.UtcNow < deadline) { link.Pump(); Thread.Sleep(2); }
+                Equal(0, clock.OffThread, "calls off the owner thread");
+                Equal(3, link.Echoes, "echoes");
+                True(received.Contains("event") && received.Contains("clock_ping"), "Received on the owner: " + string.Join(",", received));
+                Equal("json", rejected.Count > 0 ? rejected[0] : "", "Rejected on the owner");
+            }
+        });
+        foreach (bool rendererFirst in new[] { true, false })
+            Test("the renderer's Start " + (rendererFirst ? "before" : "after") + " the link's: it draws the display and its events", () =>
+            {
+                var clock = new MainThreadClock();
+                using (var pc = new UdpClient(new IPEndPoint(IPAddress.Loopback, 0)))
+                using (var session = new HeadsetSession(IPAddress.Loopback, ((IPEndPoint)pc.Client.LocalEndPoint).Port, new IPEndPoint(IPAddress.Loopback, 0), clock))
+                {
+                    var renderer = new Renderer();
+                    if (rendererFirst) renderer.Start(session, clock);
+                    session.Start();
+                    if (!rendererFirst) renderer.Start(session, clock);
+                    var head = new Vec3(0, 1.6, 0);
+                    var still = new Quat(0, 0, 0, 1);
+                    session.Update(null, head, still);
+                    renderer.LateUpdate();
+                    byte[] targets = Encoding.UTF8.GetBytes("{\"version\":1,\"kind\":\"targets\",\"seq\":1,\"stamp\":1,\"active\":\"a\",\"targets\":[{\"id\":\"a\",\"position\":[0,1.6,2],\"role\":\"target\"}]}");
+                    byte[] found = Encoding.UTF8.GetBytes("{\"version\":1,\"kind\":\"event\",\"seq\":2,\"stamp\":1,\"event_id\":4,\"event\":\"found\",\"target\":\"a\"}");
+                    pc.Send(targets, targets.Length, session.Link.ListenEndPoint);
+                    pc.Send(found, found.Length, session.Link.ListenEndPoint);
+                    var deadline = DateTime.UtcNow.AddSeconds(3);
+                    while ((renderer.Targets != 1 || renderer.Flashed != "a") && DateTime.UtcNow < deadline)
+                    {
+                        session.Update(null, head, still);
+                        renderer.LateUpdate();
+                        Thread.Sleep(2);
+                    }
+                    Equal(1, renderer.Targets, "targets drawn");
+                    Equal("a", renderer.Flashed, "found flashed");
+                    Equal(0, clock.OffThread, "calls off the owner thread");
+                }
+            });
+        Test("eyes not tracked (OpenXR's default pose): the head gaze is sent, marked not valid", () =>
+        {
+            var clock = new MainThreadClock();
+            using (var rx = new UdpClient(new IPEndPoint(IPAddress.Loopback, 0)))
+            using (var session = new HeadsetSession(IPAddress.Loopback, ((IPEndPoint)rx.Client.LocalEndPoint).Port, new IPEndPoint(IPAddress.Loopback, 0), clock))
+            {
+                session.Start();
+                rx.Client.ReceiveTimeout = 2000;
+                var from = new IPEndPoint(IPAddress.Any, 0);
+                var head = new Vec3(0.1, 1.6, 0.2);
+                var turned = new Quat(0, Math.Sin(Math.PI / 12), 0, Math.Cos(Math.PI / 12));   // Unity Euler(0, 30, 0): 30 deg right
+                // Before consent or without an eye tracker OpenXR's pose reads (0,0,0) and (0,0,0,0).
+                var eyes = new EyeSource { Tracked = false, Origin = new Vec3(0, 0, 0), Direction = new Vec3(0, 0, 0) };
+                // A source that says tracked but gives no direction is not believed either; a stale pose
+                // with tracking lost is not tracked.
+                var claims = new EyeSource { Tracked = true, Origin = new Vec3(0, 0, 0), Direction = new Vec3(0, 0, 0) };
+                var stale = new EyeSource { Tracked = false, Origin = new Vec3(0.1, 1.6, 0.2), Direction = new Vec3(-0.5, 0, 0.866) };
+                foreach (var source in new[] { eyes, claims, stale })
+                {
+                    True(session.Update(source, head, turned), "sent");
+                    var o = Json.Parse(Encoding.UTF8.GetString(rx.Receive(ref from))).Object;
+                    Equal(JsonKind.False, o["eye_tracking_valid"].Kind, "eye_tracking_valid");
+                    Equal(0.1, o["gaze_origin"].Array[0].Number, "origin: the head");
+                    var d = o["gaze_direction"].Array;
+                    True(Math.Abs(d[0].Number - 0.5) < 1e-9 && Math.Abs(d[1].Number) < 1e-9 && Math.Abs(d[2].Number - Math.Sqrt(0.75)) < 1e-9,
+                         "direction: the head's forward, 30 deg right: " + d[0].Number + "," + d[1].Number + "," + d[2].Number);
+                }
+                var tracked = new EyeSource { Tracked = true, Origin = new Vec3(0.11, 1.6, 0.2), Direction = new Vec3(-0.2, 0.1, 0.97) };
+                session.Update(tracked, head, turned);
+                var t = Json.Parse(Encoding.UTF8.GetString(rx.Receive(ref from))).Object;
+                Equal(JsonKind.True, t["eye_tracking_valid"].Kind, "tracked eyes are valid");
+                Equal(-0.2, t["gaze_direction"].Array[0].Number, "the eye direction as given");
+                Equal(0, clock.OffThread, "calls off the owner thread");
+            }
+        });
+        Test("a confirm press goes out three times with one press_id and the clock at the press", () =>
+        {
+            var clock = new MainThreadClock();
+            using (var rx = new UdpClient(new IPEndPoint(IPAddress.Loopback, 0)))
+            using (var link = new HeadsetLink(IPAddress.Loopback, ((IPEndPoint)rx.Client.LocalEndPoint).Port, new IPEndPoint(IPAddress.Loopback, 0), clock))
+            {
+                double before = clock.Now();
+                uint first = link.SendConfirm();
+                double after = clock.Now();
+                var got = new List<string>();
+                var deadline = DateTime.UtcNow.AddSeconds(3);
+                var from = new IPEndPoint(IPAddress.Any, 0);
+                while (got.Count < 3 && DateTime.UtcNow < deadline)
+                {
+                    link.Pump();
+                    while (rx.Available > 0) got.Add(Encoding.UTF8.GetString(rx.Receive(ref from)));
+                    Thread.Sleep(2);
+                }
+                Equal(3, got.Count, "datagrams");
+                True(got[0] == got[1] && got[1] == got[2], "the same datagram: " + string.Join(" ", got));
+                var o = Json.Parse(got[0]).Object;
+                Equal("confirm", o["kind"].String, "kind");
+                Equal(first.ToString(), o["press_id"].Text, "press_id");
+                True(before <= o["stamp"].Number && o["stamp"].Number <= after, "stamp at the press");
+                Equal(first + 1, link.SendConfirm(), "the next press");
+                Equal(0, clock.OffThread, "calls off the owner thread");
+            }
+        });
+
         int passed = 0, failed = 0;
         foreach (var t in All)
         {
+            if (args.Length > 0 && !t.Key.Contains(args[0])) continue;
             try { t.Value(); passed++; }
             catch (Exception e) { failed++; Console.WriteLine("FAILED " + t.Key + ": " + e.Message); }
         }

@@ -28,7 +28,10 @@ static class HeadsetHarness
   --clock-offset S        headset clock = seconds since start + S (default 1000)
   --clock-drift-ppm P     the headset clock runs at 1 + P * 1e-6 (default 0)
   --culture NAME          the thread's culture (e.g. de-DE): the wire must not depend on it
-  --log FILE              JSON lines of what was sent (with its stamp), skipped, received and dropped";
+  --log FILE              JSON lines of what was sent (with its stamp), skipped, received and dropped
+  --confirm-at S[,S...]   press confirm at these seconds after the start (the clicker / air tap)
+  --commands stdin        read commands from standard input, one a line: ""confirm"" presses confirm
+  Presses are logged as {""t"":..,""confirm"":press_id,""stamp"":..}; the main thread sends them, as in the app.";
 
     static int Main(string[] args)
     {
@@ -37,6 +40,7 @@ static class HeadsetHarness
             {"--uplink", "127.0.0.1:5005"}, {"--listen", "127.0.0.1:0"}, {"--pc", "127.0.0.1"}, {"--poses", ""},
             {"--rate", "90"}, {"--frames", "-1"}, {"--duration", "10"}, {"--seq-start", "0"}, {"--restart-after", "-1"},
             {"--clock-offset", "1000"}, {"--clock-drift-ppm", "0"}, {"--culture", ""}, {"--log", ""},
+            {"--confirm-at", ""}, {"--commands", ""},
         };
         for (int i = 0; i < args.Length; i++)
         {
@@ -71,6 +75,18 @@ static class HeadsetHarness
             }
             catch (CultureNotFoundException) { return Fail("--culture", "is not a culture this runtime knows"); }
         }
+        var confirmAt = new List<double>();
+        foreach (string part in o["--confirm-at"].Split(new[] { ',' }, StringSplitOptions.RemoveEmptyEntries))
+        {
+            double at;
+            if (!double.TryParse(part, NumberStyles.Float, inv, out at) || !(at >= 0)) return Fail("--confirm-at", "needs seconds >= 0, comma-separated");
+            confirmAt.Add(at);
+        }
+        confirmAt.Sort();
+        if (o["--commands"] != "" && o["--commands"] != "stdin") return Fail("--commands", "takes only 'stdin'");
+        var commands = new System.Collections.Concurrent.ConcurrentQueue<string>();
+        if (o["--commands"] == "stdin")
+            new Thread(() => { string c; while ((c = Console.In.ReadLine()) != null) commands.Enqueue(c.Trim()); }) { IsBackground = true }.Start();
         List<GazeFrame> poses;
         try { poses = o["--poses"] == "" ? new List<GazeFrame> { Still() } : ReadPoses(o["--poses"]); }
         catch (Exception e) { return Fail("--poses", e.Message); }
@@ -105,14 +121,29 @@ static class HeadsetHarness
                     write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"skipped\":\"nan\"}");
                 frame++;
             }
-            link.Display.Pump();
-            // Sleep to the next frame's time (not a fixed sleep: a late frame does not shift the rest).
-            double next = frame * period - watch.Elapsed.TotalSeconds;
-            if (next > 0) Thread.Sleep(TimeSpan.FromSeconds(Math.Min(next, 0.05)));
+            link.Pump();
+            int presses = 0;
+            while (confirmAt.Count > 0 && confirmAt[0] <= watch.Elapsed.TotalSeconds) { confirmAt.RemoveAt(0); presses++; }
+            string command;
+            while (commands.TryDequeue(out command))
+            {
+                if (command == "confirm") presses++;
+                else if (command != "") Console.Error.WriteLine("HeadsetHarness: unknown command '" + command + "' (commands: confirm)");
+            }
+            for (int i = 0; i < presses; i++)
+            {
+                uint id = link.SendConfirm();
+                write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"confirm\":" + id.ToString(inv) +
+                      ",\"stamp\":" + Json.Number(link.LastConfirmStamp) + "}");
+            }
+            // Sleep to the next frame's time (not a fixed sleep: a late frame does not shift the rest),
+            // at most 5 ms: pings, display messages and presses are handled at least that often.
+            double next = (frames >= 0 && frame >= frames ? double.PositiveInfinity : frame * period) - watch.Elapsed.TotalSeconds;
+            if (next > 0) Thread.Sleep(TimeSpan.FromSeconds(Math.Min(next, 0.005)));
         }
         link.Dispose();
-        Console.WriteLine(string.Format(inv, "harness: sent {0}, skipped {1}, echoes {2}, display {3}, dropped {4}",
-            link.Sent, link.Skipped, link.Echoes, link.DisplayReceived, link.Dropped));
+        Console.WriteLine(string.Format(inv, "harness: sent {0}, skipped {1}, echoes {2}, display {3}, dropped {4}, confirms {5}",
+            link.Sent, link.Skipped, link.Echoes, link.DisplayReceived, link.Dropped, link.Confirms));
         if (log != null) log.Dispose();
         return 0;
     }
