@@ -245,3 +245,76 @@ def test_a_frozen_plc_output_writes_commands_again_once_they_are_fresh(rig):
     time.sleep(FREEZE_S)
     proc.send_signal(signal.SIGCONT)
     r.wait_registers(command, COMMAND_DEADLINE_S, 'the live command back after SIGCONT', hold_s=0.3)
+
+
+# ------------------------------------------------------------------ the decisions, without ROS
+def _source(publishers, clock=None):
+    from fabric_guidance.nodes.command_source import CommandSource, Publisher
+    now = [0.0]
+    src = CommandSource('/pressure_controller', lambda: [Publisher(*p) for p in publishers],
+                        clock=clock or (lambda: now[0]))
+    return src, now
+
+
+CONTROLLER = ('pressure_controller', '/', b'\x01' * 16)
+PLAYER = ('rosbag2_player', '/', b'\x02' * 16)
+
+
+def test_the_sender_is_checked_by_its_gid():
+    publishers = [CONTROLLER, PLAYER]
+    src, now = _source(publishers)
+    gid = {'implementation_identifier': 'rmw_fastrtps_cpp'}
+    assert src.check({'publisher_gid': {**gid, 'data': CONTROLLER[2]}}) == ''
+    assert src.check({'publisher_gid': {**gid, 'data': PLAYER[2]}}) == 'from /rosbag2_player'
+    assert src.check({'publisher_gid': {**gid, 'data': b'\x03' * 16}}).startswith('from a publisher the graph')
+    # A controller in another namespace is not this graph's.
+    src, _ = _source([('pressure_controller', '/other', b'\x04' * 16)])
+    assert src.check({'publisher_gid': {**gid, 'data': b'\x04' * 16}}) == 'from /other/pressure_controller'
+    assert src.refused == 1 and src.refused_by == {'/other/pressure_controller': 1}
+
+
+def test_a_restarted_controller_is_found_on_the_next_lookup():
+    publishers = [CONTROLLER]
+    src, now = _source(publishers)
+    new = b'\x05' * 16
+    assert src.check({'publisher_gid': {'data': CONTROLLER[2]}}) == ''
+    publishers[:] = [('pressure_controller', '/', new)]
+    # Within a refresh period of the last lookup it is refused (vented, safe); after it, found.
+    assert src.check({'publisher_gid': {'data': new}}) != ''
+    now[0] += 0.25
+    assert src.check({'publisher_gid': {'data': new}}) == ''
+    # A flood of unknown senders looks the graph up once per refresh period only.
+    calls = []
+    src2, now2 = _source([])
+    src2._publishers = lambda: calls.append(1) or []
+    for _ in range(100):
+        src2.check({'publisher_gid': {'data': b'\x06' * 16}})
+    assert len(calls) == 1
+
+
+def test_without_publisher_gid_any_other_publisher_refuses_every_command():
+    """Jazzy's rclpy has no MessageInfo.publisher_gid: the graph must show the controller alone."""
+    publishers = [CONTROLLER]
+    src, now = _source(publishers)
+    info = {'source_timestamp': 1, 'received_timestamp': 1}
+    assert src.check(info) == ''
+    publishers.append(PLAYER)
+    now[0] += 1.0
+    assert 'while other nodes publish it: /rosbag2_player' in src.check(info)
+    publishers.pop()
+    now[0] += 1.0
+    assert src.check(info) == ''
+    publishers.clear()
+    now[0] += 1.0
+    assert src.check(info).startswith('from a publisher the graph does not name')
+
+
+def test_a_command_is_as_old_as_its_source_timestamp():
+    from fabric_guidance.nodes.command_source import sent_age_s
+    now_ns = 10_000_000_000
+    assert sent_age_s({'source_timestamp': now_ns - 1_200_000_000, 'received_timestamp': now_ns}, now_ns) == pytest.approx(1.2)
+    # A publisher's clock ahead of this host's: age 0, never negative (fresh for command_timeout_s).
+    assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == 0.0
+    # No source time (a middleware that gives 0): unknown age, refused by plc_output.
+    assert sent_age_s({'source_timestamp': 0, 'received_timestamp': now_ns}, now_ns) is None
+    assert sent_age_s(None, now_ns) is None
