@@ -64,16 +64,24 @@ def rig(tmp_path):
         r.close()
 
 
-def hold_registers(rig, expected, duration_s, what):
-    """Every read for duration_s equals `expected` (the registers were there before)."""
+def hold_registers(rig, expected, duration_s, what, vented_ok=False):
+    """Every read for duration_s equals `expected` (the registers were there before). With
+    vented_ok a read of all zeros passes too (a vent is safe: plc_output's reconnection after a
+    Modbus timeout on a loaded machine vents for a cycle); the foreign value never does."""
     end = time.monotonic() + duration_s
-    reads = 0
+    reads = vented = 0
     while time.monotonic() < end:
         r = rig.registers()
         assert r is not None, f'{what}: PLC unreachable'
-        assert np.max(np.abs(r - expected)) <= TOLERANCE_KPA, f'{what}: registers read {r}, expected {expected}'
+        if vented_ok and not np.any(r):
+            vented += 1
+        else:
+            assert np.max(np.abs(r - expected)) <= TOLERANCE_KPA, f'{what}: registers read {r}, expected {expected}'
         reads += 1
         time.sleep(POLL_S)
+    assert vented < reads, f'{what}: vented for the whole {duration_s} s'
+    if vented:
+        print(f'\n[provenance] {what}: {vented} of {reads} reads vented (none foreign)')
     return reads
 
 
@@ -104,7 +112,7 @@ def test_a_second_publisher_moves_no_register(rig):
         r.command(command)
         r.wait_registers(command, COMMAND_DEADLINE_S, "the controller's command in the registers")
         publish_until_heard(pub, msg, 40)
-        reads += hold_registers(r, command, HOLD_S, 'a second publisher beside the controller')
+        reads += hold_registers(r, command, HOLD_S, 'a second publisher beside the controller', vented_ok=True)
         wait_until(lambda: refusals(r)[0] >= 80, REFUSAL_REPORTED_S, what='80 refusals on /diagnostics')
     n, _, values = refusals(r)
     assert '/second_publisher' in values['refused by publisher'], values
@@ -312,7 +320,8 @@ def test_without_publisher_gid_any_other_publisher_refuses_every_command():
 def test_a_command_is_as_old_as_its_source_timestamp():
     from fabric_guidance.nodes.command_source import sent_age_s
     now_ns = 10_000_000_000
-    assert sent_age_s({'source_timestamp': now_ns - 1_200_000_000, 'received_timestamp': now_ns}, now_ns) == pytest.approx(1.2)
+    sent_1_2_s_ago = {'source_timestamp': now_ns - 1_200_000_000, 'received_timestamp': now_ns}
+    assert sent_age_s(sent_1_2_s_ago, now_ns) == pytest.approx(1.2)
     # A publisher's clock ahead of this host's: age 0, never negative (fresh for command_timeout_s).
     assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == 0.0
     # No source time (a middleware that gives 0): unknown age, refused by plc_output.
