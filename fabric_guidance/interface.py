@@ -135,7 +135,9 @@ TOPICS: tuple[Topic, ...] = (
     Topic(PRESSURE_COMMAND, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
           'plc_output', 'kPa per channel, in the order of the `channels` parameter: F1-F4, '
           'B1-B4, L1-L2, R1-R2, arm_i-arm_vi; `layout.dim[0].label` names them in that order, '
-          'comma-separated ([array labels](#array-labels))'),
+          'comma-separated ([array labels](#array-labels)); plc_output writes only the commands of '
+          "its graph's pressure_controller, labelled in its channel order, aged from their source "
+          'timestamp ([safety.md](safety.md#where-a-command-comes-from))'),
     Topic(MEASURED_PRESSURE, 'std_msgs/msg/Float64MultiArray', COMMAND, 'plc_output',
           'wearer_sim', "regulators' measured kPa, same order and label"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',

@@ -345,8 +345,15 @@ def test_lab_launch_with_autostart_false_leaves_the_lifecycle_nodes_to_the_opera
         # The operator's own command through the active plc_output, then deactivate: the vent.
         times['pressure_controller deactivate'] = _transition(probe, 'pressure_controller',
                                                               Transition.TRANSITION_DEACTIVATE)
-        pub = probe.node.create_publisher(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
-        timer = probe.node.create_timer(0.05, lambda: pub.publish(Float64MultiArray(data=command)))
+        # plc_output writes only the commands of the node named pressure_controller, labelled with
+        # its channel order: the operator's test command comes from a node of that name.
+        from fabric_guidance.nodes.array_layout import named_layout
+        from fabric_guidance.paths import config_path
+        layout = named_layout(ChannelMap.load(config_path('hardware/channel_map.yaml')).channels)
+        operator = Probe(domain_id, 'pressure_controller')
+        pub = operator.node.create_publisher(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
+        timer = operator.node.create_timer(0.05, lambda: pub.publish(Float64MultiArray(layout=layout,
+                                                                                       data=command)))
         wait_until(lambda: np.allclose(plc.commands_kpa(), command, atol=0.1), 20.0,
                    what='the operator command in the PLC registers')
         t0 = time.monotonic()
@@ -358,6 +365,7 @@ def test_lab_launch_with_autostart_false_leaves_the_lifecycle_nodes_to_the_opera
         assert not plc.commands_kpa().any(), 'inactive: the commands still published are not written'
         assert _state(probe, 'plc_output') == 'inactive' and plc.client_count >= 1   # the link held
         timer.cancel()
+        operator.close()
         for node in MANAGED:
             times[f'{node} shutdown'] = _transition(probe, node, Transition.TRANSITION_INACTIVE_SHUTDOWN)
             assert _state(probe, node) == 'finalized'

@@ -2,7 +2,8 @@
 
 Each graph is a mock_plc and a plc_output process started with the package's parameter files
 (guidance.yaml, then sim.yaml) on a free port and their own ROS domain. The test plays the
-pressure controller (a probe publishing pressure_command at 20 Hz) and looks at the PLC with
+pressure controller (a probe named pressure_controller publishing pressure_command at 20 Hz,
+labelled with the channel order, as the controller does) and looks at the PLC with
 its own Modbus client, which only ever reads: every assertion is on the holding registers read
 back (or on what the nodes publish), never on a node's internal state. Every wait polls a
 condition against a named deadline; vent times are measured and printed (run with -s, or -rP).
@@ -19,8 +20,9 @@ from std_msgs.msg import Float64MultiArray
 import yaml
 
 from deadlines import DeadlineLog
-from fabric_guidance.core.channels import ChannelMap, label_names
+from fabric_guidance.core.channels import ChannelMap, label_names, layout_label
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
+from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
@@ -42,6 +44,9 @@ OUTPUT = _parameters('plc_output')
 MOCK = _parameters('mock_plc')
 REGISTER_MAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGISTER_MAP)
+CHANNELS = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml').channels
+#: Every command names its channels, in the configured order (plc_output refuses other orders).
+LAYOUT = named_layout(CHANNELS)
 P_MAX_KPA = min(OUTPUT['p_max_kpa'], REGISTER_MAP.p_max_kpa)
 COMMAND_TIMEOUT_S = OUTPUT['command_timeout_s']
 WATCHDOG_S = MOCK['watchdog_s']
@@ -113,7 +118,8 @@ class Rig:
         self.start_mock()
         self.graph.start('plc_output', PARAMS_FILES, **self.output_overrides)
         print(f'graph logs: {self.graph.log_dir}')
-        self.probe = Probe(self.graph.domain_id)
+        # The controller of this graph, as plc_output knows it: a node named pressure_controller.
+        self.probe = Probe(self.graph.domain_id, 'pressure_controller')
         node = self.probe.node
         self.measured = self.probe.subscribe(Float64MultiArray, MEASURED_PRESSURE, COMMAND_QOS)
         self.max_written = self.probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa', COMMAND_QOS)
@@ -122,6 +128,7 @@ class Rig:
         self.client = PlcClient(REGISTER_MAP, '127.0.0.1', self.port, timeout_s=0.5)
         self._lock = threading.Lock()
         self._data = None
+        self._layout = LAYOUT
         self.first_publish_s = self.last_publish_s = None
         node.create_timer(1.0 / COMMAND_RATE_HZ, self._publish)
         if wait:   # (an unconfigured lifecycle node has no link yet: its test waits on its own)
@@ -135,15 +142,16 @@ class Rig:
             self.last_publish_s = time.monotonic()  # taken before publishing: a lower bound
             if self.first_publish_s is None:
                 self.first_publish_s = self.last_publish_s
-            data = self._data
-        self.command_pub.publish(Float64MultiArray(data=data))
+            data, layout = self._data, self._layout
+        self.command_pub.publish(Float64MultiArray(layout=layout, data=data))
 
-    def command(self, values):
-        """Publish `values` from now on, at COMMAND_RATE_HZ; returns when the last other command
-        was published (None if none)."""
+    def command(self, values, layout=LAYOUT):
+        """Publish `values` (with `layout`) from now on, at COMMAND_RATE_HZ; returns when the last
+        other command was published (None if none)."""
         with self._lock:
             previous = self.last_publish_s
             self._data = [float(v) for v in values]
+            self._layout = layout
             self.first_publish_s = None
             return previous
 
@@ -341,15 +349,25 @@ class TestCommands:
         wait_until(lambda: (s := rig.latest_status(OUTPUT_STATUS, n)) and s.level == DiagnosticStatus.WARN,
                    LINK_UP_DIAGNOSTICS_DEADLINE_S, what='plc_output WARN on /diagnostics while venting a stale command')
 
-    @pytest.mark.parametrize('kind', ['wrong length', 'too long', 'NaN', 'inf'])
+    @pytest.mark.parametrize('kind', ['wrong length', 'too long', 'NaN', 'inf', 'channels swapped',
+                                      'channels unnamed'])
     def test_an_invalid_command_vents(self, rig, kind):
+        """A command that is not the configured channel order (two names swapped, as a node with
+        another channel map sends; or no names at all) is invalid like a NaN: it would drive the
+        wrong muscles."""
         valid = np.full(N, 120.0)
         invalid = {'wrong length': [120.0] * (N - 1), 'too long': [120.0] * (N + 1),
                    'NaN': np.where(np.arange(N) == 5, math.nan, 120.0),
-                   'inf': np.where(np.arange(N) == N - 1, math.inf, 120.0)}[kind]
+                   'inf': np.where(np.arange(N) == N - 1, math.inf, 120.0)}.get(kind, valid)
+        swapped = list(CHANNELS)
+        swapped[8], swapped[10] = swapped[10], swapped[8]   # L1 <-> R1: left and right twist
+        layout = {'channels swapped': named_layout(swapped),
+                  'channels unnamed': Float64MultiArray().layout}.get(kind, LAYOUT)
+        assert kind not in ('channels swapped', 'channels unnamed') or \
+            layout_label(swapped) != LAYOUT.dim[0].label
         rig.command(valid)
         rig.wait_registers(valid, COMMAND_DEADLINE_S, 'the valid command in the registers')
-        last_valid = rig.command(invalid)
+        last_valid = rig.command(invalid, layout)
         first_invalid = rig.first_published()
         seconds = rig.time_to_vent(last_valid, INVALID_VENT_DEADLINE_S,
                                    f'invalid command ({kind}) after a valid one (vent before it could go stale)')

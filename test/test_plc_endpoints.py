@@ -21,7 +21,7 @@ from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLayout, PlcLinkError, RegisterMap
 from fabric_guidance.plc.register_map import RegisterMapError
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
-from test_node_plc import MOCK, OUTPUT, PARAMS_FILES
+from test_node_plc import LAYOUT as CHANNEL_LAYOUT, MOCK, OUTPUT, PARAMS_FILES
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
@@ -131,7 +131,8 @@ class Lab:
             self.start_mock(name)
         self.graph.start('plc_output', PARAMS_FILES, register_map_file=str(self.path),
                          **(output_overrides or {}))
-        self.probe = Probe(self.graph.domain_id)
+        # The graph's controller as plc_output knows it (its name), commands labelled as it does.
+        self.probe = Probe(self.graph.domain_id, 'pressure_controller')
         self.diagnostics = self.probe.subscribe(DiagnosticArray, DIAGNOSTICS, COMMAND_QOS)
         self.pub = self.probe.node.create_publisher(Float64MultiArray, PRESSURE_COMMAND,
                                                     COMMAND_QOS)
@@ -147,7 +148,7 @@ class Lab:
 
     def _publish(self):
         if self.data is not None:
-            self.pub.publish(Float64MultiArray(data=self.data))
+            self.pub.publish(Float64MultiArray(layout=CHANNEL_LAYOUT, data=self.data))
 
     def command(self, values):
         self.data = [float(v) for v in values]

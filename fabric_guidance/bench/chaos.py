@@ -11,11 +11,13 @@ first or respawned, waits for the operator's enable, which this run calls.
 
 Each fault is drawn from the seed: SIGKILL, or SIGSTOP then SIGCONT, of each node in turn and
 of two at once; the Modbus link dropping every byte or delayed beyond the request timeout; the
-gaze stream paused or flooded; the operator's own calls: `enable false` during a calibration,
-and `vent` followed by a lifecycle deactivate and activate; a second Modbus writer
-(second_writer.py, closing each round). Each is injected while the suit is pressurised, during
-guidance or during a calibration (start_calibration), then healed (for the operator's calls: by
-the operator's `enable`), and guidance must come back.
+gaze stream paused or flooded; plc_output frozen while the controller is killed (freeze + kill:
+the commands the controller sent before its death wait in the frozen process and must never be
+written after SIGCONT); the operator's own calls: `enable false` during a calibration, and `vent`
+followed by a lifecycle deactivate and activate; a second Modbus writer (second_writer.py, closing
+each round). Each is injected while the suit is pressurised, during guidance or during a
+calibration (start_calibration), then healed (for the operator's calls: by the operator's
+`enable`), and guidance must come back.
 
 Invariants, from the register log alone (plc/register_log.py), checked after every fault and
 again at the end: no command above P_MAX ever sent; every fault that must vent has every
@@ -99,6 +101,10 @@ OPERATOR_VENT_S = WRITE_PERIOD_S + 0.5
 #: How long a lasting fault (a stop, a link or gaze fault) holds [s]: longer than any deadline,
 #: so that the vent is seen to hold.
 HOLD_S = (1.6, 2.6)
+#: freeze + kill: plc_output is stopped, then the controller killed this much later (its commands
+#: meanwhile queue in the frozen process), and plc_output continued at the end of the hold.
+FREEZE_KILL = ('plc_output', 'pressure_controller')
+FREEZE_KILL_AFTER_S = 0.3
 #: Gaze datagrams per second while the stream is flooded (the HoloLens sends 30 to 60).
 FLOOD_RATE_HZ = 2000.0
 
@@ -123,7 +129,8 @@ def pair_deadline(nodes) -> float | None:
 @dataclass(frozen=True)
 class Planned:
     """One fault of the schedule."""
-    # kill, stop, link_drop, link_delay, gaze_pause, gaze_flood, disable, vent_cycle, two_writers
+    # kill, stop, freeze_kill, link_drop, link_delay, gaze_pause, gaze_flood, disable, vent_cycle,
+    # two_writers
     action: str
     nodes: tuple[str, ...] = ()
     phase: str = 'guidance'     # guidance or calibration
@@ -135,6 +142,7 @@ class Planned:
         return {'kill': f'SIGKILL of {who}', 'stop': f'SIGSTOP of {who}, then SIGCONT',
                 'link_drop': 'Modbus link drops every byte',
                 'link_delay': f'Modbus link delayed {LINK_DELAY_S:g} s each way',
+                'freeze_kill': 'SIGSTOP of plc_output, SIGKILL of pressure_controller meanwhile, then SIGCONT',
                 'gaze_pause': 'gaze stream paused',
                 'gaze_flood': f'gaze stream flooded ({FLOOD_RATE_HZ:.0f} datagrams/s)',
                 'disable': 'enable false during a calibration',
@@ -145,7 +153,7 @@ class Planned:
     def deadline_s(self) -> float | None:
         if self.action in ('kill', 'stop'):
             return pair_deadline(self.nodes)
-        return {'link_drop': WATCHDOG_VENT_S, 'link_delay': LINK_DELAY_VENT_S,
+        return {'freeze_kill': WATCHDOG_VENT_S, 'link_drop': WATCHDOG_VENT_S, 'link_delay': LINK_DELAY_VENT_S,
                 'gaze_pause': GAZE_STALE_VENT_S, 'gaze_flood': None, 'disable': OPERATOR_VENT_S,
                 'vent_cycle': OPERATOR_VENT_S, 'two_writers': WATCHDOG_VENT_S}[self.action]
 
@@ -163,7 +171,8 @@ def schedule(seed: int, faults: int) -> list[Planned]:
         pairs = list(itertools.combinations(NODES, 2))
         kinds = ([('kill', (n,)) for n in NODES] + [('stop', (n,)) for n in NODES]
                  + [('kill', rng.choice(pairs)), ('stop', rng.choice(pairs))]
-                 + [(a, ()) for a in ('link_drop', 'link_delay', 'gaze_pause', 'gaze_flood')])
+                 + [(a, ()) for a in ('link_drop', 'link_delay', 'gaze_pause', 'gaze_flood')]
+                 + [('freeze_kill', FREEZE_KILL)])
         rng.shuffle(kinds)
         for action, nodes in kinds:
             out.append(Planned(action, tuple(nodes), rng.choice(('guidance', 'calibration')),
@@ -377,6 +386,11 @@ class ChaosLab:
         elif p.action == 'stop':
             for pid in pids:
                 os.kill(pid, signal.SIGSTOP)
+        elif p.action == 'freeze_kill':
+            frozen, killed = pids
+            os.kill(frozen, signal.SIGSTOP)
+            time.sleep(FREEZE_KILL_AFTER_S)
+            os.kill(killed, signal.SIGKILL)
         elif p.action == 'link_drop':
             self.proxy.drop()
         elif p.action == 'link_delay':
@@ -397,6 +411,12 @@ class ChaosLab:
         if p.action == 'stop':
             for pid in pids:
                 os.kill(pid, signal.SIGCONT)
+        elif p.action == 'freeze_kill':
+            os.kill(pids[0], signal.SIGCONT)
+            # The dead controller's queued commands must not reach the registers: the enable gate
+            # (judged from the vent to the operator's enable) covers the time after SIGCONT.
+            self.controller_back(out, ('pressure_controller',), restarts, t0)
+            out.t_end = max(t_heal, out.t_end)
         elif p.action in ('link_drop', 'link_delay'):
             self.proxy.heal()
         elif p.action in ('gaze_pause', 'gaze_flood'):
@@ -405,24 +425,7 @@ class ChaosLab:
             # Only the operator's enable ends it: the log is judged for nothing applied before it.
             out.t_enable = self.enable()
         elif p.action == 'kill':
-            for n in p.nodes:
-                wait_until(lambda: g.restart_count(n) > restarts[n], RECOVERY_DEADLINE_S, what=f'{n} restarted')
-            # The fault ends with the first of the new processes (it may pressurise from then).
-            out.t_end = min(r.started for r in g.restarts if r.node in p.nodes and r.started > t0)
-            if 'pressure_controller' in p.nodes:
-                self.wait_active('pressure_controller', RECOVERY_DEADLINE_S)
-                # Up, vented and disabled: watched for GATE_WATCH_S with gaze and target present,
-                # then the operator enables. The log is judged for that window at the end.
-                wait_until(lambda: self.register_log.poll().drained > time.monotonic() - 0.01 and
-                           vent_time(self.register_log.entries, t0, time.monotonic() - 0.01) is not None,
-                           RECOVERY_DEADLINE_S, what='the vent in the register log')
-                t_watch = time.monotonic()
-                while time.monotonic() < t_watch + GATE_WATCH_S:
-                    if self.pressurised():
-                        out.notes.append('pressure before enable')
-                        break
-                    time.sleep(0.02)
-                out.t_enable = self.enable()
+            self.controller_back(out, p.nodes, restarts, t0)
         self.wait_pressurised(RECOVERY_DEADLINE_S, f'fault {index}: {p.kind}: guidance back')
         out.recovery_s = time.monotonic() - t_heal
         fault = as_fault(out)
@@ -436,6 +439,28 @@ class ChaosLab:
         out = Outcome(index, p, w['t_die'], t_end=w['t_die'], recovery_s=w['recovery_s'], writer=w)
         out.vent_s = vent_time(self.register_log.entries, w['t_die'])
         return out
+
+    def controller_back(self, out: Outcome, killed, restarts: dict, t0: float) -> None:
+        """Killed nodes restarted; a restarted controller watched vented, then enabled."""
+        g = self.graph
+        for n in killed:
+            wait_until(lambda: g.restart_count(n) > restarts[n], RECOVERY_DEADLINE_S, what=f'{n} restarted')
+        # The fault ends with the first of the new processes (it may pressurise from then).
+        out.t_end = min(r.started for r in g.restarts if r.node in killed and r.started > t0)
+        if 'pressure_controller' in killed:
+            self.wait_active('pressure_controller', RECOVERY_DEADLINE_S)
+            # Up, vented and disabled: watched for GATE_WATCH_S with gaze and target present,
+            # then the operator enables. The log is judged for that window at the end.
+            wait_until(lambda: self.register_log.poll().drained > time.monotonic() - 0.01 and
+                       vent_time(self.register_log.entries, t0, time.monotonic() - 0.01) is not None,
+                       RECOVERY_DEADLINE_S, what='the vent in the register log')
+            t_watch = time.monotonic()
+            while time.monotonic() < t_watch + GATE_WATCH_S:
+                if self.pressurised():
+                    out.notes.append('pressure before enable')
+                    break
+                time.sleep(0.02)
+            out.t_enable = self.enable()
 
 
 def _listening(port: int) -> bool:

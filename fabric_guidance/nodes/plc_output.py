@@ -22,6 +22,12 @@ exception 06, another client holds the PLC's write claim: one writer at a time) 
 With write_on_command (the default) each command is also written the moment it arrives, so it
 does not wait for the next cycle; the cycle keeps the heartbeat, the re-send and the read-back.
 
+Only the controller of the running graph moves a register (nodes/command_source.py): a command
+from any publisher but `command_publisher`'s (a bag played back, a second node) is refused and
+counted; a command is aged from its source timestamp (when it was sent), so one that outlived a
+frozen process is stale on arrival; a command whose layout label does not name the configured
+channel order is invalid (vent).
+
 Subscribes: pressure_command (std_msgs/Float64MultiArray, kPa, channel order)
 Publishes:  measured_pressure (std_msgs/Float64MultiArray, kPa, channel order; while configured),
             /diagnostics (with the lifecycle state)
@@ -37,10 +43,11 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float64MultiArray
 
-from fabric_guidance.core.channels import ChannelMap
+from fabric_guidance.core.channels import ChannelMap, layout_label
 from fabric_guidance.core.feedback import PAPER_P_MAX
 from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_COMMAND
 from fabric_guidance.nodes.array_layout import named_layout
+from fabric_guidance.nodes.command_source import CommandSource, Publisher, full_name, sent_age_s
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.log_throttle import LogThrottle
 from fabric_guidance.nodes.managed import ManagedNode
@@ -112,6 +119,12 @@ class PlcOutput(ManagedNode):
                                        's', 0.01, 600.0, read_only=True)
         self.write_on_command = declare(self, 'write_on_command', True,
                                         'also write each command as soon as it arrives', read_only=True)
+        self.command_publisher = declare(self, 'command_publisher', 'pressure_controller',
+                                         'the node (name, relative to this namespace) whose pressure_command '
+                                         'is written; commands of every other publisher are refused',
+                                         read_only=True)
+        if not self.command_publisher:
+            raise ValueError('parameter "command_publisher" must name a node, got an empty string')
         diagnostics_period_s = declare(self, 'diagnostics_period_s', 1.0, '/diagnostics publication period',
                                        's', 0.05, 60.0, read_only=True)
         if self.reconnect_min_s > self.reconnect_max_s:
@@ -124,6 +137,9 @@ class PlcOutput(ManagedNode):
         self._write_timer = self._command_sub = None
         self._heartbeat = 0
         self._writes = self._invalid_commands = self._ignored_commands = 0
+        self._source: CommandSource | None = None
+        self._refused_reported = 0
+        self._command_label = ''
         # Per-command warnings (a controller gone wrong sends one per message): decided before rclpy.
         self._log_throttle = LogThrottle(LOG_THROTTLE_S)
         self._forget_command()
@@ -169,8 +185,15 @@ class PlcOutput(ManagedNode):
         self.plc_address = ', '.join(link.client.address for link in self._links)
         self._forget_command()
         self._measured_layout = named_layout(channel_map.channels)
+        self._command_label = layout_label(channel_map.channels)
         self._command_sub = self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command,
                                                      COMMAND_QOS)
+        if self._source is None:   # kept over a cleanup and configure: its counts are the node's
+            topic = self._command_sub.topic_name   # as resolved (namespace, remaps)
+            self._source = CommandSource(
+                full_name(self.command_publisher, self.get_namespace()),
+                lambda: [Publisher(e.node_name, e.node_namespace, bytes(e.endpoint_gid))
+                         for e in self.get_publishers_info_by_topic(topic)])
         self._write_timer = self.create_timer(1.0 / self.write_rate_hz, self._on_write_timer, clock=self._steady)
         self.get_logger().info(
             f'writing {self.n} channels {list(channel_map.channels)} to the PLC at {self.plc_address} '
@@ -213,10 +236,29 @@ class PlcOutput(ManagedNode):
         if not self.active:
             self._ignored_commands += 1
             return
+        # Whose command: only the controller's moves a register; any other is dropped without
+        # touching the controller's latest (a second publisher cannot vent the suit either).
+        refused = self._source.check(info)
+        # How old: from when it was sent (the publisher's clock at publish), so a command that
+        # waited in a frozen process or in DDS is as old as it is, not as old as its delivery.
+        age_s = sent_age_s(info)
+        if not refused and age_s is None:
+            refused = self._source.refuse('no source time', 'without a source timestamp (its age is unknown)')
+        if refused:
+            if self._log_throttle.due('refused'):
+                self.get_logger().warning(f'refusing pressure_command {refused}: only '
+                                          f'{self._source.node} moves the registers')
+            return
         p = np.asarray(msg.data, dtype=float)
-        if p.shape != (self.n,) or not np.all(np.isfinite(p)):
-            why = (f'{p.size} values, need {self.n}' if p.shape != (self.n,)
-                   else f'non-finite values on channels {[int(i) for i in np.flatnonzero(~np.isfinite(p))]}')
+        label = msg.layout.dim[0].label if msg.layout.dim else ''
+        why = ''
+        if label != self._command_label:
+            why = f'channels "{label}", configured "{self._command_label}"'
+        elif p.shape != (self.n,):
+            why = f'{p.size} values, need {self.n}'
+        elif not np.all(np.isfinite(p)):
+            why = f'non-finite values on channels {[int(i) for i in np.flatnonzero(~np.isfinite(p))]}'
+        if why:
             self._invalid_commands += 1
             self._invalid, self._command = True, self._zeros
             if self._log_throttle.due('invalid'):
@@ -229,13 +271,7 @@ class PlcOutput(ManagedNode):
                                       f'{self.p_max_kpa:g} kPa')
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
-        # A command is as old as its arrival in this process (the middleware's receive time, on
-        # this host's clock), not as its turn on the executor: after the executor was held up (a
-        # Modbus timeout, a loaded machine), the queued commands of a controller that has died
-        # since must not count as fresh and pressurise the suit again.
-        received_ns = info.get('received_timestamp', 0) if info else 0
-        lag_s = (time.time_ns() - received_ns) * 1e-9 if received_ns > 0 else 0.0
-        self._command_s = time.monotonic() - max(0.0, lag_s)
+        self._command_s = time.monotonic() - age_s
         if self.write_on_command and self._all_up():
             self._write_now()
 
@@ -364,6 +400,11 @@ class PlcOutput(ManagedNode):
             level, message = DiagnosticStatus.WARN, f'venting: {reason}'
         else:
             level, message = DiagnosticStatus.OK, 'writing commands'
+        refused = self._source.refused if self._source is not None else 0
+        if refused > self._refused_reported and level == DiagnosticStatus.OK:
+            # Refused commands since the last report: someone else publishes pressure_command.
+            level, message = DiagnosticStatus.WARN, f'refusing pressure_command {self._source.last_refusal}'
+        self._refused_reported = refused
         if self.configure_error:
             level, message = DiagnosticStatus.ERROR, f'unconfigured: {self.configure_error}'
         age = 'never' if self._command_s is None else f'{time.monotonic() - self._command_s:.3f}'
@@ -375,7 +416,12 @@ class PlcOutput(ManagedNode):
                   'reconnects': sum(link.reconnects for link in self._links),
                   'invalid commands': self._invalid_commands, 'command age s': age,
                   'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}',
-                  'commands ignored while not active': self._ignored_commands, **self.lifecycle_values()}
+                  'commands ignored while not active': self._ignored_commands,
+                  'commands refused (not the controller\'s)': refused,
+                  'refused by publisher': ' '.join(f'{k}={v}' for k, v in sorted(
+                      (self._source.refused_by if self._source is not None else {}).items())) or 'none',
+                  'last refusal': self._source.last_refusal if self._source is not None and refused else '',
+                  **self.lifecycle_values()}
         statuses = [status(self, 'PLC output', level, message, values)]
         for link in self._links:
             link_level = DiagnosticStatus.OK if link.up else DiagnosticStatus.ERROR
