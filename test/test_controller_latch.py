@@ -6,6 +6,7 @@ effect at once or is refused with the reason). Every assertion is on a command t
 published or a service's or parameter's answer."""
 import contextlib
 import math
+import time
 
 import numpy as np
 import pytest
@@ -228,6 +229,27 @@ def test_a_wearer_who_blinks_every_second_is_still_stopped(tmp_path):
         rig.gazes(0.5)
         assert rig.node.controller.stalled, 'every blink restarted the stall watch'
         assert rig.vented() and stalled_at is not None and stalled_at <= 2.0 + 1.0 + 0.1, stalled_at
+
+
+def test_a_gaze_sample_that_waited_in_a_frozen_controller_is_stale(tmp_path):
+    """Samples are aged from their DDS source time: after a freeze (SIGSTOP) of the controller,
+    the samples queued meanwhile are as old as they are, and guidance vents instead of acting on
+    them; a sample sent now guides again."""
+    with controller(tmp_path, gaze_timeout_s=0.3) as rig:
+        guiding(rig)
+        msg = PoseStamped()
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
+        o = msg.pose.orientation
+        o.x, o.y, o.z, o.w = ray_orientation(direction(0.0))
+        rig.clock += 1 / 30
+        rig.node.on_gaze(msg, {'source_timestamp': time.time_ns() - 2_000_000_000})   # sent 2 s ago
+        assert rig.vented(), 'a 2 s old sample guided'
+        rig.clock += 1 / 30
+        rig.node.on_gaze(msg, {'source_timestamp': time.time_ns()})
+        assert not rig.vented(), 'a sample sent now guides'
+        rig.clock += 1 / 30
+        rig.node.on_gaze(msg, {'source_timestamp': 0})   # no source time: counted from arrival
+        assert not rig.vented()
 
 
 def test_a_calibration_ends_with_ros_time_stopped(tmp_path):

@@ -71,6 +71,7 @@ from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, C
                          VENT)
 from ..paths import resolve
 from .array_layout import named_layout
+from .command_source import sent_age_s
 from .diagnostics import publish_diagnostics, status
 from .controller_settings import LiveParameters
 from .managed import ManagedNode
@@ -130,7 +131,8 @@ class PressureController(LiveParameters, ManagedNode):
         self.state_pub.publish(String(data=calibration_state.encode(calibration_state.CalibrationState(self.wearer))))
         self.saved = ('', '', '')   # file, fit report, error of the latest finish_calibration
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
+        # With the message info: a sample is aged from when it was sent (see on_gaze).
+        self.create_subscription(PoseStamped, GAZE, lambda msg, info: self.on_gaze(msg, info), SENSOR_QOS)
         self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
@@ -300,7 +302,10 @@ class PressureController(LiveParameters, ManagedNode):
             self.controller.vent(forget_stall)
 
     # ---- inputs
-    def on_gaze(self, msg: PoseStamped) -> None:
+    def on_gaze(self, msg: PoseStamped, info=None) -> None:
+        """A gaze sample, aged from its DDS source time (when gaze_bridge sent it): samples that
+        waited in this process while it was frozen (SIGSTOP, a paused VM) are as old as they are,
+        not fresh from when it woke. Without a source time (info None or 0) it counts from now."""
         p, q = msg.pose.position, msg.pose.orientation
         try:
             direction = ray_direction([q.x, q.y, q.z, q.w])
@@ -311,7 +316,7 @@ class PressureController(LiveParameters, ManagedNode):
             self.invalid_inputs += 1
             return
         self.gaze_origin, self.gaze_direction = origin, direction
-        self.gaze_received = self.now_s()
+        self.gaze_received = self.now_s() - (sent_age_s(info) or 0.0)
         if self.v['step_on_gaze'] and self.active:
             self.step()
 
