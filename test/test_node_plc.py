@@ -166,11 +166,15 @@ class Rig:
 
     # ---- the PLC's side, read back
     def registers(self):
-        """Command registers read back (kPa, channel order), None while the mock is unreachable."""
-        try:
-            return self.client.read_commands_kpa()
-        except PlcLinkError:
-            return None
+        """Command registers read back (kPa, channel order), None while the mock is unreachable.
+        Tried twice: the PLC closes a reader's connection after IDLE_S of silence (as the program
+        reaps its sockets), and the first read after such a pause finds it closed."""
+        for _ in range(2):
+            try:
+                return self.client.read_commands_kpa()
+            except PlcLinkError:
+                self.client.close()
+        return None
 
     def wait_registers(self, expected, deadline_s, what, hold_s=0.0):
         """Wait until the registers read `expected` (within TOLERANCE_KPA), continuously for hold_s."""
