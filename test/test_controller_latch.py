@@ -6,7 +6,6 @@ effect at once or is refused with the reason). Every assertion is on a command t
 published or a service's or parameter's answer."""
 import contextlib
 import math
-import time
 
 import numpy as np
 import pytest
@@ -232,23 +231,27 @@ def test_a_wearer_who_blinks_every_second_is_still_stopped(tmp_path):
 
 
 def test_a_gaze_sample_that_waited_in_a_frozen_controller_is_stale(tmp_path):
-    """Samples are aged from their DDS source time: after a freeze (SIGSTOP) of the controller,
-    the samples queued meanwhile are as old as they are, and guidance vents instead of acting on
-    them; a sample sent now guides again."""
-    with controller(tmp_path, gaze_timeout_s=0.3) as rig:
+    """Samples are aged from their capture stamp: after a freeze (SIGSTOP) of the controller, the
+    samples queued meanwhile are as old as their stamps, and guidance vents instead of acting on
+    them; a sample stamped now guides again, and one without a stamp counts from its arrival."""
+    with controller(tmp_path, gaze_timeout_s=0.3, ros_time=True) as rig:
         guiding(rig)
-        msg = PoseStamped()
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
-        o = msg.pose.orientation
-        o.x, o.y, o.z, o.w = ray_orientation(direction(0.0))
-        rig.clock += 1 / 30
-        rig.node.on_gaze(msg, {'source_timestamp': time.time_ns() - 2_000_000_000})   # sent 2 s ago
+
+        def sample(age_s):
+            msg = PoseStamped()
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = EYE
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = ray_orientation(direction(0.0))
+            rig.clock += 1 / 30
+            rig.node.get_clock().set_ros_time_override(Time(nanoseconds=int(rig.clock * 1e9)))
+            if age_s is not None:
+                msg.header.stamp = Time(nanoseconds=int((rig.clock - age_s) * 1e9)).to_msg()
+            rig.node.on_gaze(msg)
+        sample(2.0)     # captured 2 s ago: waited in the frozen process
         assert rig.vented(), 'a 2 s old sample guided'
-        rig.clock += 1 / 30
-        rig.node.on_gaze(msg, {'source_timestamp': time.time_ns()})
-        assert not rig.vented(), 'a sample sent now guides'
-        rig.clock += 1 / 30
-        rig.node.on_gaze(msg, {'source_timestamp': 0})   # no source time: counted from arrival
+        sample(0.01)
+        assert not rig.vented(), 'a sample captured now guides'
+        sample(None)
         assert not rig.vented()
 
 

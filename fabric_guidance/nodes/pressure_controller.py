@@ -71,7 +71,6 @@ from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, C
                          VENT)
 from ..paths import resolve
 from .array_layout import named_layout
-from .command_source import sent_age_s
 from .diagnostics import publish_diagnostics, status
 from .controller_settings import LiveParameters
 from .managed import ManagedNode
@@ -131,8 +130,7 @@ class PressureController(LiveParameters, ManagedNode):
         self.state_pub.publish(String(data=calibration_state.encode(calibration_state.CalibrationState(self.wearer))))
         self.saved = ('', '', '')   # file, fit report, error of the latest finish_calibration
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        # With the message info: a sample is aged from when it was sent (see on_gaze).
-        self.create_subscription(PoseStamped, GAZE, lambda msg, info: self.on_gaze(msg, info), SENSOR_QOS)
+        self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
         self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
@@ -302,10 +300,12 @@ class PressureController(LiveParameters, ManagedNode):
             self.controller.vent(forget_stall)
 
     # ---- inputs
-    def on_gaze(self, msg: PoseStamped, info=None) -> None:
-        """A gaze sample, aged from its DDS source time (when gaze_bridge sent it): samples that
-        waited in this process while it was frozen (SIGSTOP, a paused VM) are as old as they are,
-        not fresh from when it woke. Without a source time (info None or 0) it counts from now."""
+    def on_gaze(self, msg: PoseStamped) -> None:
+        """A gaze sample, aged from its capture stamp as well as from its arrival: samples that
+        waited in this process while it was frozen (SIGSTOP, a paused VM) are as old as their
+        stamps say when it wakes, not fresh. The stamp is compared with this node's ROS clock,
+        the clock it was stamped on (the system clock live, the bag's /clock in a replay); with
+        no stamp or no ROS time (use_sim_time before /clock) the arrival alone counts."""
         p, q = msg.pose.position, msg.pose.orientation
         try:
             direction = ray_direction([q.x, q.y, q.z, q.w])
@@ -316,7 +316,10 @@ class PressureController(LiveParameters, ManagedNode):
             self.invalid_inputs += 1
             return
         self.gaze_origin, self.gaze_direction = origin, direction
-        self.gaze_received = self.now_s() - (sent_age_s(info) or 0.0)
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        now_ns = self.get_clock().now().nanoseconds
+        age_s = (now_ns - stamp_ns) * 1e-9 if stamp_ns > 0 and now_ns > 0 else 0.0
+        self.gaze_received = self.now_s() - max(0.0, age_s)
         if self.v['step_on_gaze'] and self.active:
             self.step()
 
