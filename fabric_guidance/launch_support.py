@@ -12,6 +12,8 @@
 - `lab_launch_arguments`, `lab_node_kwargs`, `lab_network_actions`: the lab's keystore (each
   node in its SROS2 enclave, security enforced; docs/security.md) and discovery server (each
   node its client; optionally started by the launch; docs/lab_network.md). Unset: no change.
+- `loopback_dds_actions`: the simulated graph's DDS on 127.0.0.1 (config/fastdds_loopback.xml),
+  under the profile variable of Fast DDS 3 (Kilted) and of Fast DDS 2 (Jazzy) alike.
 """
 from __future__ import annotations
 
@@ -21,14 +23,26 @@ import shutil
 import sys
 import tempfile
 
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler, SetEnvironmentVariable
 from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
-from . import discovery_server, security_policy
+from . import discovery_server, lab_network, security_policy
 
 #: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
 MOCK_PLC_LISTENING = 'mock PLC listening on'
+
+
+def loopback_dds_actions(share: str) -> list:
+    """Environment actions that keep every later process of the launch on loopback DDS: the
+    package's loopback profile under both Fast DDS variable names, the profile deciding alone
+    (rmw's LOCALHOST range would add a send socket on every interface); without the profile, at
+    least discovery stays on this machine."""
+    profile = os.path.join(share, 'config', 'fastdds_loopback.xml')
+    if not os.path.isfile(profile):
+        return [SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')]
+    return [*(SetEnvironmentVariable(name, value) for name, value in lab_network.profile_env(profile).items()),
+            SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT')]
 
 
 class NodeOverrides:

@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
+from .lab_network import profile_env
 from .paths import share_dir
 
 ROOT = share_dir()
@@ -44,8 +45,7 @@ def loopback_dds_env() -> dict[str, str]:
     (SYSTEM_DEFAULT: rmw's LOCALHOST mode would add a send socket on every interface)."""
     if not LOOPBACK_DDS_PROFILE.is_file():  # without it SYSTEM_DEFAULT would reach the network
         raise FileNotFoundError(f'{LOOPBACK_DDS_PROFILE} is missing: DDS would not stay on loopback')
-    return {'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_DDS_PROFILE),
-            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+    return {**profile_env(LOOPBACK_DDS_PROFILE), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
 
 
 _counter = itertools.count()

@@ -27,7 +27,8 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node, SetRemap
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
+from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
+                                            loopback_dds_actions)
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
@@ -77,7 +78,9 @@ def _graph(context, *args, **kwargs):
                   output='screen',
                   parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)],
                   **lab_node_kwargs(context, 'wearer_sim'))
-    return [mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
+    # All simulated: DDS on loopback, as sim.launch.py (a real plc_output elsewhere on the
+    # domain must never hear this graph's pressure_command).
+    return [*loopback_dds_actions(share), mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
             ports.cleanup_action()]
 
 

@@ -13,13 +13,13 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import (DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction,
-                            SetEnvironmentVariable)
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
+from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
+                                            loopback_dds_actions)
 
 
 def _graph(context, *args, **kwargs):
@@ -60,15 +60,10 @@ def _graph(context, *args, **kwargs):
 
 
 def generate_launch_description():
-    # The simulated graph talks to nobody else: Fast DDS on 127.0.0.1 only, the profile deciding
-    # alone, as in `make demo` and the tests (rmw's LOCALHOST range would add a send socket on
-    # every interface); without the profile, at least discovery stays on this machine.
-    profile = os.path.join(get_package_share_directory('fabric_guidance'), 'config',
-                           'fastdds_loopback.xml')
-    discovery_range = 'SYSTEM_DEFAULT' if os.path.isfile(profile) else 'LOCALHOST'
+    # The simulated graph talks to nobody else: Fast DDS on 127.0.0.1 only, as in `make demo`
+    # and the tests, on Jazzy (Fast DDS 2) as on Kilted (Fast DDS 3).
     return LaunchDescription([
-        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile),
-        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', discovery_range),
+        *loopback_dds_actions(get_package_share_directory('fabric_guidance')),
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
                                           '4 speech'),

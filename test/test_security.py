@@ -45,10 +45,12 @@ def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     env = Graph(tmp_path).env   # the loopback profile decides alone (test_bad_input checks with ss)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
     assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')   # Fast DDS 2 (Jazzy)
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).
-    assert "SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile)" in launch
-    assert "'fastdds_loopback.xml'" in launch and "else 'LOCALHOST'" in launch
+    assert 'loopback_dds_actions(' in launch
+    support = (ROOT / 'fabric_guidance' / 'launch_support.py').read_text()
+    assert "'fastdds_loopback.xml'" in support and "'LOCALHOST'" in support
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
     sim = yaml.safe_load((CONFIG / 'params/sim.yaml').read_text())
     assert ipaddress.ip_address(sim['mock_plc']['ros__parameters']['host']).is_loopback
