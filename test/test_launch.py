@@ -383,12 +383,11 @@ def micromanipulation_graph(sim_ports):
 def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
         micromanipulation_graph):
     import numpy as np
-    import yaml
     from geometry_msgs.msg import PointStamped, PoseStamped
     _, watch, domain_id, before = micromanipulation_graph
-    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')))
-    selector = params['target_selector']['ros__parameters']
-    stack = params['micromanipulator_sim']['ros__parameters']
+    from fabric_guidance.paths import node_parameters
+    path = os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')
+    selector, stack = node_parameters(path, 'target_selector'), node_parameters(path, 'micromanipulator_sim')
     micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])
              for i, n in enumerate(stack['object_names'])}
     scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \

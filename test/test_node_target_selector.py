@@ -19,17 +19,17 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
-import yaml
 
 from fabric_guidance.core.geometry import ray_orientation, target_direction
 from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
                                        TARGET_FOUND)
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
-from rosgraph import CONFIG, Graph, Probe, wait_until
+from fabric_guidance.paths import node_parameters
+from rosgraph import Graph, Probe, wait_until
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
-PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']['ros__parameters']
+PARAMS = node_parameters('params/guidance.yaml', 'target_selector')
 NAMES = PARAMS['target_names']
 POSITIONS = {n: tuple(PARAMS['target_positions'][3 * i:3 * i + 3]) for i, n in enumerate(NAMES)}
 DWELL_S = PARAMS['dwell_s']
@@ -116,7 +116,8 @@ class Selector:
                        REPLY_DEADLINE_S, what=f'target at {position}')
 
     def trigger(self, service: str) -> Trigger.Response:
-        return self.probe.call(Trigger, service, Trigger.Request(), REPLY_DEADLINE_S)
+        """Call the selector's private service `service` (next_target, reset_sequence)."""
+        return self.probe.call(Trigger, f'~/{service}', Trigger.Request(), REPLY_DEADLINE_S)
 
     def set_active(self, name: str):
         request = SetParameters.Request(parameters=[Parameter('active_target', value=name).to_parameter_msg()])
