@@ -375,7 +375,7 @@ class PlcOutput(ManagedNode):
                   'invalid commands': self._invalid_commands, 'command age s': age,
                   'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}',
                   'commands ignored while not active': self._ignored_commands, **self.lifecycle_values()}
-        statuses = [status(self, 'PLC output', level, message, values)]
+        statuses = [status(self, 'PLC output', level, message, values, hardware_id=f'PLC {self.plc_address}')]
         for link in self._links:
             link_level = DiagnosticStatus.OK if link.up else DiagnosticStatus.ERROR
             statuses.append(status(self, f'PLC link {link.name}', link_level,
@@ -384,7 +384,7 @@ class PlcOutput(ManagedNode):
                                     'unit id': link.client.map.unit_id,
                                     'channels': ' '.join(link.client.map.names),
                                     'link failures': link.failures,
-                                    'reconnects': link.reconnects}))
+                                    'reconnects': link.reconnects}, hardware_id=f'PLC {link.client.address}'))
         publish_diagnostics(self, self._diagnostics_pub, statuses)
 
     @staticmethod
