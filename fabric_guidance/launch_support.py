@@ -1,5 +1,7 @@
 """What the package's launch files share (imported by launch/*.launch.py only: it needs launch).
 
+- `namespace_argument`, `launch_namespace`: the launch argument namespace (every node of the
+  launch in it; the parameter files are keyed `/**/<node>` so that it keeps its configuration).
 - `NodeOverrides`: launch arguments as node-scoped parameter files, loaded after the parameter
   files so that they win by construction (a `/**` file, which is what launch_ros makes of a
   dict, wins or loses by the order rcl happens to merge its entries in), removed at shutdown.
@@ -45,6 +47,24 @@ def loopback_dds_actions(share: str) -> list:
             SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT')]
 
 
+def namespace_argument() -> DeclareLaunchArgument:
+    return DeclareLaunchArgument('namespace', default_value='',
+                                 description="every node of the launch in this namespace (e.g. suit_a: a second "
+                                             "suit on the same domain; its services are then "
+                                             "/suit_a/pressure_controller/enable ...); empty: the root")
+
+
+def launch_namespace(context) -> str:
+    """The launch argument namespace as a node's `namespace=` ('' : the root, or whatever an
+    enclosing PushRosNamespace set); ValueError naming the argument for an invalid one."""
+    text = context.launch_configurations.get('namespace', '').strip()
+    if text and not all(part.replace('_', 'a').isalnum() and not part[0].isdigit()
+                        for part in text.strip('/').split('/')):
+        raise ValueError(f'launch argument namespace:={text!r} is not a ROS namespace (letters, digits and _ '
+                         'in /-separated tokens, none starting with a digit)')
+    return text.rstrip('/') if text != '/' else text
+
+
 class NodeOverrides:
     """One parameter file per node, keyed by the node's fully qualified name, in a directory of
     this launch that an OnShutdown handler (or, failing that, the launch process's exit)
@@ -60,8 +80,11 @@ class NodeOverrides:
             # OnShutdown removes it with the launch; atexit when `ros2 launch` itself exits (a
             # launch interrupted twice can end before its shutdown handlers ran).
             atexit.register(shutil.rmtree, self._dir, True)
-        namespace = self._context.launch_configurations.get('ros_namespace') or ''
-        fqn = '/'.join(part for part in (namespace.strip('/'), node_name) if part)
+        # As launch_ros resolves the node's namespace: the launch argument, under an enclosing
+        # PushRosNamespace unless it is absolute.
+        namespace = launch_namespace(self._context)
+        pushed = '' if namespace.startswith('/') else self._context.launch_configurations.get('ros_namespace') or ''
+        fqn = '/'.join(part for part in (*pushed.split('/'), *namespace.split('/'), node_name) if part)
         path = os.path.join(self._dir, f'{node_name}.yaml')
         with open(path, 'w') as f:
             yaml.safe_dump({f'/{fqn}': {'ros__parameters': parameters}}, f, sort_keys=False)

@@ -3,7 +3,8 @@ wearer, with the simulated wearer's calibration and config/params/sim.yaml over 
 for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
-    ros2 launch fabric_guidance sim.launch.py plc_port:=1602 gaze_port:=5105 display_port:=5106   # a second one
+    # a second suit beside the first, on the same domain (docs/interfaces.md, "Names and namespaces")
+    ros2 launch fabric_guidance sim.launch.py namespace:=suit_b plc_port:=1602 gaze_port:=5105 display_port:=5106
 
 The lab graph starts once the mock PLC listens (plc_output's first connection then succeeds).
 On Ctrl-C the mock PLC stays up until plc_output has vented and closed its connection
@@ -19,7 +20,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
-                                            loopback_dds_actions)
+                                            launch_namespace, loopback_dds_actions, namespace_argument)
 
 
 def _graph(context, *args, **kwargs):
@@ -44,13 +45,15 @@ def _graph(context, *args, **kwargs):
             # The simulated graph guides at once, as `make demo` does; the lab's restarts and
             # their enable gate are for a wearer (guidance.launch.py).
             'respawn': 'false',
+            'namespace': LaunchConfiguration('namespace'),
         }.items())
+    namespace = launch_namespace(context)
     ports = NodeOverrides(context)
-    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
+    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', namespace=namespace,
                     output='screen',
                     parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})],
                     **lab_node_kwargs(context, 'mock_plc'))
-    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
+    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim', namespace=namespace,
                   output='screen',
                   parameters=[sim_params,
                               ports.file('wearer_sim', {'bridge_port': int(gaze_port),
@@ -76,5 +79,6 @@ def generate_launch_description():
         DeclareLaunchArgument('autostart', default_value='true',
                               description='configure and activate the lifecycle nodes (false: leave them '
                                           'to the operator)'),
+        namespace_argument(),
         OpaqueFunction(function=_graph),
     ])
