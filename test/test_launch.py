@@ -1,15 +1,21 @@
-"""The launch files under the real launch system (launch 3.7.1, launch_ros 0.28.0, launch_pytest),
-run from a `colcon build` install tree, as a lab runs them.
+"""The launch files under the real launch system, run from a `colcon build` install tree, as a
+lab runs them: under ROS 2 Kilted's launch 3.7.1 / launch_ros 0.28.0 and under Jazzy's launch
+3.4.3 / launch_ros 0.26.6 (FABRIC_GUIDANCE_LAUNCH_DISTRO names which; rclpy and Fast DDS are the
+Kilted wheels' in both: Jazzy's are not on the package index).
 
-`make test` runs this module in .venv-launch (pytest 7.4.4, the wheels of ../shared/ros-tooling/,
-colcon) after building the package with colcon into build-launch/; see docs/launch.md.
-Everywhere else it is skipped with one line.
+`make test` runs this module twice, in .venv-launch and .venv-launch-jazzy (pytest 7.4.4, the
+wheels of ../shared/ros-tooling/ and ../shared/ros-tooling/jazzy/, colcon), each after building
+the package with colcon into build-launch/ or build-launch-jazzy/; see docs/launch.md. Also here:
+the workspace check, every executable of the install tree started and stopped. Everywhere
+else it is skipped with one line.
 """
 import glob
 import os
 import re
 import signal
 import socket
+import subprocess
+import sys
 import tempfile
 import threading
 
@@ -114,6 +120,22 @@ def _fabric_guidance_temp_files():
     return set(glob.glob(os.path.join(tempfile.gettempdir(), 'fabric_guidance_*')))
 
 
+#: launch and launch_ros releases of each distribution the stage runs under (their wheels).
+LAUNCH_VERSIONS = {'kilted': ('3.7.', '0.28.'), 'jazzy': ('3.4.', '0.26.')}
+
+
+def test_the_stage_runs_under_the_distributions_launch_and_launch_ros():
+    """A venv with the other distribution's wheels would pass for this one unseen."""
+    from importlib.metadata import version
+    distro = os.environ.get('FABRIC_GUIDANCE_LAUNCH_DISTRO', 'kilted')
+    launch_version, launch_ros_version = version('launch'), version('launch_ros')
+    print(f'\n[{distro}] launch {launch_version}, launch_ros {launch_ros_version}, '
+          f'launch_pytest {version("launch_pytest")}')
+    assert launch_version.startswith(LAUNCH_VERSIONS[distro][0]), launch_version
+    assert launch_ros_version.startswith(LAUNCH_VERSIONS[distro][1]), launch_ros_version
+    assert os.path.dirname(launch.__file__).startswith(sys.prefix), launch.__file__
+
+
 def test_colcon_build_installed_the_package():
     """colcon build's install tree: the ament index marker, share/ and every executable; this
     process imports the package from there."""
@@ -138,24 +160,54 @@ def sim_ports():
             'display_port': free_port(socket.SOCK_DGRAM)}
 
 
+#: The simulated graph runs in a namespace, as a second suit on the domain would: its parameter
+#: files (keyed /**/<node>) and its launch arguments must still reach every node.
+SIM_NAMESPACE = 'suit_a'
+
+
 @launch_pytest.fixture
 def sim_graph(sim_ports):
     watch, domain_id = Watch(), fresh_domain_id()
-    return _graph(watch, domain_id, _include('sim.launch.py', **sim_ports)), watch, domain_id
+    return _graph(watch, domain_id, _include('sim.launch.py', namespace=SIM_NAMESPACE, **sim_ports)), \
+        watch, domain_id
+
+
+def _parameters(probe, node, names):
+    response = probe.call(GetParameters, interface.full_name('~/get_parameters', SIM_NAMESPACE, node),
+                          GetParameters.Request(names=names), attempts=3)
+    return [{1: v.bool_value, 2: v.integer_value, 3: v.double_value, 4: v.string_value,
+             9: list(v.string_array_value)}.get(v.type) for v in response.values]
 
 
 @pytest.mark.launch(fixture=sim_graph)
-def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
+def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_sigint(sim_graph, sim_ports):
+    from fabric_guidance.paths import node_parameters
     _, watch, domain_id = sim_graph
     wait_until(lambda: len(watch.found()) >= 4, SESSION_DEADLINE_S, what='four targets found')
     assert watch.found() == ['front_left', 'up_right', 'down_left', 'down_right']
-    with Probe(domain_id) as probe:
+    with Probe(domain_id, namespace=SIM_NAMESPACE) as probe:
         # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
-        written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
-                                  qos.COMMAND_QOS)
+        written = probe.subscribe(Float64MultiArray, interface.MAX_WRITTEN, qos.COMMAND_QOS)
         wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
         assert max(written[-1].data) <= P_MAX
         assert max(written[-1].data) > 50.0  # guided, not found by luck
+        # From the files (sim.yaml over guidance.yaml, keyed /**/<node>) and the arguments (a file
+        # keyed by the node's full name): a namespace loses neither.
+        sim = os.path.join(SHARE, 'config', 'params', 'sim.yaml')
+        assert _parameters(probe, 'target_selector', ['return_to_front']) == \
+            [node_parameters(sim, 'target_selector')['return_to_front']]
+        assert _parameters(probe, 'wearer_sim', ['tau_s', 'bridge_port']) == \
+            [node_parameters(sim, 'wearer_sim')['tau_s'], sim_ports['gaze_port']]
+        assert _parameters(probe, 'gaze_bridge', ['port', 'headset_address']) == [sim_ports['gaze_port'], '127.0.0.1']
+        assert _parameters(probe, 'mock_plc', ['port']) == [sim_ports['plc_port']]
+        services = {name for name, _ in probe.node.get_service_names_and_types()}
+        for s in interface.SERVICES:
+            assert interface.full_name(s.name, SIM_NAMESPACE) in services, s.name
+        assert not services & set(interface.OLD_NAMES)
+    # Fast DDS 2 (Jazzy) and 3 (Kilted) both take the loopback profile.
+    env = _environ(watch.pids[watch.name('plc_output')])
+    profile = os.path.join(SHARE, 'config', 'fastdds_loopback.xml')
+    assert env.get('FASTDDS_DEFAULT_PROFILES_FILE') == env.get('FASTRTPS_DEFAULT_PROFILES_FILE') == profile
     # Ctrl-C at its worst: the mock PLC gets SIGINT first and the others only later (a terminal
     # signals the whole group at once; any order must vent). The mock must still be there.
     os.kill(watch.pids[watch.name('mock_plc')], signal.SIGINT)
@@ -480,3 +532,75 @@ def test_discovery_server_started_by_the_launch_and_every_node_its_client(lab_wi
         assert env.get('ROS_DISCOVERY_SERVER') == server, node
         assert 'ROS_SECURITY_ENABLE' not in env and 'ROS_SECURITY_ENCLAVE_OVERRIDE' not in env, node
     wait_until(lambda: plc.client_count >= 1, 30.0, what='plc_output connected')
+
+
+# ------------------------------------------------------------------- the workspace's commands
+#: Parameters that keep each node off the ports and folders of a lab (and of other tests).
+def _node_arguments(tmp_path):
+    plc_port, gaze_port, display_port = free_port(), free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    return {
+        'gaze_bridge': {'port': gaze_port, 'display_port': display_port},
+        'target_selector': {},
+        'pressure_controller': {'calibration_dir': str(tmp_path / 'cal')},
+        'plc_output': {'plc_port': plc_port},
+        'mock_plc': {'port': plc_port, 'records_file': str(tmp_path / 'mock.records.json')},
+        'wearer_sim': {'bridge_port': gaze_port},
+        'micromanipulator_sim': {},
+        'bag_recorder': {'output': str(tmp_path / 'bag')},
+        'headset_display': {'display_port': display_port},
+    }
+
+
+def test_every_node_of_the_install_tree_starts_and_stops_cleanly(tmp_path):
+    """The workspace check: each node's executable in lib/fabric_guidance (as `ros2 run` starts
+    it) with the installed parameter files comes up on the graph and exits 0 on SIGINT, with no
+    traceback (a module the package imports and package.xml did not declare fails here)."""
+    nodes = [exe for exe in EXECUTABLES if exe != 'fabric-guidance']
+    arguments = _node_arguments(tmp_path)
+    assert set(arguments) == set(nodes)
+    domain_id = fresh_domain_id()
+    from fabric_guidance.process_graph import loopback_dds_env
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED='1', **loopback_dds_env())
+    files = [os.path.join(SHARE, 'config', 'params', name) for name in ('guidance.yaml', 'sim.yaml')]
+    processes, logs = {}, {}
+    try:
+        for node in nodes:
+            cmd = [os.path.join(PREFIX, 'lib', 'fabric_guidance', node), '--ros-args']
+            for f in files + ([os.path.join(SHARE, 'config', 'params', 'micromanipulation.yaml')]
+                              if node == 'micromanipulator_sim' else []):
+                cmd += ['--params-file', f]
+            for key, value in arguments[node].items():
+                cmd += ['-p', f'{key}:={value}']
+            logs[node] = open(tmp_path / f'{node}.log', 'w+')
+            processes[node] = subprocess.Popen(cmd, stdout=logs[node], stderr=subprocess.STDOUT, env=env)
+        with Probe(domain_id, 'workspace_check') as probe:
+            wait_until(lambda: set(nodes) <= set(probe.node.get_node_names()), 60.0,
+                       what=f'every node on the graph: {nodes}')
+        for proc in processes.values():
+            proc.send_signal(signal.SIGINT)
+        codes = {node: proc.wait(20) for node, proc in processes.items()}
+    finally:
+        for proc in processes.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        for f in logs.values():
+            f.close()
+    output = {node: (tmp_path / f'{node}.log').read_text() for node in nodes}
+    print('\n[workspace] started and stopped: ' + ', '.join(f'{n} (exit {c})' for n, c in codes.items()))
+    for node in nodes:
+        assert codes[node] == 0 and 'Traceback' not in output[node], \
+            f'{node}: exit {codes[node]}\n{output[node][-3000:]}'
+
+
+def test_every_command_of_the_cli_starts(tmp_path):
+    """`fabric-guidance` and each subcommand's --help from the install tree (each subcommand's
+    module is imported when it is chosen: replay and recover import rosbags and mcap)."""
+    from fabric_guidance.cli import SUBCOMMANDS
+    exe = os.path.join(PREFIX, 'lib', 'fabric_guidance', 'fabric-guidance')
+    started = []
+    for argv in [['--help']] + [[name, '--help'] for name in SUBCOMMANDS]:
+        out = subprocess.run([exe, *argv], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert out.returncode == 0 and 'usage: fabric-guidance' in out.stdout, f'{argv}: {out.stderr[-2000:]}'
+        started.append(' '.join(argv[:1]))
+    print(f'\n[workspace] fabric-guidance {", ".join(started)}: each --help exit 0')
