@@ -279,7 +279,7 @@ def test_a_live_target_is_mapped_into_the_immersive_frame(fresh):
     live_pub = fresh.probe.node.create_publisher(PoseStamped, 'live_targets/bead', SENSOR_QOS)
     wait_until(lambda: live_pub.get_subscription_count() > 0, REPLY_DEADLINE_S, what='live_targets/bead matched')
     bead = PoseStamped()
-    bead.header.frame_id = 'micromanipulator'
+    bead.header.frame_id = 'microscope'   # live_frame_id: mapped by live_scale and live_offset
     bead.pose.position.x, bead.pose.position.y, bead.pose.position.z = 0.001, 0.0005, 0.0
     bead.pose.orientation.w = 1.0
     assert fresh.set_active('bead').successful
@@ -301,6 +301,34 @@ def test_a_live_target_is_mapped_into_the_immersive_frame(fresh):
                              and m.color.g == 0.0
                              and (m.pose.position.x, m.pose.position.y) == pytest.approx((1.0, -0.5))), None),
                REPLY_DEADLINE_S, what='a red bead marker at (1.0, -0.5)')
+    fresh.probe.node.destroy_publisher(live_pub)
+
+
+def test_a_live_target_in_an_unknown_frame_is_refused_with_one_line(fresh):
+    """A pose in a frame no transform is known from (not live_frame_id's microscope, not the
+    immersive frame) would be mis-placed: refused, counted, one throttled line. A pose in the
+    immersive frame is taken as it is."""
+    live_pub = fresh.probe.node.create_publisher(PoseStamped, 'live_targets/bead', SENSOR_QOS)
+    wait_until(lambda: live_pub.get_subscription_count() > 0, REPLY_DEADLINE_S, what='live_targets/bead matched')
+    bead = PoseStamped()
+    bead.pose.position.x, bead.pose.position.y, bead.pose.position.z = 2.0, 0.25, 1.0
+    bead.pose.orientation.w = 1.0
+    bead.header.frame_id = IMMERSIVE_FRAME
+    assert fresh.set_active('bead').successful
+    wait_until(lambda: (live_pub.publish(bead), fresh.target())[1] is not None and
+               np.allclose(fresh.target(), (2.0, 0.25, 1.0), atol=1e-9),
+               REPLY_DEADLINE_S, interval=0.05, what='the bead at (2.0, 0.25, 1.0), immersive as is')
+    before = int(fresh.counters().get('live_wrong_frame', 0))
+    bead.header.frame_id = 'camera_optical'
+    bead.pose.position.x = 0.001
+    for _ in range(20):
+        live_pub.publish(bead)
+        time.sleep(0.02)
+    wait_until(lambda: int(fresh.counters().get('live_wrong_frame', 0)) > before, 3.0,
+               what='poses in a wrong frame counted on /diagnostics')
+    assert np.allclose(fresh.target(), (2.0, 0.25, 1.0), atol=1e-9), 'a pose in an unknown frame moved the target'
+    log = fresh.graph.log('target_selector')
+    assert log.count("live target 'bead': pose in frame 'camera_optical' refused") == 1, log[-2000:]
     fresh.probe.node.destroy_publisher(live_pub)
 
 
