@@ -143,7 +143,8 @@ TOPICS: tuple[Topic, ...] = (
     Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
           'micromanipulator stack, or micromanipulator_sim', 'target_selector',
           'live targets in the microscope frame [m] (`live_frame_id`), scaled by `live_scale` and shifted by '
-          '`live_offset`; in the immersive frame taken as is; in any other frame refused', recorded=False, qos_note='matches reliable publishers too'),
+          '`live_offset`; in the immersive frame taken as is; in any other frame refused', recorded=False,
+          qos_note='matches reliable publishers too'),
     Topic(PRESSURE_COMMAND, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
           'plc_output', 'kPa per channel, in the order of the `channels` parameter: F1-F4, '
           'B1-B4, L1-L2, R1-R2, arm_i-arm_vi; `layout.dim[0].label` names them in that order, '
