@@ -90,7 +90,7 @@ $(LSTAMP): $(STAMP) requirements/launch.txt
 # against that install tree (share/, the ament index and lib/fabric_guidance/ from there).
 # Bounded: launch_pytest waits forever for a launch description that raised (it logs the error
 # to ~/.ros/log/*/launch.log and never becomes ready to test).
-LAUNCH_TIMEOUT_S ?= 420
+LAUNCH_TIMEOUT_S ?= 600
 test-launch: $(LSTAMP)
 	rm -rf $(LBUILD)
 	$(LVENV)/bin/colcon --log-base $(LBUILD)/log build --paths $(CURDIR) \
@@ -98,7 +98,8 @@ test-launch: $(LSTAMP)
 	AMENT_PREFIX_PATH=$(abspath $(LBUILD))/install/fabric_guidance \
 	  PYTHONPATH=$$(ls -d $(abspath $(LBUILD))/install/fabric_guidance/lib/python3*/site-packages) \
 	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install FABRIC_GUIDANCE_LAUNCH_DISTRO=$(LAUNCH_DISTRO) \
-	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py -p no:cacheprovider $(PYTEST_ARGS)
+	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py test/test_workspace.py \
+	    -p no:cacheprovider $(PYTEST_ARGS)
 
 # Not part of `make test` (a second full venv takes a few minutes on a cold pip cache).
 # --no-build-isolation: the package is installed by the venv's own setuptools 68, as on the lab PC.
