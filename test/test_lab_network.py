@@ -221,9 +221,7 @@ def test_a_profile_naming_no_interface_of_the_machine_fails_closed(tmp_path):
     loopback = CONFIG / 'fastdds_loopback.xml'
     pairs = {}
     for name, profile in (('loopback', loopback), ('typo', typo)):   # both pairs at once, a domain each
-        env = dds_env(dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id())),
-                      {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT',
-                       'FASTDDS_DEFAULT_PROFILES_FILE': str(profile)})
+        env = dds_env(dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id())), process_env(profile))
         pairs[name] = [subprocess.Popen([sys.executable, str(PARTICIPANT), '--name', f'{name}_{i}', '--seconds', '6'],
                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
                        for i in (1, 2)]
