@@ -9,12 +9,25 @@ STAMP  := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 # The upstream launch wheels (launch, launch_ros, launch_pytest...; not on the package index),
-# beside the clone in CI and on developers' machines.
+# beside the clone in CI and on developers' machines: ROS 2 Kilted's in ROS_TOOLING, Jazzy's in
+# ROS_TOOLING/jazzy. The launch stage runs once per distribution (LAUNCH_DISTRO), each in a venv
+# and a colcon build tree of its own.
 ROS_TOOLING ?= ../shared/ros-tooling
+LAUNCH_DISTRO ?= kilted
+ifeq ($(LAUNCH_DISTRO),jazzy)
+LVENV   := .venv-launch-jazzy
+# launch_ros imports composition_interfaces when it loads: the placeholder wheel beside Kilted's.
+LWHEELS  = $(ROS_TOOLING)/jazzy/*.whl $(ROS_TOOLING)/composition_interfaces-*.whl
+LBUILD  := build-launch-jazzy
+else ifeq ($(LAUNCH_DISTRO),kilted)
 LVENV   := .venv-launch
+LWHEELS  = $(ROS_TOOLING)/*.whl
+LBUILD  := build-launch
+else
+$(error LAUNCH_DISTRO=$(LAUNCH_DISTRO): kilted or jazzy)
+endif
 LPY     := $(LVENV)/bin/python
 LSTAMP  := $(LVENV)/.installed
-LBUILD  := build-launch
 # Python 3.12 as on Ubuntu 24.04 (with pyenv: PYTHON312=$$(pyenv prefix 3.12.1)/bin/python3.12).
 PYTHON312 ?= python3.12
 VENV312 := .venv-py312
@@ -27,7 +40,8 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
   test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
-.PHONY: test-hololens demo test test-deep test-launch test-py312 bench chaos soak venv clean system-deps test-pymodbus
+.PHONY: test-hololens demo test test-deep test-launch test-launch-jazzy test-launch-all test-py312 bench chaos soak \
+  venv clean system-deps system-deps-if-root test-pymodbus
 
 venv: $(STAMP)
 
@@ -41,14 +55,26 @@ demo: $(STAMP)
 	$(VENV)/bin/fabric-guidance demo
 
 # The suite, then the Modbus tests under the other supported pymodbus releases, then the
-# launch files under the real launch system (where the ros-tooling wheels are beside the clone).
+# launch files under the real launch system of Kilted and of Jazzy (where the ros-tooling wheels
+# are beside the clone). As root, first the distribution's packages the tests need (system-deps);
+# otherwise, at the end, one block naming the groups of tests skipped and the command that runs them.
 test: $(STAMP)
+	@$(MAKE) --no-print-directory system-deps-if-root
 	@$(MAKE) --no-print-directory test-hololens
 	$(PY) -m pytest
 	$(MAKE) --no-print-directory test-pymodbus
-	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch; else \
+	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch-all; else \
 	  echo "SKIPPED launch_pytest tests and colcon build check:" \
 	    "$(ROS_TOOLING) is absent (docs/launch.md)"; fi
+	@$(PY) test/skipped_groups.py "$(ROS_TOOLING)"
+
+# Both distributions' launch stages, Kilted's then Jazzy's.
+test-launch-all:
+	$(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=kilted
+	$(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=jazzy
+
+test-launch-jazzy:
+	$(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=jazzy
 
 # .venv-launch: its own pytest 7.4.4, colcon and the launch wheels; everything else (rclpy, the
 # pinned wheels, the package) from .venv through a .pth file, which site processes after the
@@ -57,22 +83,23 @@ $(LSTAMP): $(STAMP) requirements/launch.txt
 	@test -x $(LPY) || $(PYTHON) -m venv $(LVENV)
 	$(PY) test/launch_venv_pth.py > "$$($(LPY) -c "$(SITE)")/zz_fabric_guidance_venv.pth"
 	$(LPY) -m pip install --quiet --disable-pip-version-check -r requirements/launch.txt
-	$(LPY) -m pip install --quiet --disable-pip-version-check --no-deps $(ROS_TOOLING)/*.whl
+	$(LPY) -m pip install --quiet --disable-pip-version-check --no-deps $(LWHEELS)
 	@touch $(LSTAMP)
 
 # colcon build of the package into $(LBUILD)/ as a lab builds it, then the launch_pytest tests
 # against that install tree (share/, the ament index and lib/fabric_guidance/ from there).
 # Bounded: launch_pytest waits forever for a launch description that raised (it logs the error
 # to ~/.ros/log/*/launch.log and never becomes ready to test).
-LAUNCH_TIMEOUT_S ?= 420
+LAUNCH_TIMEOUT_S ?= 600
 test-launch: $(LSTAMP)
 	rm -rf $(LBUILD)
 	$(LVENV)/bin/colcon --log-base $(LBUILD)/log build --paths $(CURDIR) \
 	  --build-base $(LBUILD)/build --install-base $(LBUILD)/install
 	AMENT_PREFIX_PATH=$(abspath $(LBUILD))/install/fabric_guidance \
 	  PYTHONPATH=$$(ls -d $(abspath $(LBUILD))/install/fabric_guidance/lib/python3*/site-packages) \
-	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install \
-	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py -p no:cacheprovider $(PYTEST_ARGS)
+	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install FABRIC_GUIDANCE_LAUNCH_DISTRO=$(LAUNCH_DISTRO) \
+	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py test/test_workspace.py \
+	    -p no:cacheprovider $(PYTEST_ARGS)
 
 # Not part of `make test` (a second full venv takes a few minutes on a cold pip cache).
 # --no-build-isolation: the package is installed by the venv's own setuptools 68, as on the lab PC.
@@ -151,14 +178,27 @@ MINUTES ?= 60
 soak: $(STAMP)
 	$(VENV)/bin/fabric-guidance soak --minutes $(MINUTES) --out soak
 
-# The distribution's packages some tests use (root; CI runs this before `make test`). Without
-# them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their reason.
+# The distribution's packages some tests use (root; `make test` runs this first as root). Without
+# them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their
+# reason, and `make test` names them at the end (test/skipped_groups.py). Only what is missing is
+# installed: nothing is fetched when all are there.
 SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime
 system-deps:
 	@if [ "$$(id -u)" != 0 ]; then echo "system-deps: run as root (apt-get install $(SYSTEM_DEPS))"; exit 1; fi
-	apt-get update -qq || (sleep 10 && apt-get update -qq)
-	DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_DEPS) >/dev/null
+	@missing=$$(for p in $(SYSTEM_DEPS); do \
+	  dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -z "$$missing" ]; then echo "system-deps: $(SYSTEM_DEPS) installed"; else \
+	  echo "system-deps: installing" $$missing; \
+	  (apt-get update -qq || (sleep 10 && apt-get update -qq)) && \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing >/dev/null; fi
+
+# As root on a Debian or Ubuntu machine: system-deps. Otherwise nothing (the summary at the end of
+# `make test` says what that skipped).
+system-deps-if-root:
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && command -v dpkg-query >/dev/null; then \
+	  $(MAKE) --no-print-directory system-deps; fi
 
 clean:
-	rm -rf $(VENV) $(LVENV) $(VENV312) $(LBUILD) .venv-pymodbus-* .pytest_cache .hypothesis \
+	rm -rf $(VENV) .venv-launch .venv-launch-jazzy $(VENV312) build-launch build-launch-jazzy .venv-pymodbus-* \
+	  .pytest_cache .hypothesis \
 	  *.egg-info

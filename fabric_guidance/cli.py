@@ -76,8 +76,26 @@ def _command(argv: list[str]) -> str | None:
     return argv[0] if argv and argv[0] in SUBCOMMANDS else None
 
 
+#: How to install a Python module a command needs, where rosdep does not (package.xml).
+NOT_IN_ROSDEP = {'scikit_posthocs': 'pip install scikit-posthocs (it has no rosdep key)'}
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The command; a Python module it needs and does not find: one line naming it, and 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        return _main(argv)
+    except ModuleNotFoundError as exc:
+        if not exc.name or exc.name.split('.')[0] == 'fabric_guidance':
+            raise
+        how = NOT_IN_ROSDEP.get(exc.name.split('.')[0], 'rosdep install --from-paths src --ignore-src -y '
+                                '(package.xml declares it)')
+        command = ' '.join(['fabric-guidance', *argv[:1]])
+        print(f'{command}: error: the Python module {exc.name} is not installed: {how}', file=sys.stderr)
+        return 2
+
+
+def _main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog='fabric-guidance', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest='command', required=True)

@@ -25,14 +25,13 @@ import threading
 import time
 
 import numpy as np
-import yaml
 
 from .bag.recorder_status import hears, recorded_counts
 from .core import ChannelMap, condition as condition_of, ray_direction, target_direction
 from .core.geometry import DIRECTIONS
 from .core.feedback import PAPER_P_MAX
 from .core.task import angular_error_deg
-from .paths import config_path
+from .paths import config_path, node_parameters
 from .plc import PlcClient, RegisterMap
 from .process_graph import FILES, NODES, Graph, Probe, sim_lab, start_nodes, start_task, wait_until
 from .sim.scene_plan import ScenePlan, plan_scene
@@ -296,7 +295,7 @@ def _run_demo(condition, timeout_s, log_dir: Path, say, scene, record_dir, kept:
 
 def task_sequence() -> list[str]:
     """The target order target_selector will run, from the same parameter file."""
-    params = yaml.safe_load(config_path('params/guidance.yaml').read_text())['target_selector']['ros__parameters']
+    params = node_parameters('params/guidance.yaml', 'target_selector')
     return [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
 
 

@@ -3,6 +3,12 @@ kind, who publishes and who listens, and the immersive frame. The nodes take the
 here, the bag code also the types and QoS kinds, and docs/interfaces.md its tables
 (`python -m fabric_guidance.interface --markdown` prints the tables).
 
+Names follow ROS's conventions, so that two suits run side by side in two namespaces of one
+domain (docs/interfaces.md, "Names and namespaces"): the graph's data flow is on relative topic
+names (resolved in the node's namespace); what belongs to one node, its services and the mock
+PLC's test output, is private to it (`~/enable`: `/<namespace>/pressure_controller/enable`).
+A client names them through `full_name()`, never by hand.
+
 No rclpy at import: the bag code and the docs use this module without ROS; qos_profile()
 builds the rclpy profile of a kind when a node asks for it.
 """
@@ -29,14 +35,22 @@ DIAGNOSTICS = '/diagnostics'
 CONTROLLER_INPUT = 'controller_input'
 CONTROLLER_PARAMETERS = 'controller_parameters'
 CLOCK = '/clock'
-MAX_WRITTEN = 'mock_plc/max_written_kpa'
+MAX_WRITTEN = '~/max_written_kpa'
 HEADSET_VIEW = 'headset_view'
 
-START_CALIBRATION = 'start_calibration'
-ENABLE = 'enable'
-VENT = 'vent'
-NEXT_TARGET = 'next_target'
-RESET_SEQUENCE = 'reset_sequence'
+# Services: private to the node that answers them (the table's `node`).
+START_CALIBRATION = '~/start_calibration'
+ENABLE = '~/enable'
+VENT = '~/vent'
+NEXT_TARGET = '~/next_target'
+RESET_SEQUENCE = '~/reset_sequence'
+
+#: Names before the namespace change (a client or script written for them): old -> new, as
+#: docs/interfaces.md's migration note lists them. The old names are served no more.
+OLD_NAMES = {
+    '/start_calibration': START_CALIBRATION, '/enable': ENABLE, '/vent': VENT,
+    '/next_target': NEXT_TARGET, '/reset_sequence': RESET_SEQUENCE, '/mock_plc/max_written_kpa': MAX_WRITTEN,
+}
 
 #: The lifecycle (managed) nodes: the standard lifecycle services and transition_event are
 #: theirs (docs/lifecycle.md); launch files drive them, the security policy grants them.
@@ -130,8 +144,9 @@ TOPICS: tuple[Topic, ...] = (
           '`text`; namespace `targets` (fixed) or `live_targets`'),
     Topic(LIVE_TARGETS + '/<name>', 'geometry_msgs/msg/PoseStamped', SENSOR,
           'micromanipulator stack, or micromanipulator_sim', 'target_selector',
-          'live targets in the microscope frame [m], scaled by `live_scale` and shifted by '
-          '`live_offset`', recorded=False, qos_note='matches reliable publishers too'),
+          'live targets in the microscope frame [m] (`live_frame_id`), scaled by `live_scale` and shifted by '
+          '`live_offset`; in the immersive frame taken as is; in any other frame refused', recorded=False,
+          qos_note='matches reliable publishers too'),
     Topic(PRESSURE_COMMAND, 'std_msgs/msg/Float64MultiArray', COMMAND, 'pressure_controller',
           'plc_output', 'kPa per channel, in the order of the `channels` parameter: F1-F4, '
           'B1-B4, L1-L2, R1-R2, arm_i-arm_vi; `layout.dim[0].label` names them in that order, '
@@ -197,6 +212,34 @@ SERVICES: tuple[Service, ...] = (
 )
 
 
+def owner(name: str) -> str:
+    """The node a private (`~/`) name of the tables belongs to (KeyError naming the private names)."""
+    for s in SERVICES:
+        if s.name == name:
+            return s.node
+    for t in TOPICS:
+        if t.name == name and name.startswith('~/'):
+            return t.publishers
+    private = [s.name for s in SERVICES] + [t.name for t in TOPICS if t.name.startswith('~/')]
+    raise KeyError(f'{name!r} is no private name of the interface; private names: {private}')
+
+
+def full_name(name: str, namespace: str = '', node: str | None = None) -> str:
+    """The fully qualified name a client in any namespace uses for `name` of the graph in
+    `namespace` ('' or '/' for the root): a private name (`~/enable`) of `node` (by default the
+    node the tables give it), a relative one (`target`) in the namespace, an absolute one as is.
+
+        full_name(ENABLE, 'suit_a') == '/suit_a/pressure_controller/enable'
+    """
+    ns = '/'.join(part for part in namespace.split('/') if part)
+    prefix = f'/{ns}' if ns else ''
+    if name.startswith('/'):
+        return name
+    if name.startswith('~/'):
+        return f'{prefix}/{node or owner(name)}/{name[2:]}'
+    return f'{prefix}/{name}'
+
+
 def topic(name: str) -> Topic:
     """The Topic of a name (KeyError naming the known ones)."""
     for t in TOPICS:
@@ -222,6 +265,9 @@ def markdown() -> str:
     lines += ['', '| service | type | node | what |', '| --- | --- | --- | --- |']
     for s in SERVICES:
         lines.append(f'| `{s.name}` | {_short_type(s.type)} | {s.node} | {s.what} |')
+    lines += ['', '| old name (before namespaces) | name now | in the root namespace |', '| --- | --- | --- |']
+    for old, new in OLD_NAMES.items():
+        lines.append(f'| `{old}` | `{new}` | `{full_name(new)}` |')
     return '\n'.join(lines) + '\n'
 
 

@@ -9,7 +9,10 @@ other interface. Discovery stays Fast DDS's simple discovery (multicast on that 
 a discovery server when ROS_DISCOVERY_SERVER is set (fabric_guidance/discovery_server.py).
 
     fabric-guidance dds-profile --interface enp3s0 --out ~/lab/fastdds_lab.xml
-    export FASTDDS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+    export FASTDDS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml FASTRTPS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+
+(FASTRTPS_... is the name Fast DDS 2.x reads, on ROS 2 Jazzy; FASTDDS_... Fast DDS 3's, on Kilted.)
 
 An allowlist that matches no interface of the PC fails closed: Fast DDS logs "All whitelist
 interfaces were filtered out" and the process hears and reaches nobody (the suit vents on stale
@@ -69,7 +72,8 @@ def interface_profile(interface: str) -> str:
     return f'''<?xml version="1.0" encoding="UTF-8"?>
 <!-- Written by fabric-guidance dds-profile: DDS on interface {interface} only
      (docs/lab_network.md). Load it with
-     FASTDDS_DEFAULT_PROFILES_FILE=<this file> and ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT.
+     FASTDDS_DEFAULT_PROFILES_FILE=<this file> (Fast DDS 3), FASTRTPS_DEFAULT_PROFILES_FILE=<this file>
+     (Fast DDS 2.14+) and ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT.
      One UDPv4 transport allowed on that interface; no shared memory (it would cross network
      namespaces on one machine, and the test of this profile relies on there being none). -->
 <dds xmlns="{NS}">
@@ -150,10 +154,20 @@ def write_profile(path: str | Path, interface: str) -> Path:
     return write_text(path, text)
 
 
+#: The variables that name the profiles file: Fast DDS 3 (ROS 2 Kilted) reads the first, Fast DDS
+#: 2.x (ROS 2 Jazzy, Fast DDS 2.14) only the second; each ignores the other's. Both are set, so
+#: that one environment holds on either distribution.
+PROFILE_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+
+
+def profile_env(profile: str | Path) -> dict[str, str]:
+    """Every variable of PROFILE_VARIABLES set to `profile`."""
+    return {name: str(Path(profile).expanduser()) for name in PROFILE_VARIABLES}
+
+
 def process_env(profile: str | Path) -> dict[str, str]:
     """The environment a process needs to take the profile, the profile alone deciding."""
-    return {'FASTDDS_DEFAULT_PROFILES_FILE': str(Path(profile).expanduser()),
-            'ROS_AUTOMATIC_DISCOVERY_RANGE': DISCOVERY_RANGE}
+    return {**profile_env(profile), 'ROS_AUTOMATIC_DISCOVERY_RANGE': DISCOVERY_RANGE}
 
 
 def local_interface_names() -> set[str]:

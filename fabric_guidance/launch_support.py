@@ -1,5 +1,7 @@
 """What the package's launch files share (imported by launch/*.launch.py only: it needs launch).
 
+- `namespace_argument`, `launch_namespace`: the launch argument namespace (every node of the
+  launch in it; the parameter files are keyed `/**/<node>` so that it keeps its configuration).
 - `NodeOverrides`: launch arguments as node-scoped parameter files, loaded after the parameter
   files so that they win by construction (a `/**` file, which is what launch_ros makes of a
   dict, wins or loses by the order rcl happens to merge its entries in), removed at shutdown.
@@ -12,6 +14,8 @@
 - `lab_launch_arguments`, `lab_node_kwargs`, `lab_network_actions`: the lab's keystore (each
   node in its SROS2 enclave, security enforced; docs/security.md) and discovery server (each
   node its client; optionally started by the launch; docs/lab_network.md). Unset: no change.
+- `loopback_dds_actions`: the simulated graph's DDS on 127.0.0.1 (config/fastdds_loopback.xml),
+  under the profile variable of Fast DDS 3 (Kilted) and of Fast DDS 2 (Jazzy) alike.
 """
 from __future__ import annotations
 
@@ -21,14 +25,44 @@ import shutil
 import sys
 import tempfile
 
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler, SetEnvironmentVariable
 from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
-from . import discovery_server, security_policy
+from . import discovery_server, lab_network, security_policy
 
 #: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
 MOCK_PLC_LISTENING = 'mock PLC listening on'
+
+
+def loopback_dds_actions(share: str) -> list:
+    """Environment actions that keep every later process of the launch on loopback DDS: the
+    package's loopback profile under both Fast DDS variable names, the profile deciding alone
+    (rmw's LOCALHOST range would add a send socket on every interface); without the profile, at
+    least discovery stays on this machine."""
+    profile = os.path.join(share, 'config', 'fastdds_loopback.xml')
+    if not os.path.isfile(profile):
+        return [SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')]
+    return [*(SetEnvironmentVariable(name, value) for name, value in lab_network.profile_env(profile).items()),
+            SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT')]
+
+
+def namespace_argument() -> DeclareLaunchArgument:
+    return DeclareLaunchArgument('namespace', default_value='',
+                                 description="every node of the launch in this namespace (e.g. suit_a: a second "
+                                             "suit on the same domain; its services are then "
+                                             "/suit_a/pressure_controller/enable ...); empty: the root")
+
+
+def launch_namespace(context) -> str:
+    """The launch argument namespace as a node's `namespace=` ('' : the root, or whatever an
+    enclosing PushRosNamespace set); ValueError naming the argument for an invalid one."""
+    text = context.launch_configurations.get('namespace', '').strip()
+    if text and not all(part.replace('_', 'a').isalnum() and not part[0].isdigit()
+                        for part in text.strip('/').split('/')):
+        raise ValueError(f'launch argument namespace:={text!r} is not a ROS namespace (letters, digits and _ '
+                         'in /-separated tokens, none starting with a digit)')
+    return text.rstrip('/') if text != '/' else text
 
 
 class NodeOverrides:
@@ -46,8 +80,11 @@ class NodeOverrides:
             # OnShutdown removes it with the launch; atexit when `ros2 launch` itself exits (a
             # launch interrupted twice can end before its shutdown handlers ran).
             atexit.register(shutil.rmtree, self._dir, True)
-        namespace = self._context.launch_configurations.get('ros_namespace') or ''
-        fqn = '/'.join(part for part in (namespace.strip('/'), node_name) if part)
+        # As launch_ros resolves the node's namespace: the launch argument, under an enclosing
+        # PushRosNamespace unless it is absolute.
+        namespace = launch_namespace(self._context)
+        pushed = '' if namespace.startswith('/') else self._context.launch_configurations.get('ros_namespace') or ''
+        fqn = '/'.join(part for part in (*pushed.split('/'), *namespace.split('/'), node_name) if part)
         path = os.path.join(self._dir, f'{node_name}.yaml')
         with open(path, 'w') as f:
             yaml.safe_dump({f'/{fqn}': {'ros__parameters': parameters}}, f, sort_keys=False)

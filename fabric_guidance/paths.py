@@ -31,3 +31,17 @@ def resolve(value: str, default_name: str) -> Path:
         return config_path(default_name)
     path = Path(value).expanduser()
     return path if path.is_absolute() else share_dir() / path
+
+
+def node_parameters(path: str | Path, node: str) -> dict:
+    """The `ros__parameters` a parameter file gives a node of that name in any namespace: the
+    entries keyed `/**`, `/**/<node>`, `<node>` or `/<node>`, merged in the file's order (rcl's
+    for the package's files, which key each node once). `path` relative: under config/."""
+    import yaml
+    path = Path(path)
+    data = yaml.safe_load((path if path.is_absolute() else config_path(str(path))).read_text()) or {}
+    merged: dict = {}
+    for key, entry in data.items():
+        if str(key) in ('/**', f'/**/{node}', node, f'/{node}') and isinstance(entry, dict):
+            merged.update(entry.get('ros__parameters') or {})
+    return merged

@@ -31,6 +31,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
+from . import interface
+from .lab_network import profile_env
 from .paths import share_dir
 
 ROOT = share_dir()
@@ -44,8 +46,7 @@ def loopback_dds_env() -> dict[str, str]:
     (SYSTEM_DEFAULT: rmw's LOCALHOST mode would add a send socket on every interface)."""
     if not LOOPBACK_DDS_PROFILE.is_file():  # without it SYSTEM_DEFAULT would reach the network
         raise FileNotFoundError(f'{LOOPBACK_DDS_PROFILE} is missing: DDS would not stay on loopback')
-    return {'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_DDS_PROFILE),
-            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+    return {**profile_env(LOOPBACK_DDS_PROFILE), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
 
 
 _counter = itertools.count()
@@ -108,8 +109,10 @@ class _Policy:
 class Graph:
     """Nodes of the package as separate processes, the way a launch file starts them."""
 
-    def __init__(self, log_dir: Path, domain_id: int | None = None):
+    def __init__(self, log_dir: Path, domain_id: int | None = None, namespace: str = ''):
         self.domain_id = fresh_domain_id() if domain_id is None else domain_id
+        #: Every node of the graph runs in it ('' : the root), as a launch's `namespace:=` does.
+        self.namespace = '/'.join(part for part in namespace.split('/') if part)
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: dict[str, subprocess.Popen] = {}
@@ -145,6 +148,8 @@ class Graph:
             overrides['records_file'] = str(self.log_dir / f'mock_plc-{len(self.records_files)}.records.json')
             self.records_files.append(Path(overrides['records_file']))
         cmd = self.command_prefix(node) + [sys.executable, '-m', f'fabric_guidance.nodes.{node}', '--ros-args']
+        if self.namespace:
+            cmd += ['-r', f'__ns:=/{self.namespace}']
         for f in params_files:
             cmd += ['--params-file', str(CONFIG / f)]
         for key, value in overrides.items():
@@ -297,7 +302,7 @@ DISCOVERY_TIMEOUT_S = 15.0
 class Probe:
     """An rclpy node in this process, on the graph's domain, spinning in a background thread."""
 
-    def __init__(self, domain_id: int, name: str = 'test_probe'):
+    def __init__(self, domain_id: int, name: str = 'test_probe', namespace: str = ''):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -305,7 +310,10 @@ class Probe:
         self._rclpy = rclpy
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node(name, context=self.context)
+        #: The graph's namespace the probe sits in: relative names resolve there, and the
+        #: interface's private names (interface.ENABLE ...) to their node's in it.
+        self.namespace = '/'.join(part for part in namespace.split('/') if part)
+        self.node = rclpy.create_node(name, context=self.context, namespace='/' + self.namespace)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._lock = threading.Lock()
@@ -320,9 +328,15 @@ class Probe:
         while self._running and self.context.ok():
             self.executor.spin_once(timeout_sec=0.02)
 
+    def resolve(self, name: str) -> str:
+        """A name of the interface as this probe's node must ask for it: a private name of the
+        tables (`~/enable`) is its node's in the probe's namespace; any other name unchanged."""
+        return interface.full_name(name, self.namespace) if name.startswith('~/') else name
+
     def subscribe(self, msg_type, topic: str, qos, callback: Callable[[Any], None] | None = None) -> list:
         """Collect every message on `topic`; returns the (growing) list. `callback`, if given,
         also sees each message (on the probe's thread)."""
+        topic = self.resolve(topic)
         received = self.messages.setdefault(topic, [])
 
         def keep(msg):
@@ -336,15 +350,18 @@ class Probe:
     def hears(self, topic: str, publishers: int = 1) -> bool:
         """The probe's subscription to `topic` has matched at least `publishers` publishers
         (being on the graph is not enough for a volatile topic: discovery is pairwise)."""
+        topic = self.resolve(topic)
         sub = self.subscriptions.get(topic)
         return sub is not None and sub.get_publisher_count() >= publishers
 
     def latest(self, topic: str):
+        topic = self.resolve(topic)
         with self._lock:
             msgs = self.messages.get(topic, [])
             return msgs[-1] if msgs else None
 
     def _client(self, srv_type, name: str, timeout: float):
+        name = self.resolve(name)
         client = self._clients.get(name)
         if client is None:
             client = self._clients[name] = self.node.create_client(srv_type, name)
@@ -437,7 +454,7 @@ def start_task(probe: Probe, started: Callable[[], object], attempts: int = 3) -
     is under way, though the request was handled (asking again would skip a target)."""
     from std_srvs.srv import Trigger
     for attempt in range(attempts):
-        probe.send(Trigger, 'next_target', Trigger.Request())
+        probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
         try:
             wait_until(started, 5.0, what='the first target to be active')
             return

@@ -140,12 +140,14 @@ def table_grants(operator: bool = True) -> dict[str, Grants]:
         g.publish.update(NODE_PUBLISHES)
         # ros2cli's node starts no parameter services, only rclpy's type description service.
         g.reply.add('~/get_type_description')
-        g.request.update(s.name for s in interface.SERVICES)
+        # Private names are their node's, not the operator's own.
+        g.request.update(interface.full_name(s.name) for s in interface.SERVICES)
         g.request.update(f'/{node}/{s}' for node in NODES for s in PARAMETER_SERVICES)
         # `ros2 lifecycle set/get` on the managed nodes (docs/lifecycle.md)
         g.request.update(f'/{node}/{s[2:]}' for node in LIFECYCLE_NODES for s in LIFECYCLE_REPLIES)
         g.subscribe.update(f'/{node}/{s[2:]}' for node in LIFECYCLE_NODES for s in LIFECYCLE_PUBLISHES)
-        g.subscribe.update(policy_name(t.name) for t in interface.TOPICS)
+        g.subscribe.update(policy_name(interface.full_name(t.name) if t.name.startswith('~/') else t.name)
+                           for t in interface.TOPICS)
     return grants
 
 

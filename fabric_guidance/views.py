@@ -4,6 +4,7 @@ channels' names and indices cannot drift from the code: test/test_operator_views
 the committed file differs from foxglove_json().
 
     python -m fabric_guidance.views --foxglove [CHANNEL_MAP]   # print it (default: the package's map)
+    python -m fabric_guidance.views --foxglove --namespace suit_a   # the layout of a namespaced graph
 
 Foxglove's Plot panel names a series by its `label` setting, or by index when it expands an
 array; it does not read a MultiArray's layout label. So each channel is one series
@@ -11,7 +12,9 @@ array; it does not read a MultiArray's layout label. So each channel is one seri
 
 The file is a layout as Foxglove's "Import from file..." reads it: `configById` (panel id
 "<type>!<name>" -> its settings), the split tree `layout`, `globalVariables`, `userNodes`,
-`playbackConfig`. Topic names are absolute in the root namespace, as in a bag.
+`playbackConfig`. Topic names are absolute, in the root namespace as in a bag, or in the
+namespace of one suit's graph (`--namespace`; /diagnostics stays global, its statuses named by
+node and device).
 """
 from __future__ import annotations
 
@@ -34,15 +37,15 @@ DIAGNOSTICS_PANEL = 'DiagnosticSummary!diagnostics'
 ACTIVE_TARGET_PANEL = 'RawMessages!active_target'
 
 
-def absolute(name: str) -> str:
-    """A topic of the interface as the views name it: absolute, in the root namespace."""
-    return name if name.startswith('/') else '/' + name
+def absolute(name: str, namespace: str = '') -> str:
+    """A topic of the interface as the views name it: absolute, in `namespace` (the root: '')."""
+    return interface.full_name(name, namespace)
 
 
 def _plot(topic: str, channels: Sequence[str], title: str) -> dict:
     return {
         'foxglovePanelTitle': title,
-        'paths': [{'value': f'{absolute(topic)}.data[{i}]', 'label': name, 'enabled': True,
+        'paths': [{'value': f'{topic}.data[{i}]', 'label': name, 'enabled': True,
                    'timestampMethod': 'receiveTime'}          # the arrays have no header stamp
                   for i, name in enumerate(channels)],
         'minYValue': 0,
@@ -55,9 +58,11 @@ def _plot(topic: str, channels: Sequence[str], title: str) -> dict:
     }
 
 
-def foxglove_layout(channels: Sequence[str]) -> dict:
+def foxglove_layout(channels: Sequence[str], namespace: str = '') -> dict:
     """The layout: the immersive scene (targets, gaze ray, head pose) beside the commanded and
     the measured pressure of every channel by name, /diagnostics and the active target."""
+    def absolute(name):
+        return interface.full_name(name, namespace)
     frame = interface.IMMERSIVE_FRAME
     three_d = {
         'foxglovePanelTitle': f'gaze, head pose and targets in {frame}',
@@ -83,8 +88,9 @@ def foxglove_layout(channels: Sequence[str]) -> dict:
     return {
         'configById': {
             THREE_D_PANEL: three_d,
-            COMMAND_PANEL: _plot(interface.PRESSURE_COMMAND, channels, 'pressure_command by channel [kPa]'),
-            MEASURED_PANEL: _plot(interface.MEASURED_PRESSURE, channels, 'measured_pressure by channel [kPa]'),
+            COMMAND_PANEL: _plot(absolute(interface.PRESSURE_COMMAND), channels, 'pressure_command by channel [kPa]'),
+            MEASURED_PANEL: _plot(absolute(interface.MEASURED_PRESSURE), channels,
+                                  'measured_pressure by channel [kPa]'),
             DIAGNOSTICS_PANEL: {'topicToRender': absolute(interface.DIAGNOSTICS), 'minLevel': 0,
                                 'pinnedIds': [], 'hardwareIdFilter': '', 'sortByLevel': True},
             ACTIVE_TARGET_PANEL: {'topicPath': absolute(interface.ACTIVE_TARGET)},
@@ -107,18 +113,23 @@ def foxglove_layout(channels: Sequence[str]) -> dict:
     }
 
 
-def foxglove_json(channel_map_file: str | Path | None = None) -> str:
-    """The layout's file text for a channel map (default: the package's)."""
+def foxglove_json(channel_map_file: str | Path | None = None, namespace: str = '') -> str:
+    """The layout's file text for a channel map (default: the package's), in a namespace."""
     cmap = ChannelMap.load(channel_map_file or config_path('hardware/channel_map.yaml'))
-    return json.dumps(foxglove_layout(cmap.channels), indent=2) + '\n'
+    return json.dumps(foxglove_layout(cmap.channels, namespace), indent=2) + '\n'
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    namespace = ''
+    if '--namespace' in argv[:-1]:
+        i = argv.index('--namespace')
+        namespace = argv[i + 1]
+        del argv[i:i + 2]
     if not argv or argv[0] != '--foxglove' or len(argv) > 2:
-        print('usage: python -m fabric_guidance.views --foxglove [CHANNEL_MAP]', file=sys.stderr)
+        print('usage: python -m fabric_guidance.views --foxglove [CHANNEL_MAP] [--namespace NS]', file=sys.stderr)
         return 2
-    sys.stdout.write(foxglove_json(argv[1] if len(argv) == 2 else None))
+    sys.stdout.write(foxglove_json(argv[1] if len(argv) == 2 else None, namespace))
     return 0
 
 

@@ -13,10 +13,15 @@ operator (`ros2 lifecycle set /plc_output configure`, then activate; docs/lifecy
 
 respawn:=true (the default) restarts a node whose process died, respawn_delay:=2.0 s later,
 and starts pressure_controller disabled: every start, first or respawned, stays vented until
-the operator calls `enable` (`ros2 service call /enable std_srvs/srv/SetBool "{data: true}"`).
+the operator calls `enable` (`ros2 service call /pressure_controller/enable std_srvs/srv/SetBool
+"{data: true}"`).
 The lifecycle nodes then bring themselves up at every start (their autostart parameter, from
 the launch argument) instead of by the launch's lifecycle events. respawn:=false: nothing
 restarts, and the controller guides as soon as it is active (docs/lifecycle.md, "Restarts").
+
+namespace:=suit_a starts every node in that namespace: topics resolve there and the services
+are the nodes' own (`/suit_a/pressure_controller/enable`), so that a second suit runs on the
+same domain (docs/interfaces.md, "Names and namespaces").
 
 keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
 discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
@@ -38,8 +43,9 @@ import yaml
 
 from fabric_guidance.interface import MANAGED_NODES
 from fabric_guidance.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
-                                            lab_node_kwargs, lifecycle_bring_up, respawn_arguments,
-                                            respawn_enabled, respawn_kwargs)
+                                            lab_node_kwargs, launch_namespace, lifecycle_bring_up,
+                                            namespace_argument, respawn_arguments, respawn_enabled,
+                                            respawn_kwargs)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -100,6 +106,7 @@ def _nodes(context, *args, **kwargs):
         # a respawn must not resume guidance on its own.
         overrides['pressure_controller']['start_enabled'] = False
     generated = NodeOverrides(context)
+    namespace = launch_namespace(context)
     actions = []
     for name in NODES:
         lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset
@@ -112,12 +119,13 @@ def _nodes(context, *args, **kwargs):
             # lists its dead predecessor's service is lost, and the node would stay unconfigured.
             by_launch = not lab and not restart
             overrides[name]['autostart'] = False if by_launch else autostart
-            node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace='',
+            node = LifecycleNode(package='fabric_guidance', executable=name, name=name, namespace=namespace,
                                  output='screen', parameters=[*files, generated.file(name, overrides[name])],
                                  **lab, **restart)
             actions += [node, *(lifecycle_bring_up(node) if autostart and by_launch else [])]
         else:
-            actions.append(Node(package='fabric_guidance', executable=name, name=name, output='screen',
+            actions.append(Node(package='fabric_guidance', executable=name, name=name, namespace=namespace,
+                                output='screen',
                                 parameters=[*files, generated.file(name, overrides[name])], **lab, **restart))
     return [*lab_network_actions(context), *actions, generated.cleanup_action()]
 
@@ -139,6 +147,7 @@ def generate_launch_description():
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
+        namespace_argument(),
         *respawn_arguments(),      # respawn, respawn_delay
         *lab_launch_arguments(),   # keystore, discovery_server, start_discovery_server
         OpaqueFunction(function=_nodes),

@@ -15,7 +15,8 @@ guidance.launch.py loads config/params/guidance.yaml (or base_params_file:=...) 
 config/params/micromanipulation.yaml (or micromanipulation_params_file:=...) for every node, the second
 winning (no merged copy is written). The other arguments of guidance.launch.py (plc_host,
 calibration_file, condition, ...) pass through. With wearer_sim:=true the lab graph starts once
-the mock PLC listens, and the mock PLC outlives plc_output's vent on shutdown.
+the mock PLC listens, and the mock PLC outlives plc_output's vent on shutdown. namespace:=NAME
+puts every node, the simulated ones included, in that namespace (a second suit on the domain).
 """
 import os
 
@@ -27,7 +28,8 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node, SetRemap
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
+from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
+                                            launch_namespace, loopback_dds_actions, namespace_argument)
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
@@ -44,6 +46,9 @@ def _graph(context, *args, **kwargs):
         value = LaunchConfiguration(name).perform(context)
         if value:
             arguments[name] = value
+    namespace = launch_namespace(context)
+    if namespace:
+        arguments['namespace'] = namespace
     simulated_wearer = LaunchConfiguration('wearer_sim').perform(context).lower() == 'true'
     if simulated_wearer:
         arguments.setdefault('plc_host', '127.0.0.1')
@@ -58,7 +63,7 @@ def _graph(context, *args, **kwargs):
                                  launch_arguments=arguments.items()),
     ])
     sim_params = os.path.join(share, 'config', 'params', 'sim.yaml')
-    stack = Node(package='fabric_guidance', executable='micromanipulator_sim',
+    stack = Node(package='fabric_guidance', executable='micromanipulator_sim', namespace=namespace,
                  name='micromanipulator_sim', output='screen', parameters=[extra_file],
                  condition=IfCondition(LaunchConfiguration('micromanipulator_sim')),
                  remappings=[(f'live_targets/{name}', LaunchConfiguration(f'{name}_topic'))
@@ -70,14 +75,16 @@ def _graph(context, *args, **kwargs):
     mock_ports = {'port': int(arguments['plc_port'])} if 'plc_port' in arguments else {}
     wearer_ports = {'bridge_port': int(arguments['gaze_port'])} if 'gaze_port' in arguments else {}
     wearer_ports['display_port'] = int(arguments['display_port'])
-    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
+    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', namespace=namespace,
                     output='screen', parameters=[sim_params, *ports.files('mock_plc', mock_ports)],
                     **lab_node_kwargs(context, 'mock_plc'))
-    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
+    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim', namespace=namespace,
                   output='screen',
                   parameters=[sim_params, *ports.files('wearer_sim', wearer_ports)],
                   **lab_node_kwargs(context, 'wearer_sim'))
-    return [mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
+    # All simulated: DDS on loopback, as sim.launch.py (a real plc_output elsewhere on the
+    # domain must never hear this graph's pressure_command).
+    return [*loopback_dds_actions(share), mock_plc, wearer, stack, after_mock_plc_listens(mock_plc, [lab]),
             ports.cleanup_action()]
 
 
@@ -100,5 +107,6 @@ def generate_launch_description():
                               description="also start mock_plc and wearer_sim, with the sim wearer's calibration"),
         *[DeclareLaunchArgument(name, default_value='', description='passed to guidance.launch.py (empty: its default)')
           for name in PASS_THROUGH],
+        namespace_argument(),
         OpaqueFunction(function=_graph),
     ])

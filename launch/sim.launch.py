@@ -3,7 +3,8 @@ wearer, with the simulated wearer's calibration and config/params/sim.yaml over 
 for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
-    ros2 launch fabric_guidance sim.launch.py plc_port:=1602 gaze_port:=5105 display_port:=5106   # a second one
+    # a second suit beside the first, on the same domain (docs/interfaces.md, "Names and namespaces")
+    ros2 launch fabric_guidance sim.launch.py namespace:=suit_b plc_port:=1602 gaze_port:=5105 display_port:=5106
 
 The lab graph starts once the mock PLC listens (plc_output's first connection then succeeds).
 On Ctrl-C the mock PLC stays up until plc_output has vented and closed its connection
@@ -13,13 +14,13 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import (DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction,
-                            SetEnvironmentVariable)
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fabric_guidance.launch_support import NodeOverrides, after_mock_plc_listens, lab_node_kwargs
+from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
+                                            launch_namespace, loopback_dds_actions, namespace_argument)
 
 
 def _graph(context, *args, **kwargs):
@@ -44,13 +45,15 @@ def _graph(context, *args, **kwargs):
             # The simulated graph guides at once, as `make demo` does; the lab's restarts and
             # their enable gate are for a wearer (guidance.launch.py).
             'respawn': 'false',
+            'namespace': LaunchConfiguration('namespace'),
         }.items())
+    namespace = launch_namespace(context)
     ports = NodeOverrides(context)
-    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc',
+    mock_plc = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', namespace=namespace,
                     output='screen',
                     parameters=[sim_params, ports.file('mock_plc', {'port': int(plc_port)})],
                     **lab_node_kwargs(context, 'mock_plc'))
-    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim',
+    wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim', namespace=namespace,
                   output='screen',
                   parameters=[sim_params,
                               ports.file('wearer_sim', {'bridge_port': int(gaze_port),
@@ -60,15 +63,10 @@ def _graph(context, *args, **kwargs):
 
 
 def generate_launch_description():
-    # The simulated graph talks to nobody else: Fast DDS on 127.0.0.1 only, the profile deciding
-    # alone, as in `make demo` and the tests (rmw's LOCALHOST range would add a send socket on
-    # every interface); without the profile, at least discovery stays on this machine.
-    profile = os.path.join(get_package_share_directory('fabric_guidance'), 'config',
-                           'fastdds_loopback.xml')
-    discovery_range = 'SYSTEM_DEFAULT' if os.path.isfile(profile) else 'LOCALHOST'
+    # The simulated graph talks to nobody else: Fast DDS on 127.0.0.1 only, as in `make demo`
+    # and the tests, on Jazzy (Fast DDS 2) as on Kilted (Fast DDS 3).
     return LaunchDescription([
-        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile),
-        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', discovery_range),
+        *loopback_dds_actions(get_package_share_directory('fabric_guidance')),
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
                                           '4 speech'),
@@ -81,5 +79,6 @@ def generate_launch_description():
         DeclareLaunchArgument('autostart', default_value='true',
                               description='configure and activate the lifecycle nodes (false: leave them '
                                           'to the operator)'),
+        namespace_argument(),
         OpaqueFunction(function=_graph),
     ])

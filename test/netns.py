@@ -24,7 +24,10 @@ CLONE_NEWNET = 0x40000000
 SUBNET_UDP_ENV = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 #: Environment a process may have inherited that decides its DDS set-up; a NetnsGraph or a
 #: participant starts from none of it and sets what it wants.
-DDS_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTDDS_BUILTIN_TRANSPORTS',
+# Both profile variables: Fast DDS 3's rmw takes an inherited FASTRTPS_DEFAULT_PROFILES_FILE (the
+# test process's loopback profile) over a FASTDDS_DEFAULT_PROFILES_FILE set here.
+DDS_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE', 'ROS_AUTOMATIC_DISCOVERY_RANGE',
+                 'FASTDDS_BUILTIN_TRANSPORTS',
                  'ROS_DISCOVERY_SERVER', 'ROS_SUPER_CLIENT', 'ROS_STATIC_PEERS', 'ROS_LOCALHOST_ONLY')
 
 

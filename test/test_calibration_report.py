@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from std_srvs.srv import Trigger
 
+from fabric_guidance import interface
+
 from fabric_guidance.calibration_report import (direction_fits, draw_fit_figure, format_fit_report, main,
                                                 report_paths, write_fit_report)
 from fabric_guidance.core.calibration import (DONE, FAILED, Calibration, CalibrationProcedure,
@@ -203,7 +205,7 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     graph, probe, upstream, _ = controller
     folder = tmp_path / 'calibrations'
     with wearer_answering(controller) as status:
-        wait_until(lambda: probe.call(Trigger, 'start_calibration', Trigger.Request()).success, 15.0,
+        wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 15.0,
                    what='start_calibration accepted')
         wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
     done = status[-1].data
@@ -223,7 +225,7 @@ def test_pressure_controller_writes_the_report_next_to_the_wearers_file(controll
     # A wearer who does not move: refused with its reason, file and report untouched.
     upstream.yaw = upstream.pitch = 0.0
     n = len(status)
-    assert probe.call(Trigger, 'start_calibration', Trigger.Request()).success
+    assert probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success
     wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 60.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data and 'previous calibration is kept' in status[-1].data
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == report_before

@@ -186,4 +186,5 @@ def test_every_node_of_the_graph_keeps_dds_discovery_on_localhost(lab):
         environ = dict(item.split('=', 1) for item in
                        open(f'/proc/{proc.pid}/environ').read().split('\0') if '=' in item)
         assert environ.get('FASTDDS_DEFAULT_PROFILES_FILE') == str(CONFIG / 'fastdds_loopback.xml'), node
+        assert environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') == str(CONFIG / 'fastdds_loopback.xml'), node
         assert environ.get('ROS_DOMAIN_ID') == str(lab.graph.domain_id), node

@@ -15,13 +15,13 @@ import pytest
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 import transforms3d
-import yaml
 
 from fabric_guidance import interface
 from fabric_guidance.core import calibration_state, display_wire
 from fabric_guidance.core.geometry import azimuth_deg, elevation_deg, ray_direction
 from fabric_guidance.nodes import qos
 from headset_harness import DelayProxy, Harness, build_harness, pose_line, unity_euler_quat
+from fabric_guidance.paths import node_parameters
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
 pytestmark = pytest.mark.graph
@@ -298,9 +298,8 @@ def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path
                    what='a next event at the headset')
         active = [m for m in harness.messages('targets') if m['active']][-1]
         # Look at the active target (from the fixed positions of guidance.yaml) until found.
-        params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']
-        names = params['ros__parameters']['target_names']
-        positions = params['ros__parameters']['target_positions']
+        params = node_parameters('params/guidance.yaml', 'target_selector')
+        names, positions = params['target_names'], params['target_positions']
         target = np.array(positions[3 * names.index(active['active']):][:3])
 
         def look():
@@ -347,8 +346,8 @@ def test_the_micromanipulator_objects_reach_the_headset_as_live_objects(tmp_path
         # three objects before it has heard which one is active (seen once in a fresh clone).
         wait_until(lambda: any(len(live(m)) == 3 and m['active'] for m in harness.messages('targets')), 30.0,
                    what='three live objects and an active one at the headset')
-    params = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
-    selector, stack = params['target_selector']['ros__parameters'], params['micromanipulator_sim']['ros__parameters']
+    selector = node_parameters('params/micromanipulation.yaml', 'target_selector')
+    stack = node_parameters('params/micromanipulation.yaml', 'micromanipulator_sim')
     scale, offset = selector['live_scale'], np.array(selector['live_offset'])
     drift = stack['drift_amplitude_m'] * scale
     last = [m for m in harness.messages('targets') if len(live(m)) == 3 and m['active']][-1]

@@ -81,7 +81,28 @@ def test_the_profile_is_valid_fast_dds_xml_and_pins_exactly_that_interface(tmp_p
     fastdds_schema().validate(str(path))
     assert lab_network.validate_profile(path.read_text(), str(path)) == interface
     assert process_env(path) == {'FASTDDS_DEFAULT_PROFILES_FILE': str(path),
+                                 'FASTRTPS_DEFAULT_PROFILES_FILE': str(path),
                                  'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+
+
+def test_every_profile_setting_names_the_variable_of_fast_dds_2_and_of_fast_dds_3(tmp_path):
+    """Fast DDS 2.x (Jazzy) reads only FASTRTPS_DEFAULT_PROFILES_FILE, Fast DDS 3 (Kilted) only
+    FASTDDS_DEFAULT_PROFILES_FILE: with one of them alone, the other distribution silently drops
+    the profile, and a simulated graph's DDS reaches the network (SYSTEM_DEFAULT range)."""
+    from fabric_guidance.process_graph import Graph, loopback_dds_env
+    loopback = str(CONFIG / 'fastdds_loopback.xml')
+    for where, env, profile in (('lab_network.process_env', process_env(tmp_path / 'p.xml'), str(tmp_path / 'p.xml')),
+                                ('process_graph.loopback_dds_env', loopback_dds_env(), loopback),
+                                ('process_graph.Graph.env', Graph(tmp_path / 'g').env, loopback)):
+        for variable in ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE'):
+            assert env.get(variable) == profile, f'{where}: {variable}'
+        assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT', where
+    # The launch files set the profile through launch_support.loopback_dds_actions only (run under
+    # the real launch system by test_launch.py), never one variable by hand.
+    for launch_file in sorted((ROOT / 'launch').glob('*.launch.py')):
+        text = launch_file.read_text()
+        assert 'FASTDDS_DEFAULT_PROFILES_FILE' not in text and 'FASTRTPS' not in text, launch_file.name
+    assert 'lab_network.profile_env(profile)' in (ROOT / 'fabric_guidance' / 'launch_support.py').read_text()
 
 
 def test_the_loopback_profile_of_the_demo_passes_the_same_check():
@@ -130,6 +151,7 @@ def test_dds_profile_command_writes_checks_and_refuses(tmp_path):
     out = cli('--interface', 'lo', '--out', str(tmp_path / 'p.xml'))
     assert out.returncode == 0, out.stderr
     assert f'export FASTDDS_DEFAULT_PROFILES_FILE={tmp_path / "p.xml"}' in out.stdout
+    assert f'export FASTRTPS_DEFAULT_PROFILES_FILE={tmp_path / "p.xml"}' in out.stdout
     assert 'export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT' in out.stdout
     assert 'no interface named' not in out.stderr     # lo exists everywhere
     checked = cli('--check', str(tmp_path / 'p.xml'))
@@ -199,9 +221,7 @@ def test_a_profile_naming_no_interface_of_the_machine_fails_closed(tmp_path):
     loopback = CONFIG / 'fastdds_loopback.xml'
     pairs = {}
     for name, profile in (('loopback', loopback), ('typo', typo)):   # both pairs at once, a domain each
-        env = dds_env(dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id())),
-                      {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT',
-                       'FASTDDS_DEFAULT_PROFILES_FILE': str(profile)})
+        env = dds_env(dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id())), process_env(profile))
         pairs[name] = [subprocess.Popen([sys.executable, str(PARTICIPANT), '--name', f'{name}_{i}', '--seconds', '6'],
                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
                        for i in (1, 2)]

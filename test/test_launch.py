@@ -1,15 +1,19 @@
-"""The launch files under the real launch system (launch 3.7.1, launch_ros 0.28.0, launch_pytest),
-run from a `colcon build` install tree, as a lab runs them.
+"""The launch files under the real launch system, run from a `colcon build` install tree, as a
+lab runs them: under ROS 2 Kilted's launch 3.7.1 / launch_ros 0.28.0 and under Jazzy's launch
+3.4.3 / launch_ros 0.26.6 (FABRIC_GUIDANCE_LAUNCH_DISTRO names which; rclpy and Fast DDS are the
+Kilted wheels' in both: Jazzy's are not on the package index).
 
-`make test` runs this module in .venv-launch (pytest 7.4.4, the wheels of ../shared/ros-tooling/,
-colcon) after building the package with colcon into build-launch/; see docs/launch.md.
-Everywhere else it is skipped with one line.
+`make test` runs this module twice, in .venv-launch and .venv-launch-jazzy (pytest 7.4.4, the
+wheels of ../shared/ros-tooling/ and ../shared/ros-tooling/jazzy/, colcon), each after building
+the package with colcon into build-launch/ or build-launch-jazzy/; see docs/launch.md (the
+workspace check beside it: test_workspace.py). Everywhere else it is skipped with one line.
 """
 import glob
 import os
 import re
 import signal
 import socket
+import sys
 import tempfile
 import threading
 
@@ -114,6 +118,22 @@ def _fabric_guidance_temp_files():
     return set(glob.glob(os.path.join(tempfile.gettempdir(), 'fabric_guidance_*')))
 
 
+#: launch and launch_ros releases of each distribution the stage runs under (their wheels).
+LAUNCH_VERSIONS = {'kilted': ('3.7.', '0.28.'), 'jazzy': ('3.4.', '0.26.')}
+
+
+def test_the_stage_runs_under_the_distributions_launch_and_launch_ros():
+    """A venv with the other distribution's wheels would pass for this one unseen."""
+    from importlib.metadata import version
+    distro = os.environ.get('FABRIC_GUIDANCE_LAUNCH_DISTRO', 'kilted')
+    launch_version, launch_ros_version = version('launch'), version('launch_ros')
+    print(f'\n[{distro}] launch {launch_version}, launch_ros {launch_ros_version}, '
+          f'launch_pytest {version("launch_pytest")}')
+    assert launch_version.startswith(LAUNCH_VERSIONS[distro][0]), launch_version
+    assert launch_ros_version.startswith(LAUNCH_VERSIONS[distro][1]), launch_ros_version
+    assert os.path.dirname(launch.__file__).startswith(sys.prefix), launch.__file__
+
+
 def test_colcon_build_installed_the_package():
     """colcon build's install tree: the ament index marker, share/ and every executable; this
     process imports the package from there."""
@@ -138,24 +158,54 @@ def sim_ports():
             'display_port': free_port(socket.SOCK_DGRAM)}
 
 
+#: The simulated graph runs in a namespace, as a second suit on the domain would: its parameter
+#: files (keyed /**/<node>) and its launch arguments must still reach every node.
+SIM_NAMESPACE = 'suit_a'
+
+
 @launch_pytest.fixture
 def sim_graph(sim_ports):
     watch, domain_id = Watch(), fresh_domain_id()
-    return _graph(watch, domain_id, _include('sim.launch.py', **sim_ports)), watch, domain_id
+    return _graph(watch, domain_id, _include('sim.launch.py', namespace=SIM_NAMESPACE, **sim_ports)), \
+        watch, domain_id
+
+
+def _parameters(probe, node, names):
+    response = probe.call(GetParameters, interface.full_name('~/get_parameters', SIM_NAMESPACE, node),
+                          GetParameters.Request(names=names), attempts=3)
+    return [{1: v.bool_value, 2: v.integer_value, 3: v.double_value, 4: v.string_value,
+             9: list(v.string_array_value)}.get(v.type) for v in response.values]
 
 
 @pytest.mark.launch(fixture=sim_graph)
-def test_sim_launch_guides_through_every_target_and_vents_on_sigint(sim_graph):
+def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_sigint(sim_graph, sim_ports):
+    from fabric_guidance.paths import node_parameters
     _, watch, domain_id = sim_graph
     wait_until(lambda: len(watch.found()) >= 4, SESSION_DEADLINE_S, what='four targets found')
     assert watch.found() == ['front_left', 'up_right', 'down_left', 'down_right']
-    with Probe(domain_id) as probe:
+    with Probe(domain_id, namespace=SIM_NAMESPACE) as probe:
         # The largest pressure the mock PLC was ever written, per channel (published at 10 Hz).
-        written = probe.subscribe(Float64MultiArray, 'mock_plc/max_written_kpa',
-                                  qos.COMMAND_QOS)
+        written = probe.subscribe(Float64MultiArray, interface.MAX_WRITTEN, qos.COMMAND_QOS)
         wait_until(lambda: written, 30.0, what="the mock PLC's largest writes")
         assert max(written[-1].data) <= P_MAX
         assert max(written[-1].data) > 50.0  # guided, not found by luck
+        # From the files (sim.yaml over guidance.yaml, keyed /**/<node>) and the arguments (a file
+        # keyed by the node's full name): a namespace loses neither.
+        sim = os.path.join(SHARE, 'config', 'params', 'sim.yaml')
+        assert _parameters(probe, 'target_selector', ['return_to_front']) == \
+            [node_parameters(sim, 'target_selector')['return_to_front']]
+        assert _parameters(probe, 'wearer_sim', ['tau_s', 'bridge_port']) == \
+            [node_parameters(sim, 'wearer_sim')['tau_s'], sim_ports['gaze_port']]
+        assert _parameters(probe, 'gaze_bridge', ['port', 'headset_address']) == [sim_ports['gaze_port'], '127.0.0.1']
+        assert _parameters(probe, 'mock_plc', ['port']) == [sim_ports['plc_port']]
+        services = {name for name, _ in probe.node.get_service_names_and_types()}
+        for s in interface.SERVICES:
+            assert interface.full_name(s.name, SIM_NAMESPACE) in services, s.name
+        assert not services & set(interface.OLD_NAMES)
+    # Fast DDS 2 (Jazzy) and 3 (Kilted) both take the loopback profile.
+    env = _environ(watch.pids[watch.name('plc_output')])
+    profile = os.path.join(SHARE, 'config', 'fastdds_loopback.xml')
+    assert env.get('FASTDDS_DEFAULT_PROFILES_FILE') == env.get('FASTRTPS_DEFAULT_PROFILES_FILE') == profile
     # Ctrl-C at its worst: the mock PLC gets SIGINT first and the others only later (a terminal
     # signals the whole group at once; any order must vent). The mock must still be there.
     os.kill(watch.pids[watch.name('mock_plc')], signal.SIGINT)
@@ -391,12 +441,11 @@ def micromanipulation_graph(sim_ports):
 def test_micromanipulation_launch_follows_the_stack_and_finds_every_object(
         micromanipulation_graph):
     import numpy as np
-    import yaml
     from geometry_msgs.msg import PointStamped, PoseStamped
     _, watch, domain_id, before = micromanipulation_graph
-    params = yaml.safe_load(open(os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')))
-    selector = params['target_selector']['ros__parameters']
-    stack = params['micromanipulator_sim']['ros__parameters']
+    from fabric_guidance.paths import node_parameters
+    path = os.path.join(SHARE, 'config', 'params/micromanipulation.yaml')
+    selector, stack = node_parameters(path, 'target_selector'), node_parameters(path, 'micromanipulator_sim')
     micro = {n: np.array(stack['object_positions'][3 * i:3 * i + 3])
              for i, n in enumerate(stack['object_names'])}
     scale, offset, drift = selector['live_scale'], np.array(selector['live_offset']), \

@@ -194,7 +194,7 @@ def test_pressure_controller_guides_only_while_active_and_refuses_a_bad_file(tmp
         parameters = probe.subscribe(String, CONTROLLER_PARAMETERS, LATCHED_QOS)
         assert transition(probe, 'pressure_controller', Transition.TRANSITION_CONFIGURE)[0]
         wait_until(lambda: parameters, STARTUP_DEADLINE_S, what='controller_parameters once configured')
-        refused = probe.call(SetBool, f'/{ENABLE}', SetBool.Request(data=True))
+        refused = probe.call(SetBool, ENABLE, SetBool.Request(data=True))
         assert not refused.success and 'inactive' in refused.message, refused
         time.sleep(QUIET_S)
         assert not commands, 'an inactive controller does not step'

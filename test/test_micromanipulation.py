@@ -8,14 +8,13 @@ graph that was started here with the same files.
 import math
 
 import numpy as np
-import yaml
 
-from rosgraph import CONFIG
+from fabric_guidance.paths import node_parameters
+
 
 ORDER = ['holding_pipette', 'microbead', 'injection_pipette']
-PARAMS = yaml.safe_load((CONFIG / 'params/micromanipulation.yaml').read_text())
-SELECTOR = PARAMS['target_selector']['ros__parameters']
-STACK = PARAMS['micromanipulator_sim']['ros__parameters']
+SELECTOR = node_parameters('params/micromanipulation.yaml', 'target_selector')
+STACK = node_parameters('params/micromanipulation.yaml', 'micromanipulator_sim')
 SCALE, OFFSET = SELECTOR['live_scale'], np.array(SELECTOR['live_offset'])
 MICRO = {n: np.array(STACK['object_positions'][3 * i:3 * i + 3]) for i, n in enumerate(STACK['object_names'])}
 EYE = np.array([0.0, 0.0, 1.2])

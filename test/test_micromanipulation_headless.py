@@ -10,9 +10,8 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
-from fabric_guidance.paths import config_path
+from fabric_guidance.paths import node_parameters
 from fabric_guidance.sim.engine import ClosedLoop, run_calibration
 from fabric_guidance.sim.population import sample_wearer
 from fabric_guidance.sim.protocols import sequence_loop
@@ -24,9 +23,8 @@ TIMEOUT_S = 15.0
 
 
 def objects() -> list[tuple[float, float]]:
-    params = yaml.safe_load(config_path('params/micromanipulation.yaml').read_text())
-    sel = params['target_selector']['ros__parameters']
-    stack = params['micromanipulator_sim']['ros__parameters']
+    sel = node_parameters('params/micromanipulation.yaml', 'target_selector')
+    stack = node_parameters('params/micromanipulation.yaml', 'micromanipulator_sim')
     pos = np.reshape(stack['object_positions'], (-1, 3))
     out = []
     for p in pos:
@@ -37,8 +35,7 @@ def objects() -> list[tuple[float, float]]:
 
 
 def test_the_config_runs_straight_from_object_to_object():
-    params = yaml.safe_load(config_path('params/micromanipulation.yaml').read_text())
-    assert params['target_selector']['ros__parameters'].get('return_to_front', False) is False
+    assert node_parameters('params/micromanipulation.yaml', 'target_selector').get('return_to_front', False) is False
 
 
 def run(seed: int, frame: str) -> list:

@@ -17,17 +17,17 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-import yaml
 
 from fabric_guidance.bench.graphs import state
 from fabric_guidance.core.gaze_wire import encode_datagram
 from fabric_guidance.core.geometry import ray_direction
 from fabric_guidance.interface import DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
-from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
+from fabric_guidance.paths import node_parameters
+from rosgraph import Graph, Probe, free_port, wait_until
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
-PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
+PARAMS = node_parameters('params/guidance.yaml', 'gaze_bridge')
 MAX_BYTES = PARAMS['max_datagram_bytes']
 STATUS = 'gaze_bridge: gaze stream'
 #: Shorter than the configured period so that the counters come back sooner.

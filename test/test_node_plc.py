@@ -25,6 +25,7 @@ from fabric_guidance.interface import DIAGNOSTICS, MEASURED_PRESSURE, PRESSURE_C
 from fabric_guidance.nodes.array_layout import named_layout
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.plc import PlcClient, PlcLinkError, RegisterMap
+from fabric_guidance.paths import node_parameters
 from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
@@ -36,7 +37,7 @@ def _parameters(node):
     """The node's parameters as the graph gets them: the files in order, later ones winning."""
     merged = {}
     for name in PARAMS_FILES:
-        merged.update(yaml.safe_load((CONFIG / name).read_text()).get(node, {}).get('ros__parameters', {}))
+        merged.update(node_parameters(name, node))
     return merged
 
 

@@ -227,9 +227,9 @@ def test_stale_gaze_vents_within_the_deadline(controller):
 def test_vent_and_enable_services(controller):
     graph, probe, upstream, _ = controller
     f40 = guide_to_left40(upstream, probe, 'guiding')
-    assert probe.call(Trigger, 'vent', Trigger.Request()).success
+    assert probe.call(Trigger, interface.VENT, Trigger.Request()).success
     wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
-    assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
+    assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True)).success
     wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding again')
 
 
@@ -241,7 +241,7 @@ def test_start_enabled_false_stays_vented_until_the_operator_enables(controller)
     # Gaze and target as when guiding: enough commands for guidance to have shown, none nonzero.
     wait_until(lambda: len(commands) >= 60, 10.0, what='commands with gaze and target')
     assert all(max(m.data) == 0.0 for m in commands), 'guided before the operator enabled'
-    assert probe.call(SetBool, 'enable', SetBool.Request(data=True)).success
+    assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True)).success
     wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding once enabled')
 
 
@@ -300,7 +300,7 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
     with wearer_answering(controller) as status:
         # Refused, with the reason, until the controller has a fresh gaze.
         replies = []
-        wait_until(lambda: replies.append(probe.call(Trigger, 'start_calibration', Trigger.Request()))
+        wait_until(lambda: replies.append(probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()))
                    or replies[-1].success, 15.0, what='start_calibration accepted')
         assert all('no valid gaze' in r.message for r in replies[:-1]), [r.message for r in replies]
         wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
@@ -317,7 +317,7 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
     # A wearer who does not move: the fit is refused and alice.yaml stays as it was.
     upstream.yaw = upstream.pitch = 0.0
     n = len(status)
-    assert probe.call(Trigger, 'start_calibration', Trigger.Request()).success
+    assert probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success
     wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 60.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data
     assert path.read_bytes() == before
@@ -327,7 +327,7 @@ def test_calibration_is_refused_without_gaze(controller):
     graph, probe, upstream, _ = controller
     upstream.sending.clear()
     # Refusing is idempotent: ask again if the first response is lost to discovery.
-    reply = probe.call(Trigger, 'start_calibration', Trigger.Request(), timeout=3.0, attempts=3)
+    reply = probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request(), timeout=3.0, attempts=3)
     assert not reply.success
     assert 'no valid gaze' in reply.message
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')

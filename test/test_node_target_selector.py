@@ -19,17 +19,17 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
-import yaml
 
 from fabric_guidance.core.geometry import ray_orientation, target_direction
 from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
                                        TARGET_FOUND)
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
-from rosgraph import CONFIG, Graph, Probe, wait_until
+from fabric_guidance.paths import node_parameters
+from rosgraph import Graph, Probe, wait_until
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
-PARAMS = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['target_selector']['ros__parameters']
+PARAMS = node_parameters('params/guidance.yaml', 'target_selector')
 NAMES = PARAMS['target_names']
 POSITIONS = {n: tuple(PARAMS['target_positions'][3 * i:3 * i + 3]) for i, n in enumerate(NAMES)}
 DWELL_S = PARAMS['dwell_s']
@@ -116,7 +116,8 @@ class Selector:
                        REPLY_DEADLINE_S, what=f'target at {position}')
 
     def trigger(self, service: str) -> Trigger.Response:
-        return self.probe.call(Trigger, service, Trigger.Request(), REPLY_DEADLINE_S)
+        """Call the selector's private service `service` (next_target, reset_sequence)."""
+        return self.probe.call(Trigger, f'~/{service}', Trigger.Request(), REPLY_DEADLINE_S)
 
     def set_active(self, name: str):
         request = SetParameters.Request(parameters=[Parameter('active_target', value=name).to_parameter_msg()])
@@ -278,7 +279,7 @@ def test_a_live_target_is_mapped_into_the_immersive_frame(fresh):
     live_pub = fresh.probe.node.create_publisher(PoseStamped, 'live_targets/bead', SENSOR_QOS)
     wait_until(lambda: live_pub.get_subscription_count() > 0, REPLY_DEADLINE_S, what='live_targets/bead matched')
     bead = PoseStamped()
-    bead.header.frame_id = 'micromanipulator'
+    bead.header.frame_id = 'microscope'   # live_frame_id: mapped by live_scale and live_offset
     bead.pose.position.x, bead.pose.position.y, bead.pose.position.z = 0.001, 0.0005, 0.0
     bead.pose.orientation.w = 1.0
     assert fresh.set_active('bead').successful
@@ -300,6 +301,34 @@ def test_a_live_target_is_mapped_into_the_immersive_frame(fresh):
                              and m.color.g == 0.0
                              and (m.pose.position.x, m.pose.position.y) == pytest.approx((1.0, -0.5))), None),
                REPLY_DEADLINE_S, what='a red bead marker at (1.0, -0.5)')
+    fresh.probe.node.destroy_publisher(live_pub)
+
+
+def test_a_live_target_in_an_unknown_frame_is_refused_with_one_line(fresh):
+    """A pose in a frame no transform is known from (not live_frame_id's microscope, not the
+    immersive frame) would be mis-placed: refused, counted, one throttled line. A pose in the
+    immersive frame is taken as it is."""
+    live_pub = fresh.probe.node.create_publisher(PoseStamped, 'live_targets/bead', SENSOR_QOS)
+    wait_until(lambda: live_pub.get_subscription_count() > 0, REPLY_DEADLINE_S, what='live_targets/bead matched')
+    bead = PoseStamped()
+    bead.pose.position.x, bead.pose.position.y, bead.pose.position.z = 2.0, 0.25, 1.0
+    bead.pose.orientation.w = 1.0
+    bead.header.frame_id = IMMERSIVE_FRAME
+    assert fresh.set_active('bead').successful
+    wait_until(lambda: (live_pub.publish(bead), fresh.target())[1] is not None and
+               np.allclose(fresh.target(), (2.0, 0.25, 1.0), atol=1e-9),
+               REPLY_DEADLINE_S, interval=0.05, what='the bead at (2.0, 0.25, 1.0), immersive as is')
+    before = int(fresh.counters().get('live_wrong_frame', 0))
+    bead.header.frame_id = 'camera_optical'
+    bead.pose.position.x = 0.001
+    for _ in range(20):
+        live_pub.publish(bead)
+        time.sleep(0.02)
+    wait_until(lambda: int(fresh.counters().get('live_wrong_frame', 0)) > before, 3.0,
+               what='poses in a wrong frame counted on /diagnostics')
+    assert np.allclose(fresh.target(), (2.0, 0.25, 1.0), atol=1e-9), 'a pose in an unknown frame moved the target'
+    log = fresh.graph.log('target_selector')
+    assert log.count("live target 'bead': pose in frame 'camera_optical' refused") == 1, log[-2000:]
     fresh.probe.node.destroy_publisher(live_pub)
 
 

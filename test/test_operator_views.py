@@ -194,3 +194,13 @@ def test_a_bag_holds_every_topic_the_views_read(rviz, foxglove):
                   if key in ('value', 'topicPath', 'topicToRender')}
     assert '/target_markers' in names and '/pressure_command' in names
     assert [n for n in sorted(names) if not _topic_of(n).recorded] == []
+
+
+def test_the_foxglove_layout_of_a_namespaced_graph_reads_that_graphs_topics():
+    """`--namespace suit_a`: every topic of the layout is suit_a's, /diagnostics the shared one."""
+    import json
+    import re
+    text = views.foxglove_json(namespace='suit_a')
+    topics = set(re.findall(r'"(/[a-z_/]+)(?:\.data\[\d+\])?"', text))
+    assert topics and all(t.startswith('/suit_a/') or t == interface.DIAGNOSTICS for t in topics), topics
+    assert json.loads(text)['configById'].keys() == json.loads(views.foxglove_json())['configById'].keys()

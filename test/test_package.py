@@ -33,9 +33,10 @@ def test_package_xml_is_format_3_ament_python_with_the_dependencies():
     assert root.findtext('name') == 'fabric_guidance'
     assert root.find('export/build_type').text == 'ament_python'
     exec_deps = {e.text for e in root.findall('exec_depend')}
-    assert {'rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_msgs', 'diagnostic_msgs', 'python3-numpy',
+    assert {'rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'diagnostic_msgs', 'python3-numpy',
             'python3-scipy', 'python3-pymodbus', 'python3-transforms3d', 'python3-yaml'} <= exec_deps
     assert {'launch_pytest', 'python3-pytest'} <= {e.text for e in root.findall('test_depend')}
+    # that they are all the imports: test_dependencies.py
 
 
 def test_colcon_reads_no_wheel_pins():

@@ -7,10 +7,10 @@ import ast
 import ipaddress
 from pathlib import Path
 
-import yaml
 
 from fabric_guidance.nodes import gaze_bridge
 from fabric_guidance.plc import RegisterMap
+from fabric_guidance.paths import node_parameters
 from rosgraph import CONFIG, ROOT, Graph
 
 
@@ -27,7 +27,7 @@ def test_the_bridge_listens_on_loopback_for_loopback_senders_by_default():
     source = Path(gaze_bridge.__file__)
     assert _declared_default(source, 'bind_address') == '127.0.0.1'
     assert _declared_default(source, 'allowed_senders') == ['127.0.0.1']
-    params = yaml.safe_load((CONFIG / 'params/guidance.yaml').read_text())['gaze_bridge']['ros__parameters']
+    params = node_parameters('params/guidance.yaml', 'gaze_bridge')
     assert ipaddress.ip_address(params['bind_address']).is_loopback
     assert all(ipaddress.ip_address(a).is_loopback for a in params['allowed_senders'])
 
@@ -45,10 +45,11 @@ def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     env = Graph(tmp_path).env   # the loopback profile decides alone (test_bad_input checks with ss)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
     assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')   # Fast DDS 2 (Jazzy)
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).
-    assert "SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile)" in launch
-    assert "'fastdds_loopback.xml'" in launch and "else 'LOCALHOST'" in launch
+    assert 'loopback_dds_actions(' in launch
+    support = (ROOT / 'fabric_guidance' / 'launch_support.py').read_text()
+    assert "'fastdds_loopback.xml'" in support and "'LOCALHOST'" in support
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
-    sim = yaml.safe_load((CONFIG / 'params/sim.yaml').read_text())
-    assert ipaddress.ip_address(sim['mock_plc']['ros__parameters']['host']).is_loopback
+    assert ipaddress.ip_address(node_parameters('params/sim.yaml', 'mock_plc')['host']).is_loopback

@@ -55,7 +55,8 @@ def named(cell: str, node: str) -> bool:
 
 
 def fq(name: str) -> str:
-    return '/' + re.sub(r'<[^>]*>', '*', name).lstrip('/')
+    """A name of the tables in the root namespace (a private one as its node's)."""
+    return re.sub(r'<[^>]*>', '*', interface.full_name(name))
 
 
 def test_every_node_gets_exactly_the_tables_topics_and_services(policy):
@@ -85,12 +86,12 @@ def test_what_drives_the_suit_has_one_publisher_each(policy):
     readers = {path.rsplit('/', 1)[1] for path, g in policy.items() if '/pressure_command' in g.subscribe}
     assert readers == {'plc_output', 'bag_recorder', 'operator'}
     for s in interface.SERVICES:
-        assert {p for p, g in policy.items() if '/' + s.name in g.reply} == {f'/fabric_guidance/{s.node}'}
+        assert {p for p, g in policy.items() if fq(s.name) in g.reply} == {f'/fabric_guidance/{s.node}'}
 
 
 def test_the_operator_calls_the_services_and_watches_but_publishes_no_topic_of_the_table(policy):
     g = policy['/fabric_guidance/operator']
-    assert g.request == ({'/' + s.name for s in interface.SERVICES}
+    assert g.request == ({fq(s.name) for s in interface.SERVICES}
                          | {f'/{n}/{s}' for n in sp.NODES for s in PARAMETER_SERVICES}
                          | {f'/{n}/{s}' for n in interface.MANAGED_NODES for s in LIFECYCLE_SERVICES})
     assert g.subscribe == ({fq(t.name) for t in interface.TOPICS}

@@ -46,7 +46,7 @@ import tempfile
 import threading
 import time
 
-from .. import subcommand
+from .. import interface, subcommand
 from ..atomic import write_text
 from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
@@ -331,7 +331,7 @@ class ChaosLab:
         """The operator's enable; returns the time the request was sent."""
         from std_srvs.srv import SetBool
         t = time.monotonic()
-        response = self.probe.call(SetBool, '/enable', SetBool.Request(data=True), timeout=3.0, attempts=10)
+        response = self.probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True), timeout=3.0, attempts=10)
         if not response.success:
             raise AssertionError(f'enable refused: {response.message}')
         return t
@@ -356,7 +356,7 @@ class ChaosLab:
 
     def start_calibration(self) -> None:
         from std_srvs.srv import Trigger
-        response = self.probe.call(Trigger, '/start_calibration', Trigger.Request(), timeout=3.0, attempts=5)
+        response = self.probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request(), timeout=3.0, attempts=5)
         if not response.success and 'already running' not in response.message:
             raise AssertionError(f'start_calibration refused: {response.message}')
 

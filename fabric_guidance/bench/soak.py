@@ -39,9 +39,9 @@ import time
 import numpy as np
 import yaml
 
-from .. import subcommand
+from .. import interface, subcommand
 from ..atomic import write_text
-from ..paths import config_path
+from ..paths import config_path, node_parameters
 from ..plc.register_log import RegisterLog
 from ..process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
                              wait_until)
@@ -82,7 +82,7 @@ FIGURES = {'latency_p50_ms': 'ms', 'latency_p99_ms': 'ms', 'latency_max_ms': 'ms
 
 def target_sequence(minutes: float) -> list[str]:
     """The four targets repeated for more than the run can reach (one a second at most)."""
-    params = yaml.safe_load(config_path('params/guidance.yaml').read_text())['target_selector']['ros__parameters']
+    params = node_parameters('params/guidance.yaml', 'target_selector')
     names = [n for n in params.get('sequence') or [] if n] or list(params['target_names'])
     return names * (int(minutes * 60 / len(names)) + 2)
 
@@ -110,7 +110,7 @@ class Soak:
         lab = sim_lab(1, 'suit', self.out / 'calibrations')
         lab.overrides['mock_plc'].update(register_log_file=str(self.register_log.path))
         sequence = self.out / 'target_sequence.yaml'
-        write_text(sequence, yaml.safe_dump({'target_selector': {'ros__parameters': {
+        write_text(sequence, yaml.safe_dump({'/**/target_selector': {'ros__parameters': {
             'sequence': target_sequence(self.minutes)}}}))
         start_nodes(self.graph, lab, FILES, {'target_selector': (str(sequence),)})
         self.probe = Probe(self.graph.domain_id, 'soak_watch')
@@ -153,7 +153,7 @@ class Soak:
             stuck = time.monotonic() - w.active_since > self.target_timeout_s
         if stuck:
             from std_srvs.srv import Trigger
-            self.probe.send(Trigger, 'next_target', Trigger.Request())
+            self.probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
             with w.lock:
                 w.active_since = time.monotonic()   # the request's outcome shows on active_target
             self.skipped += 1

@@ -29,7 +29,6 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
-import scikit_posthocs
 from scipy import stats as ss
 
 from ..core.safe_input import MAX_FILE_BYTES, excerpt
@@ -279,6 +278,9 @@ def _friedman(values: np.ndarray, ranks: np.ndarray) -> tuple[float, float]:
 
 
 def _pairwise(table: pd.DataFrame, mean_ranks: pd.Series, alpha: float) -> pd.DataFrame:
+    # Imported here: scikit-posthocs has no rosdep key, so a workspace may lack it; only the
+    # post-hoc needs it (the CLI names the missing package in one line).
+    import scikit_posthocs
     n, k = table.shape
     raw = scikit_posthocs.posthoc_siegel_friedman(table, p_adjust=None)
     adjusted = scikit_posthocs.posthoc_siegel_friedman(table, p_adjust='bonferroni')

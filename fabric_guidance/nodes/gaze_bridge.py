@@ -410,7 +410,9 @@ class GazeBridge(Node):
             **self._clock_values(estimate, now, delays, echoes, clock_restarts, clock_rejected, captured,
                                  fallbacks),
         }
-        publish_diagnostics(self, self._diag_pub, [status(self, 'gaze stream', level, message, values)])
+        publish_diagnostics(self, self._diag_pub, [status(
+            self, 'gaze stream', level, message, values,
+            hardware_id='HoloLens ' + (self.headset_address or ', '.join(sorted(map(str, self.allowed_senders)))))])
 
     def _clock_values(self, estimate, now, delays, echoes, restarts, rejected, captured, fallbacks) -> dict:
         if self._ping_target is None:

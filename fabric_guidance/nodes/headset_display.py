@@ -238,7 +238,8 @@ class HeadsetDisplay(Node):
                   **{f'sent_{k}': n for k, n in self.sent.items()}}
         message = f'{sum(self.sent.values())} display messages sent' + (
             f', {self.send_errors} failed' if self.send_errors else '')
-        publish_diagnostics(self, self._diag_pub, [status(self, 'display', level, message, values)])
+        publish_diagnostics(self, self._diag_pub, [status(
+            self, 'display', level, message, values, hardware_id=f'HoloLens {self.destination[0]}')])
 
     def destroy_node(self):
         self._sock.close()

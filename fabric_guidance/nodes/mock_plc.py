@@ -113,7 +113,8 @@ class MockPlc(Node):
                   'watchdog trips': self.server.watchdog_trips, 'watchdog armed': self.server.watchdog_armed,
                   'stale writes refused': len(self.server.stale_writes),
                   'max written kPa': f'{max(written.values()):g}', 'address': self.address}
-        publish_diagnostics(self, self._diagnostics_pub, [status(self, 'mock PLC', level, message, values)])
+        publish_diagnostics(self, self._diagnostics_pub, [status(
+            self, 'mock PLC', level, message, values, hardware_id=f'mock PLC {self.address}')])
 
     def _drain_write_log(self) -> None:
         drained_ns = time.monotonic_ns()  # before the take: every write up to here is in it

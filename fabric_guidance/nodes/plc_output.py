@@ -422,7 +422,7 @@ class PlcOutput(ManagedNode):
                       (self._source.refused_by if self._source is not None else {}).items())) or 'none',
                   'last refusal': self._source.last_refusal if self._source is not None and refused else '',
                   **self.lifecycle_values()}
-        statuses = [status(self, 'PLC output', level, message, values)]
+        statuses = [status(self, 'PLC output', level, message, values, hardware_id=f'PLC {self.plc_address}')]
         for link in self._links:
             link_level = DiagnosticStatus.OK if link.up else DiagnosticStatus.ERROR
             statuses.append(status(self, f'PLC link {link.name}', link_level,
@@ -431,7 +431,7 @@ class PlcOutput(ManagedNode):
                                     'unit id': link.client.map.unit_id,
                                     'channels': ' '.join(link.client.map.names),
                                     'link failures': link.failures,
-                                    'reconnects': link.reconnects}))
+                                    'reconnects': link.reconnects}, hardware_id=f'PLC {link.client.address}'))
         publish_diagnostics(self, self._diagnostics_pub, statuses)
 
     @staticmethod

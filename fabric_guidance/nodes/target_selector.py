@@ -41,6 +41,7 @@ from fabric_guidance.interface import LIVE_TARGETS, NEXT_TARGET, RESET_SEQUENCE,
 from fabric_guidance.interface import (ACTIVE_TARGET, DIAGNOSTICS, GAZE, IMMERSIVE_FRAME, TARGET,
                                        TARGET_FOUND)
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
+from fabric_guidance.nodes.log_throttle import LogThrottle
 from fabric_guidance.nodes.parameters import declare
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from fabric_guidance.nodes.spin import run
@@ -81,6 +82,12 @@ class TargetSelector(Node):
                                   1e-6, 1e6, read_only=True)
         live_offset = declare(self, 'live_offset', [0.0, 0.0, 1.2], 'added to live targets after scaling', 'm',
                               read_only=True)
+        # The one transform this node knows is live_scale and live_offset, from live_frame_id; a
+        # pose already in frame_id is taken as it is. Any other frame would be mis-placed without
+        # a word: refused (tf2 cannot express the 1000x scale, and the stack's frame is fixed).
+        self.live_frame_id = declare(self, 'live_frame_id', 'microscope',
+                                     'frame of live targets that live_scale and live_offset map into frame_id; '
+                                     'a live pose in any other frame than these two is refused', read_only=True)
         active = declare(self, 'active_target', '', "name of the target to guide to now ('' = none)")
         acceptance_deg = declare(self, 'acceptance_deg', 5.0, 'found when the gaze stays this close', 'deg',
                                  0.01, 180.0)
@@ -144,7 +151,9 @@ class TargetSelector(Node):
         self.active = ''
         self.cursor = -1           # index in sequence of the target last activated from it
         self.found_current = False  # the active target was found (no second event for it)
-        self.counts = {'gaze': 0, 'invalid_gaze': 0, 'found': 0, 'invalid_live': 0, 'internal_error': 0}
+        self.counts = {'gaze': 0, 'invalid_gaze': 0, 'found': 0, 'invalid_live': 0, 'live_wrong_frame': 0,
+                       'internal_error': 0}
+        self._frame_log = LogThrottle(5.0)
         self._setting_parameter = False
         self._ticks = 0
 
@@ -280,8 +289,20 @@ class TargetSelector(Node):
 
     def on_live_target(self, name: str, msg: PoseStamped) -> None:
         p = msg.pose.position
-        scale, offset = self.live_scale, self.live_offset
-        position = (p.x * scale + offset[0], p.y * scale + offset[1], p.z * scale + offset[2])
+        frame = msg.header.frame_id
+        if frame == self.live_frame_id:
+            scale, offset = self.live_scale, self.live_offset
+            position = (p.x * scale + offset[0], p.y * scale + offset[1], p.z * scale + offset[2])
+        elif frame == self.frame_id:
+            position = (p.x, p.y, p.z)
+        else:
+            self.counts['live_wrong_frame'] += 1
+            if self._frame_log.due(name):
+                self.get_logger().warn(
+                    f'live target {name!r}: pose in frame {frame!r} refused: no transform from it is known '
+                    f"(parameter 'live_frame_id' {self.live_frame_id!r} is mapped by live_scale and live_offset, "
+                    f"'frame_id' {self.frame_id!r} taken as is)")
+            return
         if not all(math.isfinite(c) for c in position):
             self.counts['invalid_live'] += 1
             self.get_logger().warn(f'live target {name!r}: non-finite position ignored', throttle_duration_sec=5.0)

@@ -10,10 +10,9 @@ from pathlib import Path
 import time
 
 import numpy as np
-import yaml
 
 from ..core import condition as condition_of
-from ..paths import config_path
+from ..paths import node_parameters
 
 from .population import calibrate_wearer, sample_wearer
 from .protocols import draw_target, target_stream
@@ -90,7 +89,7 @@ def plan_scene(scene_ref, condition: int | None, log_dir: Path, say) -> ScenePla
 
 
 def _eye_height() -> float:
-    params = yaml.safe_load(config_path('params/sim.yaml').read_text())['wearer_sim']['ros__parameters']
+    params = node_parameters('params/sim.yaml', 'wearer_sim')
     return float(params.get('eye_height_m', 1.2))
 
 
