@@ -70,7 +70,7 @@ def test_without_traits_a_wearer_has_the_scenes_parameters():
     ({'x': {'sd': 1, 'scale': 'cubic', 'params': ['hololens_view.confirm_s']}}, 'scale'),
     ({'x': {'sd': -1, 'scale': 'log', 'params': ['hololens_view.confirm_s']}}, 'traits.x.sd'),
     ({'x': {'sd': 1, 'scale': 'logit', 'params': ['hololens_view.dummies']}}, 'logit scale'),
-    ({'x': PACE, 'y': PACE}, 'already varied by trait'),
+    ({'x': PACE, 'y': dict(PACE, scale='logit')}, 'already varied by trait'),
     ({'x': {'sd': 1, 'params': 'hololens_view.confirm_s'}}, 'must list effect.parameter'),
 ])
 def test_a_bad_trait_is_one_line_naming_the_file_and_field(traits, message):
