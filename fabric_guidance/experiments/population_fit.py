@@ -86,12 +86,13 @@ FITTED = (
     FittedTrait('haptic_familiarity', 'logit', ('cue_misreading.direction_p', 'cue_misreading.arm_direction_p'),
                 (), 1.5, "fitted: how familiar a wearer is with turning any touch into a direction, shared by "
                 "conditions 1-3 (the paper's Discussion: people are not familiar with it, as they are with speech)"),
-    FittedTrait('reaction', 'log', ('reaction_delay.mean_s',), (0.25,), 0.6,
-                'fitted: how fast a wearer acts on any cue, all four conditions (reaction times differ '
-                'reliably between people: Jensen 2006, Clocking the Mind)'),
+    FittedTrait('reaction', 'log', ('reaction_delay.mean_s',), (), 0.6,
+                'fitted spread around the scene\'s median: how fast a wearer acts on any cue, all four conditions '
+                '(reaction times differ reliably between people: Jensen 2006, Clocking the Mind)'),
 )
 #: The traits with a median of their own (design_values; the others only spread a parameter
-#: whose median another trait sets): phi is (mu of these, sd of every fitted trait).
+#: whose median another trait or the scene sets: four condition means cannot place more than four
+#: medians, and reaction's would trade against pace's): phi is (mu of these, sd of every fitted trait).
 OWN = tuple(i for i, t in enumerate(FITTED) if t.design_values)
 ASSUMED = (
     AssumedTrait('discrimination', 'log', ('weber_perception.fraction', 'relative_perception.fraction'),
@@ -252,7 +253,7 @@ def bounds() -> list[tuple[float, float]]:
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
-                   x0: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                   x0: np.ndarray | None = None, restarts: int = 5) -> tuple[np.ndarray, float]:
     """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
     hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
     as the bootstrap refits)."""
@@ -272,7 +273,16 @@ def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed:
         firsts = sorted(points, key=f)[:3]
     best_x, best_f = None, math.inf
     for x in firsts:
+        # Nelder-Mead's simplex collapses in ten dimensions before it reaches the minimum: restarted
+        # from where it stopped (a fresh simplex) until a restart gains less than 1e-3.
         r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+        for _ in range(restarts):
+            again = minimize(f, r.x, method='Nelder-Mead', bounds=b,
+                             options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+            gained = r.fun - again.fun
+            r = again if again.fun < r.fun else r
+            if gained < 1e-3:
+                break
         if r.fun < best_f:
             best_x, best_f = r.x, float(r.fun)
     return best_x, best_f
