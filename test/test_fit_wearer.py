@@ -66,7 +66,7 @@ def test_the_weighted_fit_recovers_a_known_population(monkeypatch):
     table of 15 people drawn from a known population; the fit finds a population as close to the
     table as that one. The floor of effective wearers is set for
     this design's size (the shipped one is tuned on the simulator's designs)."""
-    monkeypatch.setattr(pf, 'MIN_ESS', 40.0)
+    monkeypatch.setattr(pf, 'MIN_ESS_SHARE', 40.0 / 3000)
     rng = np.random.default_rng(11)
     k = len(pf.FITTED)
     sd0 = np.array([t.design_sd for t in pf.FITTED])

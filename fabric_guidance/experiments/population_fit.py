@@ -49,6 +49,9 @@ CONDITIONS = (1, 2, 3, 4)
 #: reached 17.6, 20.6 and 23.4 on the design but 44.9, 33.2 and 29.3 on selection seeds 2025 and
 #: 8001-8004 (neither design nor validation seeds; the 18 statistics' distance, mean per seed).
 MIN_ESS = 150.0
+#: The floor as a share of the design's wearers (150 of the 720 it was chosen on), so that a
+#: smaller design keeps the same regularization.
+MIN_ESS_SHARE = MIN_ESS / 720.0
 
 
 @dataclass(frozen=True)
@@ -101,7 +104,7 @@ ASSUMED = (
 #: The design: seeds (the first half for round 1, the rest for round 2) and wearers per seed;
 #: none of these seeds is used for validation.
 DESIGN_SEEDS = (101, 102, 103, 104, 105, 106)
-DESIGN_WEARERS = 120
+DESIGN_WEARERS = 40
 #: The profiled values of population.arm_spread (lognormal sigma of the arm law's a against the
 #: suit's; 0: the arm feels as the calibrated suit law says).
 ARM_SPREADS = (0.0, 0.1, 0.2)
@@ -180,6 +183,13 @@ class Design:
             return cls(d['u'], d['y'], d['seeds'], d['round'], tuple(zip(d['mus'], d['sds'])),
                        None if math.isnan(arm) else arm)
 
+    def best(self) -> np.ndarray:
+        """Per wearer, 1 for each condition of their highest mean (cached)."""
+        cached = getattr(self, '_best', None)
+        if cached is None:
+            cached = self._best = (self.y == self.y.max(axis=1, keepdims=True)).astype(float)
+        return cached
+
     def log_proposal(self) -> np.ndarray:
         """Cached _log_proposal (an objective evaluation would otherwise spend half its time on it)."""
         cached = getattr(self, '_logq', None)
@@ -194,6 +204,9 @@ class Design:
         dens = [np.log(max(s, 1e-300)) + _normal_logpdf(self.u, mu, sd).sum(axis=1)
                 for s, (mu, sd) in zip(share, self.rounds)]
         return np.logaddexp.reduce(np.array(dens), axis=0)
+
+
+_PAIRS = np.triu_indices(4, 1)
 
 
 def _normal_logpdf(x, mu, sd):
@@ -218,8 +231,8 @@ def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.n
     d = y - means
     cov = (w[:, None] * d).T @ d
     sds = np.sqrt(np.diag(cov))
-    best = n * (w @ (y == y.max(axis=1, keepdims=True)).astype(float))
-    corr = (cov / np.outer(sds, sds))[np.triu_indices(4, 1)]
+    best = n * (w @ design.best())
+    corr = (cov / np.outer(sds, sds))[_PAIRS]
     return {'means': means, 'sds': sds, 'best': best, 'corr': corr}
 
 
@@ -242,8 +255,9 @@ def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
     ess = 1.0 / float(np.sum(w ** 2))
     d = discrepancy(weighted_statistics(design, w, n), target, n)
     total = sum(float(np.sum(v ** 2)) for v in d.values())
-    if ess < MIN_ESS:
-        total += 10.0 * (MIN_ESS - ess)
+    floor = MIN_ESS_SHARE * len(design.y)
+    if ess < floor:
+        total += 10.0 * (floor - ess)
     return total
 
 
@@ -253,7 +267,7 @@ def bounds() -> list[tuple[float, float]]:
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
-                   x0: np.ndarray | None = None, restarts: int = 5) -> tuple[np.ndarray, float]:
+                   x0: np.ndarray | None = None, restarts: int = 5, maxfev: int = 3000) -> tuple[np.ndarray, float]:
     """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
     hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
     as the bootstrap refits)."""
@@ -275,10 +289,10 @@ def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed:
     for x in firsts:
         # Nelder-Mead's simplex collapses in ten dimensions before it reaches the minimum: restarted
         # from where it stopped (a fresh simplex) until a restart gains less than 1e-3.
-        r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+        r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': maxfev, 'xatol': 1e-3, 'fatol': 1e-3})
         for _ in range(restarts):
             again = minimize(f, r.x, method='Nelder-Mead', bounds=b,
-                             options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+                             options={'maxfev': maxfev, 'xatol': 1e-3, 'fatol': 1e-3})
             gained = r.fun - again.fun
             r = again if again.fun < r.fun else r
             if gained < 1e-3:
@@ -286,6 +300,11 @@ def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed:
         if r.fun < best_f:
             best_x, best_f = r.x, float(r.fun)
     return best_x, best_f
+
+
+#: A bootstrap refit starts at its design's fit: one Nelder-Mead of this many evaluations (the full
+#: fit's 3000 and restarts would make 200 refits take most of an hour on two cores).
+BOOT_MAXFEV = 800
 
 
 def _refit(args) -> tuple[np.ndarray, int]:
@@ -298,7 +317,7 @@ def _refit(args) -> tuple[np.ndarray, int]:
     fits = []
     for design, phi in zip(designs, phis):
         d = design.subset(rng.integers(0, len(design.y), len(design.y)))
-        fits.append(fit_population(d, t, n, x0=phi))
+        fits.append(fit_population(d, t, n, x0=phi, restarts=0, maxfev=BOOT_MAXFEV))
     i = int(np.argmin([f for _, f in fits]))
     return fits[i][0], i
 
@@ -442,6 +461,6 @@ def focused(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 __all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design', 'FITTED', 'MIN_ESS',
-           'OWN', 'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective',
+           'MIN_ESS_SHARE', 'OWN', 'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective',
            'paper_table', 'population_scene', 'run_design', 'run_designs', 'split', 'table_statistics',
            'trait_values', 'weighted_statistics', 'weights']
