@@ -58,7 +58,7 @@ MODEL_EFFECTS = ('cue_misreading', 'surface_resistance', 'relative_perception', 
 FIXED = {('surface_resistance', 'threshold_kpa_deg'): 26603.9}
 #: The parameters the fit sets (their medians; sensitivity does not sweep them).
 FITTED_PARAMS: tuple[tuple[str, str], ...] = tuple(
-    tuple(q.split('.')) for t in pf.FITTED for q in t.params)
+    tuple(q.split('.')) for t in pf.FITTED if t.design_values for q in t.params)
 
 
 def read_table(path: Path | None = None) -> np.ndarray:
@@ -357,7 +357,7 @@ def simulate_designs(bases, seeds, wearers: int, workers: int, target: dict, n: 
     print(f'design round 1: the speed protocol on {wearers} wearers of each seed {", ".join(map(str, first))}, '
           f'condition 3 at arm_spread {arms}', flush=True)
     round1 = pf.run_designs(bases, first, wearers, workers, say, scheduler=scheduler)
-    fits = [pf.fit_population(d, target, n) for d in round1]
+    fits = [pf.fit_population(d, target, n, restarts=0) for d in round1]     # only to place round 2
     mu, sd = pf.focused(min(fits, key=lambda f: f[1])[0])
     print(f'design round 2, around the best first fit: {wearers} wearers of each seed {", ".join(map(str, second))}',
           flush=True)

@@ -267,7 +267,7 @@ def bounds() -> list[tuple[float, float]]:
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
-                   x0: np.ndarray | None = None, restarts: int = 5, maxfev: int = 3000) -> tuple[np.ndarray, float]:
+                   x0: np.ndarray | None = None, restarts: int = 2, maxfev: int = 3000) -> tuple[np.ndarray, float]:
     """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
     hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
     as the bootstrap refits)."""
