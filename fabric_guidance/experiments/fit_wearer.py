@@ -1,32 +1,35 @@
 """fit-wearer: fit the simulated population to the paper's whole speed table, across seeds.
 
 The model (sim/effects/) has human parameters nobody measured, and people differ in them. The
-fit gives each wearer their own values (population traits, sim.scene.TraitSpec) and fits the
-population's median and spread of four of them (experiments/population_fit.py: how often the
-suit's and the arm band's cue is misread, a person's search pace, their pace with speech) to
+fit gives each wearer their own values (population traits, sim.scene.TraitSpec) and fits six
+traits (experiments/population_fit.py: how often the suit's and the arm band's cue is misread,
+a person's search pace and their pace with speech, with medians and spreads; a familiarity with
+haptic cues shared by conditions 1-3 and a reaction time shared by all four, spreads only) to
 eighteen numbers of the paper's per-subject table (experiments/paper.py, or a CSV given with
 --table): the four condition means, the four SDs of the subject means, the best-condition
-counts and the six correlations between conditions. Two more traits are assumed, not fitted.
+counts and the six correlations between conditions. One more trait is assumed, not fitted.
 How far the arm muscles' law of condition 3 differs from the suit's (population.arm_spread) is
 profiled: a design per value (--arm-spread), the fit on each, the lowest objective kept.
 
-The speed protocol runs once per arm_spread on a design population (--design-seeds, --wearers
-per seed; none of them a seed of the validation; about 3 min each on two cores), then every
-candidate population is the design reweighted (importance weights): a fit takes seconds. A
-bootstrap (--bootstrap N: design wearers and the paper's subjects resampled, the fit repeated on
-every design, the best kept) gives each fitted number its interval and the variants file
-(fit/variants.yaml in --out: one scene override set per bootstrap fit) that `tradeoff
---scene-variants` runs. The designs are saved (fit/design-arm_spread-<value>.npz) and --design
-reuses them: the shipped scenes are reproduced from the shipped designs in seconds.
+The speed protocol runs once on a design population (--design-seeds, --wearers per seed; none
+of them a seed of the validation), every profiled arm_spread on the same wearers (condition 3
+per value, the rest once), then every candidate population is the design reweighted
+(importance weights): a fit takes seconds. A bootstrap (--bootstrap N: design wearers and the
+paper's subjects resampled, the fit repeated on every design, the best kept) gives each fitted
+number its interval and the variants file (fit/variants.yaml in --out: one scene override set
+per bootstrap fit) that `tradeoff --scene-variants` runs. The designs are saved
+(fit/design-arm_spread-<value>.npz) and --design reuses them: the shipped scenes are reproduced
+from the shipped designs in seconds. --scheduler runs the design and the bootstrap on a Dask
+distributed cluster (workers.WorkerPool): the same results.
 
 It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the paper
 scenes plus the model's effects at the fitted medians and the population's traits, the same in
 both) with comments saying what was fitted, to what, on which seeds, and the statistics reached.
 Validation on other seeds: `fabric-guidance compare-paper --seeds ...`.
 
-    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 120]
+    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 40]
                                [--arm-spread 0,0.1,0.2] [--bootstrap 200] [--design FILE ...]
-                               [--workers 2] [--table CSV]
+                               [--workers 2] [--scheduler HOST:PORT] [--table CSV]
     python -m fabric_guidance.experiments.fit_wearer ...
 """
 from __future__ import annotations

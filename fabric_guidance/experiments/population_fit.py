@@ -1,22 +1,24 @@
 """The simulated population fitted to the paper's whole speed table, across people and seeds.
 
 People differ (sim.scene.TraitSpec): each wearer has their own value of every trait, u ~ N(mu,
-sd) on the trait's scale around the scene's value. Four traits are fitted, two are assumed:
+sd) on the trait's scale around the scene's value. Six traits are fitted (FITTED, with their
+sources), one is assumed (ASSUMED):
 
   misreading    cue_misreading.direction_p (logit): how often the suit's direction is misread
   arm_reading   cue_misreading.arm_direction_p (logit): how often the arm band's is misread
   pace          hololens_view search_base_s, search_per_item_s, confirm_s (log): how fast a
                 person searches among the dummies and confirms (common to all conditions)
   speech_pace   speech_latency.per_word_s (log): how long a spoken direction takes to act on
-  reaction      reaction_delay.mean_s (log, sd 0.15, assumed): simple reaction times differ
-                between people by about that much of their mean
+  haptic_familiarity  both misreading rates (logit, spread only): conditions 1-3 together
+  reaction      reaction_delay.mean_s (log, spread only): all four conditions
   discrimination  weber_perception.fraction, relative_perception.fraction (log, sd 0.25,
                 assumed): pressure discrimination thresholds differ between people
 
-Each fitted trait has a median shift mu and a spread sd: eight numbers. A ninth, how far the arm
+The first four have a median shift mu and a spread sd, the two shared ones a spread: ten
+numbers. How far the arm
 muscles' law of condition 3 differs from the calibrated suit's (population.arm_spread), is drawn
 into each wearer's laws, not a weighted trait: it is profiled (a design per value of ARM_SPREADS,
-the eight fitted on each, the lowest objective kept). All are fitted to eighteen numbers of the
+the ten fitted on each, the lowest objective kept). All are fitted to eighteen numbers of the
 paper's table (experiments/paper.py): the four condition means, the four SDs of the subject
 means, the four best-condition counts and the six correlations between conditions over
 subjects.
