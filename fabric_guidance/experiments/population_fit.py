@@ -265,7 +265,23 @@ def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
 
 def bounds() -> list[tuple[float, float]]:
     sd0 = [t.design_sd for t in FITTED]
-    return [(-1.5 * sd0[i], 1.5 * sd0[i]) for i in OWN] + [(0.02, 0.95 * s) for s in sd0]
+    return [(-1.5 * sd0[i], min(1.5 * sd0[i], _mu_ceiling(FITTED[i]))) for i in OWN] + [(0.02, 0.95 * s) for s in sd0]
+
+
+def _mu_ceiling(t: FittedTrait) -> float:
+    """The largest median shift that keeps every parameter of the trait within its valid range
+    (direction_p at most 0.5: a scene with a median above it does not load)."""
+    from dataclasses import fields
+    from ..sim.effects import effect_class
+    ceiling = math.inf
+    for q, v in zip(t.params, t.design_values):
+        effect, _, name = q.partition('.')
+        hi = next(f.metadata for f in fields(effect_class(effect)) if f.name == name).get('hi')
+        if hi is not None:
+            top = math.log(hi) - math.log(v) if t.scale == 'log' else (
+                math.log(hi / (1 - hi)) - math.log(v / (1 - v)) if hi < 1 else math.inf)
+            ceiling = min(ceiling, top - 1e-6)
+    return ceiling
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
