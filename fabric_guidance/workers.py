@@ -1,6 +1,9 @@
 """The one process pool of the simulations and studies: fork where the platform has it (the
 scene and its imports are inherited, no re-import per worker), spawn elsewhere; or no pool at
 all when one process is asked for or there is a single job (the same results, in this process).
+Given a scheduler address (host:port of a running Dask distributed scheduler, for sweeps on a
+cluster), the jobs go to that cluster's workers instead: the same map / as_done, the same
+results (every job is a pure function of its arguments; test_workers).
 """
 from __future__ import annotations
 
@@ -17,24 +20,49 @@ def process_context():
     return multiprocessing.get_context('fork' if 'fork' in methods else 'spawn')
 
 
+def dask_client(scheduler: str):
+    """A dask.distributed Client of the scheduler at `scheduler`; one clear line when Dask is
+    not installed or the scheduler does not answer."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise SystemExit(f'scheduler {scheduler}: Dask distributed is not installed (pip install distributed)')
+    try:
+        return Client(scheduler, timeout=10)
+    except (OSError, TimeoutError) as exc:
+        raise SystemExit(f'scheduler {scheduler}: cannot connect: {exc}')
+
+
 class WorkerPool:
     """At most `workers` processes for maps of up to `jobs` jobs; in this process when either is
-    1. Use as a context manager, or call close()."""
+    1; on the Dask cluster of `scheduler` when one is given (`workers` is then the cluster's).
+    Use as a context manager, or call close()."""
 
-    def __init__(self, workers: int, jobs: int):
-        self.pool = process_context().Pool(min(workers, jobs)) if workers > 1 and jobs > 1 else None
+    def __init__(self, workers: int, jobs: int, scheduler: str | None = None):
+        self.client = dask_client(scheduler) if scheduler else None
+        self.pool = (process_context().Pool(min(workers, jobs))
+                     if self.client is None and workers > 1 and jobs > 1 else None)
 
     def map(self, fn: Callable[[J], R], jobs: Iterable[J]) -> list[R]:
         """fn over jobs, results in the jobs' order."""
+        if self.client is not None:
+            return self.client.gather(self.client.map(fn, list(jobs), pure=False))
         return [fn(j) for j in jobs] if self.pool is None else self.pool.map(fn, list(jobs), chunksize=1)
 
     def as_done(self, fn: Callable[[J], R], jobs: Iterable[J]) -> Iterator[R]:
-        """fn over jobs, each result as it is done (in any order with a pool)."""
+        """fn over jobs, each result as it is done (in any order with a pool or a cluster)."""
+        if self.client is not None:
+            from distributed import as_completed
+            futures = self.client.map(fn, list(jobs), pure=False)
+            return (result for _, result in as_completed(futures, with_results=True))
         if self.pool is None:
             return (fn(j) for j in jobs)
         return self.pool.imap_unordered(fn, list(jobs))
 
     def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
         if self.pool is not None:
             self.pool.close()
             self.pool.join()
@@ -49,4 +77,4 @@ class WorkerPool:
         self.close()
 
 
-__all__ = ['WorkerPool', 'process_context']
+__all__ = ['WorkerPool', 'dask_client', 'process_context']

@@ -55,36 +55,44 @@ def test_the_design_population_weighs_its_own_wearers_equally():
     rng = np.random.default_rng(3)
     sd0 = np.array([t.design_sd for t in pf.FITTED])
     design = pf.Design(rng.normal(0, sd0, (200, len(sd0))), rng.normal(10, 2, (200, 4)), np.zeros(200))
-    w = pf.weights(design, np.concatenate([np.zeros(len(sd0)), sd0]))
+    w = pf.weights(design, np.concatenate([np.zeros(len(pf.OWN)), sd0]))
     np.testing.assert_allclose(w, 1 / 200)
-    narrow = pf.weights(design, np.concatenate([np.zeros(len(sd0)), 0.2 * sd0]))
+    narrow = pf.weights(design, np.concatenate([np.zeros(len(pf.OWN)), 0.2 * sd0]))
     assert 1 / np.sum(narrow ** 2) < 100          # a narrower population: fewer effective wearers
 
 
 def test_the_weighted_fit_recovers_a_known_population(monkeypatch):
     """A synthetic design whose condition means depend on the traits as a model could; a 'paper'
-    table of 15 people drawn from a known population; the fit finds that population's medians
-    (the statistics it fits could fail to pin them). The floor of effective wearers is set for
+    table of 15 people drawn from a known population; the fit finds a population as close to the
+    table as that one. The floor of effective wearers is set for
     this design's size (the shipped one is tuned on the simulator's designs)."""
-    monkeypatch.setattr(pf, 'MIN_ESS', 40.0)
+    monkeypatch.setattr(pf, 'MIN_ESS_SHARE', 40.0 / 3000)
     rng = np.random.default_rng(11)
     k = len(pf.FITTED)
     sd0 = np.array([t.design_sd for t in pf.FITTED])
 
     def means(u):
         pace = np.exp(-u[:, 2])
-        return np.stack([11 * pace - 4 * u[:, 0], 11 * pace - 1.0 - 1 * u[:, 0], 10 * pace - 5 * u[:, 1],
-                         8 + 1.5 * pace - 3 * u[:, 3]], axis=1)
+        touch = u[:, 4]                             # haptic familiarity: conditions 1-3
+        return np.stack([11 * pace - 4 * (u[:, 0] + touch), 11 * pace - 1.0 - 1 * (u[:, 0] + touch),
+                         10 * pace - 5 * (u[:, 1] + touch), 8 + 1.5 * pace - 3 * u[:, 3]], axis=1) - u[:, 5:6]
 
-    u = rng.normal(0, sd0, (1500, k))
-    design = pf.Design(u, means(u) + rng.normal(0, 0.8, (1500, 4)), np.zeros(1500))
-    true = np.array([-0.3, 0.4, 0.1, -0.2, 0.3, 0.3, 0.2, 0.15])
-    people = rng.normal(true[:k], true[k:], (4000, k))
+    u = rng.normal(0, sd0, (3000, k))
+    design = pf.Design(u, means(u) + rng.normal(0, 0.8, (3000, 4)), np.zeros(3000))
+    true_mu = np.array([-0.3, 0.4, 0.1, -0.2, 0.0, 0.0])     # the last two: no median of their own
+    true_sd = 0.6 * sd0       # six traits: a population much narrower than the design has few design wearers
+    people = rng.normal(true_mu, true_sd, (4000, k))
     table = means(people) + rng.normal(0, 0.8, (4000, 4))
     target = pf.table_statistics(table)
     target['best'] = target['best'] * 15 / 4000
+    truth = pf.objective(design, np.concatenate([true_mu[list(pf.OWN)], true_sd]), target, 15)
     phi, obj = pf.fit_population(design, target, 15, starts=6)
-    np.testing.assert_allclose(phi[:k], true[:k], atol=0.15)
+    # Six traits on eighteen statistics: the medians trade against each other (misreading's
+    # median against haptic_familiarity's spread, pace against everything), so the fit is held to
+    # finding a population that reproduces the table about as well as the true one (its start,
+    # the design's own population, is far from it).
+    start = pf.objective(design, np.concatenate([np.zeros(len(pf.OWN)), 0.5 * sd0 * 0.95]), target, 15)
+    assert obj <= truth + 2.0 < start, (obj, truth, start)
 
 
 def test_fit_wearer_runs_end_to_end_and_writes_scenes_that_load(tmp_path):

@@ -70,7 +70,7 @@ def test_without_traits_a_wearer_has_the_scenes_parameters():
     ({'x': {'sd': 1, 'scale': 'cubic', 'params': ['hololens_view.confirm_s']}}, 'scale'),
     ({'x': {'sd': -1, 'scale': 'log', 'params': ['hololens_view.confirm_s']}}, 'traits.x.sd'),
     ({'x': {'sd': 1, 'scale': 'logit', 'params': ['hololens_view.dummies']}}, 'logit scale'),
-    ({'x': PACE, 'y': PACE}, 'already varied by trait'),
+    ({'x': PACE, 'y': dict(PACE, scale='logit')}, 'already varied by trait'),
     ({'x': {'sd': 1, 'params': 'hololens_view.confirm_s'}}, 'must list effect.parameter'),
 ])
 def test_a_bad_trait_is_one_line_naming_the_file_and_field(traits, message):
@@ -78,3 +78,19 @@ def test_a_bad_trait_is_one_line_naming_the_file_and_field(traits, message):
         _scene(traits)
     assert str(info.value).startswith('test.yaml: field "population.traits.')
     assert '\n' not in str(info.value)
+
+
+def test_two_traits_on_one_parameter_add_on_its_scale():
+    """A trait shared by several conditions (haptic_familiarity) and one of a single cue
+    (misreading) both move direction_p: the wearer's value is the median moved by both draws."""
+    import math
+    shared = {'sd': 0.8, 'scale': 'logit', 'params': ['cue_misreading.direction_p']}
+    scene = _scene({'misreading': MISREAD, 'familiarity': shared}, subjects=5)
+    median = scene.effect('cue_misreading').params_dict['direction_p']
+    for i in range(5):
+        w = sample_wearer(scene, i)
+        value = median
+        for u in (w.traits['misreading'], w.traits['familiarity']):     # in the order listed, each clipped
+            value = min(0.5, 1 / (1 + math.exp(-(math.log(value / (1 - value)) + u))))
+        assert w.effect_params['cue_misreading']['direction_p'] == pytest.approx(value)
+        assert w.traits['familiarity'] != 0.0

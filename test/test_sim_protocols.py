@@ -227,3 +227,18 @@ def test_stats_points_to_the_experiment_command_and_loads_no_experiments_module(
                          capture_output=True, text=True, check=True, cwd=ROOT).stdout.splitlines()
     assert out[-1] == '[]'
     assert out[-2] == f'statistics: fabric-guidance experiment --scene {path} --out DIR'
+
+
+def test_the_arm_spread_profile_runs_the_same_trials_as_each_scene_alone():
+    """run_subject_arms (fit-wearer's profile: calibration and conditions 1, 2, 4 once, condition 3
+    per arm_spread) gives every scene the records run_subject gives it alone; condition 3 does
+    differ between the scenes (so the test could fail)."""
+    from fabric_guidance.experiments import fit_wearer, population_fit as pf
+    from fabric_guidance.sim.protocols import run_subject_arms
+    scenes = [pf.design_scene(fit_wearer.base_scene('speed', a), 9, 3) for a in (0.0, 0.6)]
+    for subject in (0, 1):
+        shared = run_subject_arms(scenes, subject)
+        alone = [run_subject(scene, subject) for scene in scenes]
+        assert [recs for _, recs in shared] == [recs for _, recs in alone]
+    arm = [[r.identified for r in recs if r.condition == 3] for _, recs in shared]
+    assert arm[0] != arm[1]

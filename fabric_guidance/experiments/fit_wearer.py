@@ -1,32 +1,35 @@
 """fit-wearer: fit the simulated population to the paper's whole speed table, across seeds.
 
 The model (sim/effects/) has human parameters nobody measured, and people differ in them. The
-fit gives each wearer their own values (population traits, sim.scene.TraitSpec) and fits the
-population's median and spread of four of them (experiments/population_fit.py: how often the
-suit's and the arm band's cue is misread, a person's search pace, their pace with speech) to
+fit gives each wearer their own values (population traits, sim.scene.TraitSpec) and fits six
+traits (experiments/population_fit.py: how often the suit's and the arm band's cue is misread,
+a person's search pace and their pace with speech, with medians and spreads; a familiarity with
+haptic cues shared by conditions 1-3 and a reaction time shared by all four, spreads only) to
 eighteen numbers of the paper's per-subject table (experiments/paper.py, or a CSV given with
 --table): the four condition means, the four SDs of the subject means, the best-condition
-counts and the six correlations between conditions. Two more traits are assumed, not fitted.
+counts and the six correlations between conditions. One more trait is assumed, not fitted.
 How far the arm muscles' law of condition 3 differs from the suit's (population.arm_spread) is
 profiled: a design per value (--arm-spread), the fit on each, the lowest objective kept.
 
-The speed protocol runs once per arm_spread on a design population (--design-seeds, --wearers
-per seed; none of them a seed of the validation; about 3 min each on two cores), then every
-candidate population is the design reweighted (importance weights): a fit takes seconds. A
-bootstrap (--bootstrap N: design wearers and the paper's subjects resampled, the fit repeated on
-every design, the best kept) gives each fitted number its interval and the variants file
-(fit/variants.yaml in --out: one scene override set per bootstrap fit) that `tradeoff
---scene-variants` runs. The designs are saved (fit/design-arm_spread-<value>.npz) and --design
-reuses them: the shipped scenes are reproduced from the shipped designs in seconds.
+The speed protocol runs once on a design population (--design-seeds, --wearers per seed; none
+of them a seed of the validation), every profiled arm_spread on the same wearers (condition 3
+per value, the rest once), then every candidate population is the design reweighted
+(importance weights): a fit takes seconds. A bootstrap (--bootstrap N: design wearers and the
+paper's subjects resampled, the fit repeated on every design, the best kept) gives each fitted
+number its interval and the variants file (fit/variants.yaml in --out: one scene override set
+per bootstrap fit) that `tradeoff --scene-variants` runs. The designs are saved
+(fit/design-arm_spread-<value>.npz) and --design reuses them: the shipped scenes are reproduced
+from the shipped designs in seconds. --scheduler runs the design and the bootstrap on a Dask
+distributed cluster (workers.WorkerPool): the same results.
 
 It writes the fitted scenes (paper-fitted-speed.yaml and paper-fitted-accuracy.yaml: the paper
 scenes plus the model's effects at the fitted medians and the population's traits, the same in
 both) with comments saying what was fitted, to what, on which seeds, and the statistics reached.
 Validation on other seeds: `fabric-guidance compare-paper --seeds ...`.
 
-    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 120]
-                               [--arm-spread 0,0.1,0.2,0.3] [--bootstrap 100] [--design FILE ...]
-                               [--workers 2] [--table CSV]
+    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 40]
+                               [--arm-spread 0,0.1,0.2] [--bootstrap 200] [--design FILE ...]
+                               [--workers 2] [--scheduler HOST:PORT] [--table CSV]
     python -m fabric_guidance.experiments.fit_wearer ...
 """
 from __future__ import annotations
@@ -58,7 +61,7 @@ MODEL_EFFECTS = ('cue_misreading', 'surface_resistance', 'relative_perception', 
 FIXED = {('surface_resistance', 'threshold_kpa_deg'): 26603.9}
 #: The parameters the fit sets (their medians; sensitivity does not sweep them).
 FITTED_PARAMS: tuple[tuple[str, str], ...] = tuple(
-    tuple(q.split('.')) for t in pf.FITTED for q in t.params)
+    tuple(q.split('.')) for t in pf.FITTED if t.design_values for q in t.params)
 
 
 def read_table(path: Path | None = None) -> np.ndarray:
@@ -130,19 +133,23 @@ def statistics_lines(model: dict, target: dict) -> list[str]:
 
 
 def phi_lines(phi, boot: np.ndarray | None) -> list[str]:
-    k = len(pf.FITTED)
+    mus, sds = pf.split(phi)
+    if boot is not None and len(boot):
+        bmu, bsd = np.array([pf.split(b)[0] for b in boot]), np.array([pf.split(b)[1] for b in boot])
     lines = []
     for i, t in enumerate(pf.FITTED):
-        medians = {q: pf.shifted(v, phi[i], t.scale) for q, v in zip(t.params, t.design_values)}
+        medians = {q: pf.shifted(v, mus[i], t.scale) for q, v in zip(t.params, t.design_values)}
         interval = ''
         if boot is not None and len(boot):
-            lo_mu, hi_mu = np.percentile(boot[:, i], [2.5, 97.5])
-            lo_sd, hi_sd = np.percentile(boot[:, k + i], [2.5, 97.5])
-            q0, v0 = t.params[0], t.design_values[0]
-            interval = (f'; 95 % bootstrap: {q0} [{pf.shifted(v0, lo_mu, t.scale):.4g}, '
-                        f'{pf.shifted(v0, hi_mu, t.scale):.4g}], sd [{lo_sd:.3g}, {hi_sd:.3g}]')
-        lines.append(f'{t.name} ({t.scale}): ' + ', '.join(f'{q} = {v:.4g}' for q, v in medians.items())
-                     + f', sd {phi[k + i]:.3g}{interval}')
+            lo_sd, hi_sd = np.percentile(bsd[:, i], [2.5, 97.5])
+            interval = f'; 95 % bootstrap: sd [{lo_sd:.3g}, {hi_sd:.3g}]'
+            if t.design_values:
+                lo_mu, hi_mu = np.percentile(bmu[:, i], [2.5, 97.5])
+                q0, v0 = t.params[0], t.design_values[0]
+                interval = (f'; 95 % bootstrap: {q0} [{pf.shifted(v0, lo_mu, t.scale):.4g}, '
+                            f'{pf.shifted(v0, hi_mu, t.scale):.4g}], sd [{lo_sd:.3g}, {hi_sd:.3g}]')
+        where = ', '.join(f'{q} = {v:.4g}' for q, v in medians.items()) or f'on {", ".join(t.params)}'
+        lines.append(f'{t.name} ({t.scale}): {where}, sd {sds[i]:.3g}{interval}')
     return lines
 
 
@@ -168,11 +175,13 @@ def fitted_text(base_name: str, new_name: str, phi, header: list[str], arm_sprea
     medians.update(FIXED)
     text = config_path(f'scenes/{base_name}.yaml').read_text()
     text = re.sub(r'^name: .*$', f'name: {new_name}', text, count=1, flags=re.M)
-    per_word = medians[('speech_latency', 'per_word_s')]
-    text, n = re.subn(r'(- speech_latency: \{[^}]*per_word_s: )[0-9.]+', rf'\g<1>{per_word:.6g}', text)
-    if n != 1:
-        raise ValueError(f'{base_name}: no speech_latency line with per_word_s to set')
-    text = re.sub(r'(- speech_latency: .*)$', r'\1 [per_word_s: fitted median]', text, count=1, flags=re.M)
+    for (effect, param), value in medians.items():
+        if effect in MODEL_EFFECTS:         # appended below
+            continue
+        text, n = re.subn(rf'(- {effect}: \{{[^}}]*{param}: )[0-9.]+', rf'\g<1>{value:.6g}', text)
+        if n != 1:
+            raise ValueError(f'{base_name}: no {effect} line with {param} to set')
+        text = re.sub(rf'(- {effect}: .*)$', rf'\1 [{param}: fitted median]', text, count=1, flags=re.M)
     arm = ["  # Condition 3 drives the arm muscles with the suit's calibration (the paper); how far the",
            "  # arm's law differs from the suit's (lognormal sigma on a) is profiled by fit-wearer (header).",
            f'  arm_spread: {arm_spread:g}']
@@ -288,8 +297,11 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         'with --design, the designs\' own)')
     p.add_argument('--design', type=Path, nargs='+', default=None,
                    help='design files of an earlier run to reuse, one per arm_spread (skips the simulation)')
-    p.add_argument('--bootstrap', type=int, default=100, help='bootstrap refits (default 100; 0: none)')
-    p.add_argument('--workers', type=int, default=2, help='processes for the design (default 2)')
+    p.add_argument('--bootstrap', type=int, default=200, help='bootstrap refits (default 200; 0: none)')
+    p.add_argument('--workers', type=int, default=2, help='processes for the design and the bootstrap (default 2)')
+    p.add_argument('--scheduler', default=None,
+                   help='address of a Dask distributed scheduler (host:port) to run the design and the '
+                        'bootstrap on instead of local processes (needs the distributed package)')
     p.add_argument('--table', type=Path, default=None,
                    help="a per-subject table of identified targets (CSV; default: the paper's, "
                         "experiments/paper.py)")
@@ -336,18 +348,24 @@ class ProfileFit(NamedTuple):
     model: dict
 
 
-def simulate_design(base, seeds, wearers: int, workers: int, target: dict, n: int, say) -> pf.Design:
-    """Round 1: wide spreads around the design values; round 2: around round 1's fit, on the
-    other seeds, so that the fitted population has design wearers near it."""
-    arm = base.population.arm_spread
+def simulate_designs(bases, seeds, wearers: int, workers: int, target: dict, n: int, say,
+                     scheduler: str | None = None) -> list[pf.Design]:
+    """One design per base scene (a value of arm_spread each), simulated together (each wearer's
+    calibration and conditions 1, 2, 4 once: pf.run_designs). Round 1: wide spreads around the
+    design values; round 2: around the best of round 1's fits (the lowest objective over the
+    profiled values), on the other seeds, so that the fitted population has design wearers
+    near it."""
+    arms = ', '.join(f'{b.population.arm_spread:g}' for b in bases)
     first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
-    print(f'arm_spread {arm:g}, design round 1: the speed protocol on {wearers} wearers of each '
-          f'seed {", ".join(map(str, first))}', flush=True)
-    design = pf.run_design(base, first, wearers, workers, say)
-    mu, sd = pf.focused(pf.fit_population(design, target, n)[0])
-    print(f'arm_spread {arm:g}, design round 2, around the first fit: {wearers} wearers of each '
-          f'seed {", ".join(map(str, second))}', flush=True)
-    return design.joined(pf.run_design(base, second, wearers, workers, say, mu, sd))
+    print(f'design round 1: the speed protocol on {wearers} wearers of each seed {", ".join(map(str, first))}, '
+          f'condition 3 at arm_spread {arms}', flush=True)
+    round1 = pf.run_designs(bases, first, wearers, workers, say, scheduler=scheduler)
+    fits = [pf.fit_population(d, target, n, restarts=0) for d in round1]     # only to place round 2
+    mu, sd = pf.focused(min(fits, key=lambda f: f[1])[0])
+    print(f'design round 2, around the best first fit: {wearers} wearers of each seed {", ".join(map(str, second))}',
+          flush=True)
+    round2 = pf.run_designs(bases, second, wearers, workers, say, mu, sd, scheduler=scheduler)
+    return [d1.joined(d2) for d1, d2 in zip(round1, round2)]
 
 
 def fit_design(design: pf.Design, target: dict, n: int) -> ProfileFit:
@@ -378,20 +396,17 @@ def run(args) -> int:
         for path, design in zip(args.design, designs):
             print(f'design: {len(design.y)} wearers of arm_spread {design.arm_spread:g} from {path}', flush=True)
     else:
-        designs = []
-
         def say(s):
             print(f'  {time.perf_counter() - start:6.0f} s  {s}', flush=True)
 
-        for arm in arm_spreads:
-            try:
-                base = base_scene('speed', arm)
-            except (SceneError, ValueError) as exc:
-                print(exc, file=sys.stderr)
-                return 2
-            design = simulate_design(base, seeds, args.wearers, args.workers, target, n, say)
+        try:
+            bases = [base_scene('speed', arm) for arm in arm_spreads]
+        except (SceneError, ValueError) as exc:
+            print(exc, file=sys.stderr)
+            return 2
+        designs = simulate_designs(bases, seeds, args.wearers, args.workers, target, n, say, args.scheduler)
+        for arm, design in zip(arm_spreads, designs):
             design.save(design_path(out, arm))
-            designs.append(design)
     designs.sort(key=lambda d: d.arm_spread)     # the profile's order, whatever the command line's
     design_s = time.perf_counter() - start
     t0 = time.perf_counter()
@@ -400,7 +415,7 @@ def run(args) -> int:
         fit = fit_design(design, target, n)
         fits.append(fit)
         print(f'fit at arm_spread {design.arm_spread:g}: objective {fit.objective:.2f} over 18 statistics, '
-              f'8 parameters; effective design wearers {fit.ess:.0f}', flush=True)
+              f'{len(pf.bounds())} parameters; effective design wearers {fit.ess:.0f}', flush=True)
         for line in statistics_lines(fit.model, target):
             print('    ' + line)
     best = int(np.argmin([f.objective for f in fits]))
@@ -412,7 +427,8 @@ def run(args) -> int:
     if args.bootstrap:
         boot, kept = pf.bootstrap(designs, table, [f.phi for f in fits], args.bootstrap, seed=1,
                                   progress=lambda r, k: print(f'  bootstrap {r}/{k}', flush=True)
-                                  if r % 10 == 0 or r == k else None)
+                                  if r % 20 == 0 or r == k else None, workers=args.workers,
+                                  scheduler=args.scheduler)
         _write(out / 'fit' / 'variants.yaml', variants_text(boot, [designs[i].arm_spread for i in kept]))
     for line in phi_lines(phi, boot):
         print('  ' + line)
@@ -426,7 +442,8 @@ def run(args) -> int:
         '# {name}: {base} plus a wearer model with people who differ, fitted by `fabric-guidance',
         "# fit-wearer` (fabric_guidance/experiments/fit_wearer.py, population_fit.py) to the paper's",
         '# per-subject speed table: 4 means, 4 SDs of subject means, 4 best-condition counts, 6 correlations',
-        '# between conditions (18 numbers, 8 fitted parameters and arm_spread profiled), on a design of',
+        f'# between conditions (18 numbers, {len(pf.bounds())} fitted parameters and arm_spread profiled), '
+        'on a design of',
         f'# {len(design.y)} wearers from seeds {", ".join(map(str, sorted(set(int(s) for s in design.seeds))))}'
         f' (importance-weighted; effective wearers {ess:.0f}).',
         f'# Objective (sum of squared standardized distances) {obj:.2f}. Validate on other seeds:',

@@ -1,22 +1,24 @@
 """The simulated population fitted to the paper's whole speed table, across people and seeds.
 
 People differ (sim.scene.TraitSpec): each wearer has their own value of every trait, u ~ N(mu,
-sd) on the trait's scale around the scene's value. Four traits are fitted, two are assumed:
+sd) on the trait's scale around the scene's value. Six traits are fitted (FITTED, with their
+sources), one is assumed (ASSUMED):
 
   misreading    cue_misreading.direction_p (logit): how often the suit's direction is misread
   arm_reading   cue_misreading.arm_direction_p (logit): how often the arm band's is misread
   pace          hololens_view search_base_s, search_per_item_s, confirm_s (log): how fast a
                 person searches among the dummies and confirms (common to all conditions)
   speech_pace   speech_latency.per_word_s (log): how long a spoken direction takes to act on
-  reaction      reaction_delay.mean_s (log, sd 0.15, assumed): simple reaction times differ
-                between people by about that much of their mean
+  haptic_familiarity  both misreading rates (logit, spread only): conditions 1-3 together
+  reaction      reaction_delay.mean_s (log, spread only): all four conditions
   discrimination  weber_perception.fraction, relative_perception.fraction (log, sd 0.25,
                 assumed): pressure discrimination thresholds differ between people
 
-Each fitted trait has a median shift mu and a spread sd: eight numbers. A ninth, how far the arm
+The first four have a median shift mu and a spread sd, the two shared ones a spread: ten
+numbers. How far the arm
 muscles' law of condition 3 differs from the calibrated suit's (population.arm_spread), is drawn
 into each wearer's laws, not a weighted trait: it is profiled (a design per value of ARM_SPREADS,
-the eight fitted on each, the lowest objective kept). All are fitted to eighteen numbers of the
+the ten fitted on each, the lowest objective kept). All are fitted to eighteen numbers of the
 paper's table (experiments/paper.py): the four condition means, the four SDs of the subject
 means, the four best-condition counts and the six correlations between conditions over
 subjects.
@@ -49,6 +51,9 @@ CONDITIONS = (1, 2, 3, 4)
 #: reached 17.6, 20.6 and 23.4 on the design but 44.9, 33.2 and 29.3 on selection seeds 2025 and
 #: 8001-8004 (neither design nor validation seeds; the 18 statistics' distance, mean per seed).
 MIN_ESS = 150.0
+#: The floor as a share of the design's wearers (150 of the 720 it was chosen on), so that a
+#: smaller design keeps the same regularization.
+MIN_ESS_SHARE = MIN_ESS / 720.0
 
 
 @dataclass(frozen=True)
@@ -79,24 +84,41 @@ FITTED = (
     FittedTrait('arm_reading', 'logit', ('cue_misreading.arm_direction_p',), (0.1,), 1.2,
                 'fitted: how often a wearer misreads the arm band\'s direction (condition 3)'),
     FittedTrait('pace', 'log', ('hololens_view.search_base_s', 'hololens_view.search_per_item_s',
-                                'hololens_view.confirm_s'), (0.4, 0.025, 0.65), 0.45,
+                                'hololens_view.confirm_s'), (0.4, 0.025, 0.65), 0.7,
                 'fitted: how fast a wearer searches among the dummies and confirms a target'),
     FittedTrait('speech_pace', 'log', ('speech_latency.per_word_s',), (0.5,), 0.4,
                 'fitted: how long a spoken direction takes a wearer to act on, per word'),
+    FittedTrait('haptic_familiarity', 'logit', ('cue_misreading.direction_p', 'cue_misreading.arm_direction_p'),
+                (), 1.5, "fitted: how familiar a wearer is with turning any touch into a direction, shared by "
+                "conditions 1-3 (the paper's Discussion: people are not familiar with it, as they are with speech)"),
+    FittedTrait('reaction', 'log', ('reaction_delay.mean_s',), (), 0.6,
+                'fitted spread around the scene\'s median: how fast a wearer acts on any cue, all four conditions '
+                '(reaction times differ reliably between people: Jensen 2006, Clocking the Mind)'),
 )
+#: The traits with a median of their own (design_values; the others only spread a parameter
+#: whose median another trait or the scene sets: four condition means cannot place more than four
+#: medians, and reaction's would trade against pace's): phi is (mu of these, sd of every fitted trait).
+OWN = tuple(i for i, t in enumerate(FITTED) if t.design_values)
 ASSUMED = (
-    AssumedTrait('reaction', 'log', ('reaction_delay.mean_s',), 0.15,
-                 'assumption: simple reaction times differ between people by about 15 % of the mean'),
     AssumedTrait('discrimination', 'log', ('weber_perception.fraction', 'relative_perception.fraction'),
                  0.25, 'assumption: pressure discrimination thresholds differ between people by about 25 %'),
 )
 #: The design: seeds (the first half for round 1, the rest for round 2) and wearers per seed;
 #: none of these seeds is used for validation.
 DESIGN_SEEDS = (101, 102, 103, 104, 105, 106)
-DESIGN_WEARERS = 120
+DESIGN_WEARERS = 40
 #: The profiled values of population.arm_spread (lognormal sigma of the arm law's a against the
 #: suit's; 0: the arm feels as the calibrated suit law says).
-ARM_SPREADS = (0.0, 0.1, 0.2, 0.3)
+ARM_SPREADS = (0.0, 0.1, 0.2)
+
+
+def split(phi) -> tuple[np.ndarray, np.ndarray]:
+    """(mu, sd) per fitted trait from phi (mu of the OWN traits, then every sd); mu 0 for a
+    trait without a median of its own."""
+    phi = np.asarray(phi, dtype=float)
+    mu = np.zeros(len(FITTED))
+    mu[list(OWN)] = phi[:len(OWN)]
+    return mu, phi[len(OWN):]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -163,13 +185,30 @@ class Design:
             return cls(d['u'], d['y'], d['seeds'], d['round'], tuple(zip(d['mus'], d['sds'])),
                        None if math.isnan(arm) else arm)
 
+    def best(self) -> np.ndarray:
+        """Per wearer, 1 for each condition of their highest mean (cached)."""
+        cached = getattr(self, '_best', None)
+        if cached is None:
+            cached = self._best = (self.y == self.y.max(axis=1, keepdims=True)).astype(float)
+        return cached
+
     def log_proposal(self) -> np.ndarray:
+        """Cached _log_proposal (an objective evaluation would otherwise spend half its time on it)."""
+        cached = getattr(self, '_logq', None)
+        if cached is None:
+            cached = self._logq = self._log_proposal()
+        return cached
+
+    def _log_proposal(self) -> np.ndarray:
         """log density of each wearer's u under the mixture of the rounds' proposals (weighted by
         their shares of the wearers: the balance heuristic of multiple importance sampling)."""
         share = np.bincount(self.round, minlength=len(self.rounds)) / len(self.round)
         dens = [np.log(max(s, 1e-300)) + _normal_logpdf(self.u, mu, sd).sum(axis=1)
                 for s, (mu, sd) in zip(share, self.rounds)]
         return np.logaddexp.reduce(np.array(dens), axis=0)
+
+
+_PAIRS = np.triu_indices(4, 1)
 
 
 def _normal_logpdf(x, mu, sd):
@@ -179,8 +218,7 @@ def _normal_logpdf(x, mu, sd):
 def weights(design: Design, phi: np.ndarray) -> np.ndarray:
     """Normalized importance weights of the design's wearers for the population phi (mu_1..k,
     sd_1..k, on the fitted traits' scales, mu relative to the design values)."""
-    k = len(FITTED)
-    mu, sd = phi[:k], phi[k:]
+    mu, sd = split(phi)
     logw = _normal_logpdf(design.u, mu, sd).sum(axis=1) - design.log_proposal()
     logw -= logw.max()
     w = np.exp(logw)
@@ -195,8 +233,8 @@ def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.n
     d = y - means
     cov = (w[:, None] * d).T @ d
     sds = np.sqrt(np.diag(cov))
-    best = n * (w @ (y == y.max(axis=1, keepdims=True)).astype(float))
-    corr = (cov / np.outer(sds, sds))[np.triu_indices(4, 1)]
+    best = n * (w @ design.best())
+    corr = (cov / np.outer(sds, sds))[_PAIRS]
     return {'means': means, 'sds': sds, 'best': best, 'corr': corr}
 
 
@@ -219,25 +257,42 @@ def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
     ess = 1.0 / float(np.sum(w ** 2))
     d = discrepancy(weighted_statistics(design, w, n), target, n)
     total = sum(float(np.sum(v ** 2)) for v in d.values())
-    if ess < MIN_ESS:
-        total += 10.0 * (MIN_ESS - ess)
+    floor = MIN_ESS_SHARE * len(design.y)
+    if ess < floor:
+        total += 10.0 * (floor - ess)
     return total
 
 
 def bounds() -> list[tuple[float, float]]:
     sd0 = [t.design_sd for t in FITTED]
-    return [(-1.5 * s, 1.5 * s) for s in sd0] + [(0.02, 0.95 * s) for s in sd0]
+    return [(-1.5 * sd0[i], min(1.5 * sd0[i], _mu_ceiling(FITTED[i]))) for i in OWN] + [(0.02, 0.95 * s) for s in sd0]
+
+
+def _mu_ceiling(t: FittedTrait) -> float:
+    """The largest median shift that keeps every parameter of the trait within its valid range
+    (direction_p at most 0.5: a scene with a median above it does not load)."""
+    from dataclasses import fields
+    from ..sim.effects import effect_class
+    ceiling = math.inf
+    for q, v in zip(t.params, t.design_values):
+        effect, _, name = q.partition('.')
+        hi = next(f.metadata for f in fields(effect_class(effect)) if f.name == name).get('hi')
+        if hi is not None:
+            top = math.log(hi) - math.log(v) if t.scale == 'log' else (
+                math.log(hi / (1 - hi)) - math.log(v / (1 - v)) if hi < 1 else math.inf)
+            ceiling = min(ceiling, top - 1e-6)
+    return ceiling
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
-                   x0: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                   x0: np.ndarray | None = None, restarts: int = 2, maxfev: int = 3000) -> tuple[np.ndarray, float]:
     """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
     hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
     as the bootstrap refits)."""
     from scipy.optimize import minimize
     from scipy.stats import qmc
     b = np.array(bounds())
-    k = len(FITTED)
+    k = len(OWN)
 
     def f(phi):
         return objective(design, phi, target, n)
@@ -246,36 +301,71 @@ def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed:
         firsts = [np.asarray(x0, dtype=float)]
     else:
         own = np.concatenate([np.zeros(k), 0.5 * b[k:, 1]])
-        points = [own] + list(qmc.scale(qmc.LatinHypercube(d=2 * k, seed=seed).random(starts), b[:, 0], b[:, 1]))
+        points = [own] + list(qmc.scale(qmc.LatinHypercube(d=len(b), seed=seed).random(starts), b[:, 0], b[:, 1]))
         firsts = sorted(points, key=f)[:3]
     best_x, best_f = None, math.inf
     for x in firsts:
-        r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': 3000, 'xatol': 1e-3, 'fatol': 1e-3})
+        # Nelder-Mead's simplex collapses in ten dimensions before it reaches the minimum: restarted
+        # from where it stopped (a fresh simplex) until a restart gains less than 1e-3.
+        r = minimize(f, x, method='Nelder-Mead', bounds=b, options={'maxfev': maxfev, 'xatol': 1e-3, 'fatol': 1e-3})
+        for _ in range(restarts):
+            again = minimize(f, r.x, method='Nelder-Mead', bounds=b,
+                             options={'maxfev': maxfev, 'xatol': 1e-3, 'fatol': 1e-3})
+            gained = r.fun - again.fun
+            r = again if again.fun < r.fun else r
+            if gained < 1e-3:
+                break
         if r.fun < best_f:
             best_x, best_f = r.x, float(r.fun)
     return best_x, best_f
 
 
+#: A bootstrap refit starts at its design's fit: one Nelder-Mead of this many evaluations (the full
+#: fit's 3000 and restarts would make 200 refits take most of an hour on two cores).
+BOOT_MAXFEV = 800
+
+
+def _refit(args) -> tuple[np.ndarray, int]:
+    """Bootstrap refit r: its own stream (seed, r), so the refits do not depend on their order or
+    on the process that runs them."""
+    designs, table, phis, seed, r = args
+    rng = np.random.default_rng([seed, r])
+    n = table.shape[0]
+    t = table_statistics(table[rng.integers(0, n, n)])
+    fits = []
+    for design, phi in zip(designs, phis):
+        d = design.subset(rng.integers(0, len(design.y), len(design.y)))
+        fits.append(fit_population(d, t, n, x0=phi, restarts=0, maxfev=BOOT_MAXFEV))
+    i = int(np.argmin([f for _, f in fits]))
+    return fits[i][0], i
+
+
 def bootstrap(designs: Sequence[Design], table: np.ndarray, phis: Sequence[np.ndarray], reps: int, seed: int,
-              progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+              progress: Callable[[int, int], None] | None = None, workers: int = 1,
+              scheduler: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """reps refits, each on resampled paper subjects and, per profiled design, resampled design
     wearers (warm-started at that design's fit phi), the design of the lowest objective kept:
-    (reps x phi, the kept designs' indices)."""
-    rng = np.random.default_rng(seed)
-    n = table.shape[0]
+    (reps x phi, the kept designs' indices). On `workers` processes (or a Dask scheduler): the
+    same refits for any number."""
+    from ..workers import WorkerPool
+    jobs = [(list(designs), table, list(phis), seed, r) for r in range(reps)]
     out, kept = [], []
-    for r in range(reps):
-        t = table_statistics(table[rng.integers(0, n, n)])
-        fits = []
-        for design, phi in zip(designs, phis):
-            d = design.subset(rng.integers(0, len(design.y), len(design.y)))
-            fits.append(fit_population(d, t, n, x0=phi))
-        i = int(np.argmin([f for _, f in fits]))
-        out.append(fits[i][0])
+    with WorkerPool(workers, len(jobs), scheduler) as pool:
+        results = pool.map(_refit, jobs) if progress is None else None
+        if results is None:
+            done = {}
+            for r, res in enumerate(pool.as_done(_refit_indexed, jobs), start=1):
+                done[res[0]] = res[1]
+                progress(r, reps)
+            results = [done[r] for r in range(reps)]
+    for phi, i in results:
+        out.append(phi)
         kept.append(i)
-        if progress is not None:
-            progress(r + 1, reps)
     return np.array(out), np.array(kept, dtype=int)
+
+
+def _refit_indexed(args):
+    return args[4], _refit(args)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -283,10 +373,10 @@ def bootstrap(designs: Sequence[Design], table: np.ndarray, phis: Sequence[np.nd
 
 def trait_values(phi: np.ndarray) -> dict[str, tuple[dict[str, float], float]]:
     """trait -> ({effect.parameter: population median}, sd) for the fitted population phi."""
-    k = len(FITTED)
+    mus, sds = split(phi)
     out = {}
     for i, t in enumerate(FITTED):
-        mu, sd = float(phi[i]), float(phi[k + i])
+        mu, sd = float(mus[i]), float(sds[i])
         medians = {}
         for q, v in zip(t.params, t.design_values):
             medians[q] = shifted(v, mu, t.scale)
@@ -329,46 +419,66 @@ def design_scene(base, seed: int, wearers: int = DESIGN_WEARERS, mu=None, sd=Non
     return population_scene(base, medians, {t.name: float(sd[i]) for i, t in enumerate(FITTED)}, seed, wearers)
 
 
-def run_design(base, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_WEARERS, workers: int = 2,
-               progress: Callable[[str], None] | None = None, mu=None, sd=None) -> Design:
-    """The speed protocol on the design population of each seed (one round, proposal mu, sd):
-    the design's u (relative to the design values) and y."""
+def _arms_job(args):
+    from ..sim.protocols import run_subject_arms
+    scenes, subject = args
+    return scenes[0].seed, subject, run_subject_arms(scenes, subject)
+
+
+def run_designs(bases: Sequence, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_WEARERS,
+                workers: int = 2, progress: Callable[[str], None] | None = None, mu=None, sd=None,
+                scheduler: str | None = None) -> list[Design]:
+    """The speed protocol on the design population of each seed (one round, proposal mu, sd), in
+    each of `bases` (scenes that differ only in population.arm_spread: each wearer calibrated once
+    and conditions 1, 2, 4 run once, sim.protocols.run_subject_arms): per base, the design's u
+    (relative to the design values) and y. The same trials as run_protocol on each design scene."""
     from ..sim.population import sample_wearer
-    from ..sim.protocols import run_protocol
+    from ..workers import WorkerPool
     k = len(FITTED)
     mu = np.zeros(k) if mu is None else np.asarray(mu, dtype=float)
     sd = np.array([t.design_sd for t in FITTED]) if sd is None else np.asarray(sd, dtype=float)
-    us, ys, ss = [], [], []
-    for seed in seeds:
-        scene = design_scene(base, seed, wearers, mu, sd)
+    scenes = {seed: tuple(design_scene(b, seed, wearers, mu, sd) for b in bases) for seed in seeds}
+    jobs = [(scenes[seed], i) for seed in seeds for i in range(wearers)]
+    results = {}
+    with WorkerPool(workers, len(jobs), scheduler) as pool:
+        for done, (seed, subject, per_arm) in enumerate(pool.as_done(_arms_job, jobs), start=1):
+            results[seed, subject] = per_arm
+            if progress is not None and (done % 40 == 0 or done == len(jobs)):   # a line every few seconds
+                progress(f'design: wearer {done}/{len(jobs)} of seeds {", ".join(map(str, seeds))}')
+    designs = []
+    for j, base in enumerate(bases):
+        us, ys, ss = [], [], []
+        for seed in seeds:
+            for subject in range(wearers):
+                by = {}
+                for r in results[seed, subject][j][1]:
+                    by.setdefault(r.condition, []).append(r.identified)
+                if set(by) != set(CONDITIONS):
+                    continue
+                spec = sample_wearer(scenes[seed][j], subject)
+                us.append([mu[i] + spec.traits[t.name] for i, t in enumerate(FITTED)])
+                ys.append([float(np.mean(by[c])) for c in CONDITIONS])
+                ss.append(seed)
+        designs.append(Design(np.array(us), np.array(ys), np.array(ss), None, ((mu, sd),),
+                              float(base.population.arm_spread)))
+    return designs
 
-        def report(done, total, _s, seed=seed):
-            if done % 20 == 0 or done == total:      # a line every few seconds, not one per wearer
-                progress(f'design seed {seed}: wearer {done}/{total}')
 
-        results = run_protocol(scene, None, workers, report if progress else None)
-        by = {}
-        for r in results:
-            by.setdefault(r.subject, {}).setdefault(r.condition, []).append(r.identified)
-        for subject, conds in sorted(by.items()):
-            if set(conds) != set(CONDITIONS):
-                continue
-            spec = sample_wearer(scene, subject)
-            us.append([mu[i] + spec.traits[t.name] for i, t in enumerate(FITTED)])
-            ys.append([float(np.mean(conds[c])) for c in CONDITIONS])
-            ss.append(seed)
-    return Design(np.array(us), np.array(ys), np.array(ss), None, ((mu, sd),),
-                  float(base.population.arm_spread))
+def run_design(base, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_WEARERS, workers: int = 2,
+               progress: Callable[[str], None] | None = None, mu=None, sd=None) -> Design:
+    """run_designs on one base scene."""
+    return run_designs([base], seeds, wearers, workers, progress, mu, sd)[0]
 
 
 def focused(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The proposal of a second round around a fit: its medians, spreads 1.5 times the fitted ones
     (at least 0.15, at most the first round's)."""
-    k = len(FITTED)
     sd0 = np.array([t.design_sd for t in FITTED])
-    return np.asarray(phi[:k], dtype=float), np.clip(1.5 * np.asarray(phi[k:]), 0.15, sd0)
+    mu, sd = split(phi)
+    return mu, np.clip(1.5 * sd, 0.15, sd0)
 
 
 __all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design', 'FITTED', 'MIN_ESS',
-           'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective', 'paper_table',
-           'population_scene', 'run_design', 'table_statistics', 'trait_values', 'weighted_statistics', 'weights']
+           'MIN_ESS_SHARE', 'OWN', 'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective',
+           'paper_table', 'population_scene', 'run_design', 'run_designs', 'split', 'table_statistics',
+           'trait_values', 'weighted_statistics', 'weights']

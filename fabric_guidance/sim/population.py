@@ -12,7 +12,8 @@ property of the wearer that the controller does not know.
 Traits (population.traits, sim.scene.TraitSpec): wearer i's value of a trait is u = sd * z,
 z ~ N(0, 1) from the trait's own stream (scene seed, 'trait.<name>', i), so adding a trait or
 changing one's sd leaves every other draw as it was; it moves each listed effect parameter on
-the trait's scale, and the effects of all the wearer's runs start with those values.
+the trait's scale (two traits on one parameter add, in the order listed), and the effects of
+all the wearer's runs start with those values.
 
 calibrate_wearer() runs Algorithm 1 with the scene's effects (engine.run_calibration); a wearer
 whose calibration fails is not an error: the outcome records the reason and the protocol
@@ -88,8 +89,11 @@ def wearer_traits(scene, index: int) -> tuple[dict, dict]:
             spec = scene.effect(effect)
             if spec is None:        # an effect taken out of the scene (a sweep): nothing to vary
                 continue
-            median = spec.params_dict.get(name, spec.build().parameters()[name][0])
-            params.setdefault(effect, {})[name] = _within_range(effect, name, tr.apply(float(median), u))
+            # Two traits on one parameter add on its scale (each moves the value the other left).
+            value = params.get(effect, {}).get(name)
+            if value is None:
+                value = spec.params_dict.get(name, spec.build().parameters()[name][0])
+            params.setdefault(effect, {})[name] = _within_range(effect, name, tr.apply(float(value), u))
     return traits, params
 
 

@@ -284,6 +284,37 @@ def run_subject(scene: Scene, subject: int) -> tuple[CalibrationOutcome, list[Tr
     return outcome, records
 
 
+#: The condition whose wearer law is the arm's (population.arm_spread acts there alone).
+ARM_CONDITION = 3
+
+
+def run_subject_arms(scenes: Sequence[Scene], subject: int) -> list[tuple[CalibrationOutcome, list[TrialRecord]]]:
+    """run_subject in each of `scenes`, which differ only in population.arm_spread, at the cost
+    of one: the arm's law acts in condition 3 alone (the calibration and the other conditions
+    use the suit's law), so the wearer is calibrated once, the other conditions run once and
+    only condition 3 runs in every scene. The same records as run_subject per scene
+    (test_sim_protocols)."""
+    first = scenes[0]
+    outcome, records = run_subject(first, subject)
+    out = [(outcome, records)]
+    for scene in scenes[1:]:
+        if not outcome.ok:
+            out.append((outcome, []))
+            continue
+        wearer = sample_wearer(scene, subject)
+        trial = TRIALS[scene.protocol.kind]
+        recs = []
+        for r in records:
+            if r.condition != ARM_CONDITION:
+                recs.append(r)
+                continue
+            measures = trial(scene, wearer, outcome.calibration, r.condition, r.repetition)
+            recs.append(TrialRecord(scene.name, scene.protocol.kind, subject, wearer.name, r.condition,
+                                    r.repetition, r.order, **measures))
+        out.append((outcome, recs))
+    return out
+
+
 def _run_subject_job(args):
     scene, subject = args
     return subject, run_subject(scene, subject)

@@ -413,9 +413,11 @@ def _check_traits(traits, effects, source: str) -> None:
             if not ok:
                 _fail(source, where, f'{q} = {value:g} cannot vary on the {tr.scale} scale '
                                      f'({"> 0" if tr.scale == "log" else "0 < p < 1"} needed)')
-            if q in seen:
-                _fail(source, where, f'{q} is already varied by trait {seen[q]!r}')
-            seen[q] = tr.name
+            # Two traits on one parameter add on its scale: only on the same scale.
+            if q in seen and seen[q][1] != tr.scale:
+                _fail(source, where, f'{q} is already varied by trait {seen[q][0]!r} on the {seen[q][1]} '
+                                     f'scale, not {tr.scale}')
+            seen[q] = (tr.name, tr.scale)
 
 
 def _parse_effects(data, source: str) -> tuple[EffectSpec, ...]:
