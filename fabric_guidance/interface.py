@@ -29,6 +29,8 @@ CONTROLLER_PARAMETERS = 'controller_parameters'
 CLOCK = '/clock'
 MAX_WRITTEN = 'mock_plc/max_written_kpa'
 HEADSET_VIEW = 'headset_view'
+CONFIRM = 'confirm'
+STUDY_DISPLAY = 'study_display'
 
 START_CALIBRATION = 'start_calibration'
 ENABLE = 'enable'
@@ -163,6 +165,12 @@ TOPICS: tuple[Topic, ...] = (
           'what the simulated headset newly shows the wearer, a line each: `next <target>`, '
           '`found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`, `phrase <text>`, '
           '`targets <n>, active <name>`', recorded=False),
+    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge (the headset), the study keyboard, wearer_sim',
+          'the study session', "the wearer's key press: stamp = capture time on the PC clock, frame_id = "
+          "the source ('headset', 'keyboard', 'wearer_sim')"),
+    Topic(STUDY_DISPLAY, 'std_msgs/msg/String', EVENT, 'the study session', 'headset_display',
+          'what the session shows the wearer, a line each: `prompt <text>` (`prompt` alone clears it), '
+          '`found <target>`, `done`'),
     Topic(MAX_WRITTEN, 'std_msgs/msg/Float64MultiArray', COMMAND, 'mock_plc', 'tests',
           "largest value ever written per channel [kPa], in the register map's order, labelled "
           'as `pressure_command`', recorded=False),
