@@ -12,7 +12,8 @@ From the bottom up (docs/architecture.md):
     4  experiments                        the paper's experiments and studies on sim
     5  nodes                              the ROS nodes: thin wiring over the layers below
     6  process_graph, launch_support      starting the nodes as processes, launch files' helpers
-    7  bench, demo, replay, recover       what a person runs: measurements, the demo, replay, recover
+    7  bench, demo, replay, recover,      what a person runs: measurements, the demo, replay, recover,
+       study                              the study session through the graph
     8  cli, demo_command, example_command the entry point and its argument wiring (cli imports
                                           a subcommand's module by name, when it is chosen)
 
@@ -34,7 +35,7 @@ LAYERS = {
     'experiments': 4,
     'nodes': 5,
     'process_graph': 6, 'launch_support': 6,
-    'bench': 7, 'demo': 7, 'replay': 7, 'recover': 7,
+    'bench': 7, 'demo': 7, 'replay': 7, 'recover': 7, 'study': 7,
     'cli': 8, 'demo_command': 8, 'example_command': 8,
 }
 

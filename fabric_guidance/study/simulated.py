@@ -1,0 +1,161 @@
+"""`fabric-guidance study --simulated`: the study session on the simulated graph, a scene's
+wearers as the participants.
+
+Per participant (wearer i of the scene): Algorithm 1 headless with the scene's effects (as the
+paper calibrates before the trials, and as `demo --scene` does), then the seven processes of the
+simulated graph (process_graph.sim_lab) with wearer_sim as that wearer pressing confirm
+(press_confirm), the study's target in target_selector (found_by_dwell off) and, for speed, 50
+dummies on the display. The session runs the conditions in the participant's order, each
+block of `trials` trials, through an Operator; the targets are the headless protocol's streams
+(sim.protocols.target_stream), so the live and the headless study meet the same targets.
+
+A condition is switched within the graph (pressure_controller's and wearer_sim's `condition`
+parameters). A controller that takes its condition only at configure is restarted with it
+(the switch's time says which happened).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import time
+from typing import Callable
+
+from ..core import condition as condition_of
+from ..process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
+from ..sim.population import calibrate_wearer, sample_wearer
+from ..sim.protocols import condition_order, draw_target, target_stream
+from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S
+from .live import AccuracyParams, Phase, SpeedParams, TrialTiming, accuracy_trial, speed_trial, wait_front
+from .operator import STUDY_TARGET, Operator, max_or_zero, target_position
+
+PAPER_DUMMIES = 50
+#: Graph start-up (seven processes, discovery) on a loaded machine [s].
+STARTUP_S = 60.0
+
+
+@dataclass
+class Timing:
+    """The session's timing, for `bench` and the report."""
+    press_latency_s: list[float] = field(default_factory=list)
+    timer_error_s: list[float] = field(default_factory=list)
+    switch_s: list[tuple[int, float, str]] = field(default_factory=list)   # (condition, seconds, how)
+    vented_commands: int = 0        # pressure_command above 0 kPa while the session was between trials
+    vented_checked: int = 0
+
+
+def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path, gaze_rate_hz: float) -> None:
+    """The node overrides of a study graph for wearer `subject` (in place on lab.overrides)."""
+    ov = lab.overrides
+    lag = scene.effect('regulator_lag')
+    ov['mock_plc'].update(regulator_tau_s=float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S)
+    ov['pressure_controller'].update(calibration_file=str(calibration_file), wearer=f'sub{subject + 1:02d}',
+                                     **dataclasses.asdict(scene.controller), step_on_gaze=False, condition=cond)
+    speed = scene.protocol.kind == 'speed'
+    ov['target_selector'].update(target_names=[STUDY_TARGET], target_positions=target_position(0.0, 0.0, 1.2),
+                                 found_by_dwell=False, return_to_front=False, auto_advance=False)
+    if speed:
+        ov['target_selector'].update(acceptance_deg=scene.protocol.acceptance_deg, dwell_s=scene.protocol.dwell_s)
+        ov['headset_display'].update(dummies=PAPER_DUMMIES, dummy_seed=scene.seed + subject)
+    ov['wearer_sim'].update(scene_file=str(Path(scene.source).resolve()), wearer_index=subject, condition=cond,
+                            gaze_rate_hz=gaze_rate_hz, press_confirm=True, repetition=0)
+
+
+class SimulatedParticipant:
+    """One participant's graph and operator; run_block() runs a condition's trials."""
+
+    def __init__(self, scene, subject: int, first_condition: int, log_dir: Path, say: Callable[[str], None]):
+        self.scene, self.subject, self.say = scene, subject, say
+        self.log_dir = log_dir
+        wearer = sample_wearer(scene, subject)
+        outcome = calibrate_wearer(scene, wearer)
+        if not outcome.ok:
+            raise ValueError(f'calibration of {wearer.name} refused: {outcome.error}')
+        log_dir.mkdir(parents=True, exist_ok=True)
+        self.calibration_file = outcome.calibration.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
+        cond = condition_of(first_condition)
+        self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
+        self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
+        graph_overrides(self.lab, scene, subject, cond.number, self.calibration_file, self.gaze_rate_hz)
+        self.graph = Graph(log_dir / 'graph')
+        self.op: Operator | None = None
+        self.timing = Timing()
+        self.condition = cond.number
+
+    def start(self) -> None:
+        start_nodes(self.graph, self.lab, FILES)
+        os.environ.update(loopback_dds_env())
+        self.op = Operator(self.graph.domain_id)
+        wait_until(lambda: self.op.latest_gaze_error(None) is not None and self.op.controller_condition,
+                   STARTUP_S, what='gaze and the controller on the study graph')
+        self.op.enable(False)     # vented until the first trial
+        self.vented_since = time.monotonic_ns()
+
+    def switch(self, cond: int) -> None:
+        """The condition for the next block, within the running graph (see the module docstring)."""
+        t0 = time.monotonic()
+        how = 'parameter'
+        if not self.op.set_condition(cond, extra_nodes=('wearer_sim',)):
+            how = 'restart'
+            self.graph.stop('pressure_controller')
+            self.lab.overrides['pressure_controller']['condition'] = cond
+            self.graph.start('pressure_controller', FILES, **self.lab.overrides['pressure_controller'])
+            wait_until(lambda: self.op.controller_condition == cond, STARTUP_S,
+                       what=f'pressure_controller under condition {cond}')
+            self.op.enable(False)
+            self.vented_since = time.monotonic_ns()
+        self.condition = cond
+        self.timing.switch_s.append((cond, time.monotonic() - t0, how))
+
+    def run_trial(self, repetition: int) -> dict:
+        """One trial of the current condition; its measures and live fields."""
+        op, scene, proto = self.op, self.scene, self.scene.protocol
+        op.set_parameters('wearer_sim', condition=self.condition, repetition=repetition)
+        op.display('prompt Look at the front')
+        wait_front(op, getattr(proto, 'acceptance_deg', 5.0), getattr(proto, 'dwell_s', 0.3), time.monotonic() + 15)
+        op.display('prompt')
+        timing = TrialTiming(vented=[Phase(self.vented_since)])
+        rng = target_stream(scene, self.subject, repetition)
+        if proto.kind == 'speed':
+            measures = speed_trial(op, iter(lambda: draw_target(rng, proto), None),
+                                   SpeedParams(proto.trial_s, proto.acceptance_deg, proto.dwell_s), timing, self.say)
+            self.timing.timer_error_s.append(timing.timer_error_s)
+        else:
+            measures = accuracy_trial(op, draw_target(rng, proto), AccuracyParams(proto.timeout_s), timing, self.say)
+        self.timing.press_latency_s += timing.press_latency_s
+        self._check_vented(timing)
+        self.vented_since = timing.vented[-1].start_ns
+        return measures
+
+    def _check_vented(self, timing: TrialTiming) -> None:
+        """pressure_command above 0 kPa in the vented phase before the trial (a 50 ms grace for
+        a command already on its way when the vent was acknowledged)."""
+        phase = timing.vented[0]
+        if phase.end_ns > phase.start_ns + 50_000_000:
+            values = self.op.commands_between(phase.start_ns + 50_000_000, phase.end_ns)
+            self.timing.vented_checked += len(values)
+            self.timing.vented_commands += sum(1 for v in values if v > 0.0)
+
+    def done(self) -> None:
+        if self.op is not None:
+            self.op.display('done')
+
+    def close(self) -> None:
+        try:
+            if self.op is not None:
+                try:
+                    self.op.enable(False)
+                except Exception:   # noqa: BLE001 - closing anyway; the controller vents on shutdown
+                    pass
+                self.op.close()
+        finally:
+            self.graph.stop_all()
+
+
+def participant_order(scene, subject: int) -> tuple[int, ...]:
+    """The headless protocol's condition order of wearer `subject` (seeded per wearer)."""
+    return condition_order(scene, subject)
+
+
+__all__ = ['SimulatedParticipant', 'Timing', 'graph_overrides', 'participant_order', 'max_or_zero']
