@@ -81,6 +81,7 @@ def finished_blocks(rows: list[dict], repetitions: int) -> tuple[list[dict], int
 def run_study(scene, participants: int, out: Path, say: Callable[[str], None]) -> int:
     protocol = scene.protocol.kind
     reps = scene.repetitions
+    out.mkdir(parents=True, exist_ok=True)
     write_text(out / 'participants.tsv', 'participant_id\twearer_index\tcondition_order\n' + ''.join(
         f'sub-{participant_id(i)}\t{i}\t{",".join(map(str, participant_order(scene, i)))}\n'
         for i in range(participants)))
