@@ -42,7 +42,7 @@ SUBCOMMANDS = {
                            "write the fit report (text and PNG) of a wearer's calibration file"),
     'analyze': ('fabric_guidance.experiments.analyze', 'Friedman test + Dunn-Bonferroni post-hoc '
                 "on a subjects x conditions CSV (as the paper's table)"),
-    'study': ('fabric_guidance.study.study_command', "run the paper's study session through the graph "
+    'study': ('fabric_guidance.live_study.study_command', "run the paper's study session through the graph "
               "(--simulated: a scene's wearers as participants)"),
     'experiment': ('fabric_guidance.experiments.experiment',
                    "run one of the paper's experiments on simulated wearers"),

@@ -10,11 +10,12 @@ From the bottom up (docs/architecture.md):
        security_policy                    profile, discovery server and SROS2 policy (no ROS)
     3  sim, bag                           the simulator; bags (neither imports the other)
     4  experiments                        the paper's experiments and studies on sim
-    5  nodes                              the ROS nodes: thin wiring over the layers below
-    6  process_graph, launch_support      starting the nodes as processes, launch files' helpers
-    7  bench, demo, replay, recover,      what a person runs: measurements, the demo, replay, recover,
-       study                              the study session through the graph
-    8  cli, demo_command, example_command the entry point and its argument wiring (cli imports
+    5  study                              a live study with people: plan, session, study folder
+    6  nodes                              the ROS nodes: thin wiring over the layers below
+    7  process_graph, launch_support      starting the nodes as processes, launch files' helpers
+    8  bench, demo, replay, recover,      what a person runs: measurements, the demo, replay, recover,
+       live_study                         the study session through the graph (an operator's client)
+    9  cli, demo_command, example_command the entry point and its argument wiring (cli imports
                                           a subcommand's module by name, when it is chosen)
 
 A module may import its own package and any lower layer; packages of the same layer do not
@@ -33,10 +34,11 @@ LAYERS = {
     'plc': 2, 'calibration_report': 2, 'views': 2, 'lab_network': 2, 'discovery_server': 2, 'security_policy': 2,
     'sim': 3, 'bag': 3,
     'experiments': 4,
-    'nodes': 5,
-    'process_graph': 6, 'launch_support': 6,
-    'bench': 7, 'demo': 7, 'replay': 7, 'recover': 7, 'study': 7,
-    'cli': 8, 'demo_command': 8, 'example_command': 8,
+    'study': 5,
+    'nodes': 6,
+    'process_graph': 7, 'launch_support': 7,
+    'bench': 8, 'demo': 8, 'replay': 8, 'recover': 8, 'live_study': 8,
+    'cli': 9, 'demo_command': 9, 'example_command': 9,
 }
 
 

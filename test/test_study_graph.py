@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from fabric_guidance.sim.scene import load_scene, scene_path
-from fabric_guidance.study.session_sim import load_rows, run_study, trials_path
+from fabric_guidance.live_study.session_sim import load_rows, run_study, trials_path
 from rosgraph import wait_until
 
 pytestmark = pytest.mark.graph
@@ -65,7 +65,7 @@ def test_accuracy_session_records_the_error_at_the_press(tmp_path):
 
 
 def _study(scene: Path, out: Path, **kw):
-    cmd = [sys.executable, '-m', 'fabric_guidance.study.study_command', '--simulated', '--participants', '1',
+    cmd = [sys.executable, '-m', 'fabric_guidance.live_study.study_command', '--simulated', '--participants', '1',
            '--protocol', 'speed', '--scene', str(scene), '--out', str(out)]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
 

@@ -1,4 +1,4 @@
-"""The study session's timing in the bench: fabric_guidance.study.timing run as a process (the
+"""The study session's timing in the bench: fabric_guidance.live_study.timing run as a process (the
 study sits above bench in the layers) on the simulated graph, and its rows of the table.
 
 Goals (read off, never asserted): a key press from its source to its recorded error within one
@@ -18,7 +18,7 @@ TIMER_GOAL_MS = 10.0
 def measure(work: Path, trial_s: float, keys: int, say) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     out = work / 'study_timing.json'
-    cmd = [sys.executable, '-m', 'fabric_guidance.study.timing', '--out', str(out), '--trial-s', str(trial_s),
+    cmd = [sys.executable, '-m', 'fabric_guidance.live_study.timing', '--out', str(out), '--trial-s', str(trial_s),
            '--keys', str(keys)]
     with open(work / 'study_timing.log', 'w') as log:
         code = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ),

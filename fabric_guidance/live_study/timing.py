@@ -3,8 +3,8 @@ the loop's: a key press from its source's stamp to its recorded error (wearer_si
 during speed trials and the operator's keyboard), a trial timer's error against its length,
 and the time a condition switch takes (conditions 1 -> 3: the arm layout).
 
-python -m fabric_guidance.study.timing --out FILE.json [--trial-s 40] [--keys 50]
-(bench runs it as a process: the study sits above bench in the layers).
+python -m fabric_guidance.live_study.timing --out FILE.json [--trial-s 40] [--keys 50]
+(bench runs it as a process: live_study and bench share a layer in the layers).
 """
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print) -> dic
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog='python -m fabric_guidance.study.timing', description=__doc__.split('\n')[0])
+    p = argparse.ArgumentParser(prog='python -m fabric_guidance.live_study.timing', description=__doc__.split('\n')[0])
     p.add_argument('--out', type=Path, required=True)
     p.add_argument('--trial-s', type=float, default=40.0)
     p.add_argument('--keys', type=int, default=50)
