@@ -22,7 +22,7 @@ from typing import Callable
 
 from ..atomic import write_text
 from ..sim.protocols import CONDITION_NAMES, MEASURES, TrialRecord, format_summary, ProtocolResults
-from .simulated import SimulatedParticipant, participant_order
+from .simulated import SimulatedParticipant, design_of, participant_order
 
 RECORD_FIELDS = [f.name for f in fields(TrialRecord)]
 LIVE_FIELDS = ['presses', 'presses_refused', 'press_error_deg', 'press_source', 'trial_wall_s', 'calibration_file']
@@ -78,12 +78,13 @@ def finished_blocks(rows: list[dict], repetitions: int) -> tuple[list[dict], int
     return kept, len(rows) - len(kept)
 
 
-def run_study(scene, participants: int, out: Path, say: Callable[[str], None]) -> int:
+def run_study(scene, participants: int, out: Path, say: Callable[[str], None], order: str = 'random') -> int:
     protocol = scene.protocol.kind
+    design = design_of(scene, order)
     reps = scene.repetitions
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / 'participants.tsv', 'participant_id\twearer_index\tcondition_order\n' + ''.join(
-        f'sub-{participant_id(i)}\t{i}\t{",".join(map(str, participant_order(scene, i)))}\n'
+        f'sub-{participant_id(i)}\t{i}\t{",".join(map(str, participant_order(design, i)))}\n'
         for i in range(participants)))
     timing = {'press_latency_s': [], 'timer_error_s': [], 'switch_s': [], 'vented_commands': 0,
               'vented_checked': 0}
@@ -91,7 +92,7 @@ def run_study(scene, participants: int, out: Path, say: Callable[[str], None]) -
         f'{participants} participants, {reps} trials per condition; folder {out}')
     for subject in range(participants):
         path = trials_path(out, subject, protocol)
-        order = participant_order(scene, subject)
+        order = participant_order(design, subject)
         rows, dropped = finished_blocks(load_rows(path), reps)
         done = {r['condition'] for r in rows}
         if dropped or rows:
@@ -105,8 +106,9 @@ def run_study(scene, participants: int, out: Path, say: Callable[[str], None]) -
         write_text(path.with_suffix('.json'), json.dumps({
             'TaskName': protocol, 'scene': scene.name, 'seed': scene.seed, 'repetitions': reps,
             'protocol': {k: getattr(scene.protocol, k) for k in vars(scene.protocol)},
-            'condition_order': list(order)}, indent=2, default=str))
-        part = SimulatedParticipant(scene, subject, pending[0], out / 'logs' / f'sub-{participant_id(subject)}', say)
+            'condition_order': list(order), 'design': design.as_dict()}, indent=2, default=str))
+        part = SimulatedParticipant(scene, subject, pending[0], out / 'logs' / f'sub-{participant_id(subject)}', say,
+                                    design)
         try:
             part.start()
             for index, cond in enumerate(order, start=1):

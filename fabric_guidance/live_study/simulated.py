@@ -6,8 +6,9 @@ paper calibrates before the trials, and as `demo --scene` does), then the seven 
 simulated graph (process_graph.sim_lab) with wearer_sim as that wearer pressing confirm
 (press_confirm), the study's target in target_selector (found_by_dwell off) and, for speed, 50
 dummies on the display. The session runs the conditions in the participant's order, each
-block of `trials` trials, through an Operator; the targets are the headless protocol's streams
-(sim.protocols.target_stream), so the live and the headless study meet the same targets.
+block of `trials` trials, through an Operator; the condition orders and targets are the study
+plan's (study/plan.py: the headless experiment's streams on the same seed, or a Latin square),
+so the live and the headless study meet the same targets.
 
 A condition is switched within the graph (pressure_controller's and wearer_sim's `condition`
 parameters). A controller that takes its condition only at configure is restarted with it
@@ -25,7 +26,7 @@ from typing import Callable
 from ..core import condition as condition_of
 from ..process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
 from ..sim.population import calibrate_wearer, sample_wearer
-from ..sim.protocols import condition_order, draw_target, target_stream
+from ..study import plan
 from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S
 from .live import AccuracyParams, Phase, SpeedParams, TrialTiming, accuracy_trial, speed_trial, wait_front
 from .operator import STUDY_TARGET, Operator, max_or_zero, target_position
@@ -65,8 +66,10 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
 class SimulatedParticipant:
     """One participant's graph and operator; run_block() runs a condition's trials."""
 
-    def __init__(self, scene, subject: int, first_condition: int, log_dir: Path, say: Callable[[str], None]):
+    def __init__(self, scene, subject: int, first_condition: int, log_dir: Path, say: Callable[[str], None],
+                 design: plan.StudyDesign | None = None):
         self.scene, self.subject, self.say = scene, subject, say
+        self.design = design or design_of(scene)
         self.log_dir = log_dir
         wearer = sample_wearer(scene, subject)
         outcome = calibrate_wearer(scene, wearer)
@@ -78,7 +81,9 @@ class SimulatedParticipant:
         self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
         self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
         graph_overrides(self.lab, scene, subject, cond.number, self.calibration_file, self.gaze_rate_hz)
-        self.graph = Graph(log_dir / 'graph')
+        # Domains 101-200: the tests' graphs take 1-100 (process_graph.fresh_domain_id), and a
+        # session that meets another graph's target_selector on its domain would steer that one.
+        self.graph = Graph(log_dir / 'graph', domain_id=101 + (os.getpid() * 7 + subject) % 100)
         self.op: Operator | None = None
         self.timing = Timing()
         self.condition = cond.number
@@ -110,19 +115,19 @@ class SimulatedParticipant:
 
     def run_trial(self, repetition: int) -> dict:
         """One trial of the current condition; its measures and live fields."""
-        op, scene, proto = self.op, self.scene, self.scene.protocol
+        op, proto = self.op, self.scene.protocol
         op.set_parameters('wearer_sim', condition=self.condition, repetition=repetition)
         op.display('prompt Look at the front')
         wait_front(op, getattr(proto, 'acceptance_deg', 5.0), getattr(proto, 'dwell_s', 0.3), time.monotonic() + 15)
         op.display('prompt')
         timing = TrialTiming(vented=[Phase(self.vented_since)])
-        rng = target_stream(scene, self.subject, repetition)
+        targets = plan.target_stream(self.design, self.subject, repetition)
         if proto.kind == 'speed':
-            measures = speed_trial(op, iter(lambda: draw_target(rng, proto), None),
+            measures = speed_trial(op, targets,
                                    SpeedParams(proto.trial_s, proto.acceptance_deg, proto.dwell_s), timing, self.say)
             self.timing.timer_error_s.append(timing.timer_error_s)
         else:
-            measures = accuracy_trial(op, draw_target(rng, proto), AccuracyParams(proto.timeout_s), timing, self.say)
+            measures = accuracy_trial(op, next(targets), AccuracyParams(proto.timeout_s), timing, self.say)
         self.timing.press_latency_s += timing.press_latency_s
         self._check_vented(timing)
         self.vented_since = timing.vented[-1].start_ns
@@ -153,9 +158,21 @@ class SimulatedParticipant:
             self.graph.stop_all()
 
 
-def participant_order(scene, subject: int) -> tuple[int, ...]:
-    """The headless protocol's condition order of wearer `subject` (seeded per wearer)."""
-    return condition_order(scene, subject)
+def design_of(scene, order: str = 'random') -> plan.StudyDesign:
+    """The study design of a scene: its seed, conditions, repetitions and protocol (plan.py
+    draws the condition orders and targets as the headless experiment does on that seed)."""
+    proto = scene.protocol
+    speed = proto.kind == 'speed'
+    extra = dict(trial_s=proto.trial_s, acceptance_deg=proto.acceptance_deg, front_dwell_s=proto.dwell_s) if speed \
+        else dict(timeout_s=proto.timeout_s)
+    return plan.StudyDesign(proto.kind, seed=scene.seed, conditions=tuple(scene.conditions), order=order,
+                            trials=scene.repetitions, horizontal_deg=proto.horizontal_deg,
+                            vertical_deg=proto.vertical_deg, **extra)
 
 
-__all__ = ['SimulatedParticipant', 'Timing', 'graph_overrides', 'participant_order', 'max_or_zero']
+def participant_order(design: plan.StudyDesign, subject: int) -> tuple[int, ...]:
+    """The condition order of participant `subject` (random from the seed, or the Latin square's row)."""
+    return plan.condition_order(design, subject)
+
+
+__all__ = ['SimulatedParticipant', 'Timing', 'design_of', 'graph_overrides', 'participant_order', 'max_or_zero']

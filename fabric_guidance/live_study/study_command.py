@@ -80,13 +80,13 @@ def run(args: argparse.Namespace) -> int:
         subcommand.error(PROG, 'a live session (--participant on a running graph) is not in this build yet; '
                          'run --simulated')
         return 2
-    if args.latin_square:
-        subcommand.error(PROG, '--latin-square needs the study plan (fabric_guidance.study.plan); not in this build')
-        return 2
     out = args.out.expanduser().resolve()
     out.mkdir(parents=True, exist_ok=True)
     try:
         scene = study_scene(args, out)
+        if args.latin_square and len(scene.conditions) % 2:
+            raise ValueError(f'--latin-square: a balanced Latin square needs an even number of conditions, '
+                             f'the scene has {len(scene.conditions)}')
         if not 1 <= args.participants <= scene.population.subjects:
             raise ValueError(f'--participants: 1..{scene.population.subjects} (the scene\'s wearers), '
                              f'got {args.participants}')
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         subcommand.error(PROG, exc)
         return 2
     from .session_sim import run_study
-    return run_study(scene, args.participants, out, say)
+    return run_study(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
 
 
 def main(argv=None) -> int:
