@@ -80,7 +80,7 @@ def judge(op: Operator, press, target, appeared_ns: int) -> PressError | None:
     """The gaze error at a press, or None for a press that is not this trial's (stale stamp)."""
     if press.stamp_ns < appeared_ns - STALE_PRESS_S * 1e9 or press.stamp_ns > press.received_ns + STALE_PRESS_S * 1e9:
         return None
-    return op.error_at(press.stamp_ns, target)
+    return op.settled_error_at(press.stamp_ns, target)
 
 
 def speed_trial(op: Operator, targets: Iterator[tuple[float, float]], params: SpeedParams,

@@ -34,6 +34,8 @@ GAZE_HISTORY_S = 5.0
 STUDY_TARGET = 'study'
 #: Distance of the placed target from the eye [m] (the demo's scene targets are at 2 m).
 TARGET_DISTANCE_M = 2.0
+#: A press waits at most this long for the gaze sample captured after it [s].
+PRESS_GAZE_WAIT_S = 0.2
 #: How long a service or parameter call may take before the operator says so [s].
 CALL_TIMEOUT_S = 5.0
 
@@ -167,6 +169,19 @@ class Operator:
         g_yaw, t_yaw = azimuth_deg(direction) or 0.0, azimuth_deg(goal) or 0.0
         return PressError(angular_error_deg(direction, goal), abs(wrap_deg(g_yaw - t_yaw)),
                           abs(elevation_deg(direction) - elevation_deg(goal)), gstamp, (stamp_ns - gstamp) * 1e-9)
+
+    def settled_error_at(self, stamp_ns: int, target: tuple[float, float] | None,
+                         wait_s: float = PRESS_GAZE_WAIT_S) -> PressError | None:
+        """error_at once a sample captured after stamp_ns has arrived (the one captured at the
+        press may still be on its way: UDP, the bridge, DDS), or after wait_s."""
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                newest = self.gaze[-1][0] if self.gaze else None
+            if newest is not None and newest > stamp_ns:
+                break
+            time.sleep(0.0005)
+        return self.error_at(stamp_ns, target)
 
     def latest_gaze_error(self, target: tuple[float, float] | None) -> PressError | None:
         return self.error_at(self.now_ns() + 10 ** 12, target)
