@@ -96,3 +96,13 @@ def test_sigkill_mid_block_resumes_at_that_block(tmp_path):
     assert len(after) == 4
     assert after[:2] == before[:2]     # the finished block is intact
     assert [r['condition'] for r in after[2:]] == [order[2]] * 2 and [r['repetition'] for r in after[2:]] == [0, 1]
+
+
+def test_keyboard_keys_press_confirm_and_send_commands():
+    import io
+
+    from fabric_guidance.live_study.keyboard import KeyboardSource
+    presses, commands = [], []
+    src = KeyboardSource(lambda: presses.append(1), commands.append, io.StringIO(' x\nprs q '))
+    src.start().join(5)
+    assert len(presses) == 3 and commands == ['pause', 'repeat', 'skip', 'stop']   # nothing read after q

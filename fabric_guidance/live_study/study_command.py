@@ -9,9 +9,9 @@ to DIR/scene.yaml, so that `fabric-guidance experiment --scene DIR/scene.yaml` r
 headless. Every finished trial is in the study folder at once (atomically); run the same command
 again on the same DIR after a crash and the session resumes at the first unfinished block.
 
-Keys while a live session runs (the operator's terminal): space or Enter presses confirm
-(frame_id 'keyboard'), p pauses after the trial, r repeats the last trial, s skips the rest
-of the block, q stops (vents at once).
+`fabric-guidance study --keyboard` makes the operator's terminal the confirm source of a running
+graph: space or Enter publishes `confirm` (frame_id 'keyboard', stamped when the key is read);
+q ends (live_study/keyboard.py also reads p pause, r repeat, s skip, c resume for a session).
 """
 from __future__ import annotations
 
@@ -35,7 +35,10 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--participant', default=None, help='the participant id of a live session')
     p.add_argument('--protocol', choices=sorted(SCENES), default='speed')
     p.add_argument('--scene', default=None, help='a scene file or name (default: paper-speed / paper-accuracy)')
-    p.add_argument('--out', type=Path, required=True, help='the study folder')
+    p.add_argument('--keyboard', action='store_true',
+                   help="only the operator's key as the confirm source on the running graph (ROS_DOMAIN_ID "
+                        'from the environment): space or Enter publishes confirm, q ends')
+    p.add_argument('--out', type=Path, default=None, help='the study folder (required with --simulated)')
     p.add_argument('--trials', type=int, default=None, help='trials per condition (default: the scene\'s)')
     p.add_argument('--trial-s', type=float, default=None, help='seconds per speed trial (default: the scene\'s, 40)')
     p.add_argument('--seed', type=int, default=None, help="the scene's seed (default: the scene's)")
@@ -76,6 +79,11 @@ def study_scene(args, out: Path):
 
 def run(args: argparse.Namespace) -> int:
     say = subcommand.printer(sys.stdout)
+    if args.keyboard:
+        return keyboard_only(say)
+    if args.out is None:
+        subcommand.error(PROG, '--out DIR: the study folder is required')
+        return 2
     if not args.simulated:
         subcommand.error(PROG, 'a live session (--participant on a running graph) is not in this build yet; '
                          'run --simulated')
@@ -95,6 +103,24 @@ def run(args: argparse.Namespace) -> int:
         return 2
     from .session_sim import run_study
     return run_study(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
+
+
+def keyboard_only(say) -> int:
+    """The operator's key as confirm on the running graph until q (or end of input)."""
+    from .keyboard import KeyboardSource
+    from .operator import Operator
+    op = Operator(name='study_keyboard')
+    try:
+        say('keyboard: space or Enter presses confirm (frame_id keyboard); q ends')
+
+        def press():
+            op.press_key('keyboard')
+            say(f'confirm at {op.now_ns() * 1e-9:.3f} s')
+        src = KeyboardSource(press).start()
+        src.join()
+    finally:
+        op.close()
+    return 0
 
 
 def main(argv=None) -> int:

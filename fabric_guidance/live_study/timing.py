@@ -52,7 +52,7 @@ def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print) -> dic
             press = op.next_press(2.0)
             if press is None:
                 continue
-            op.error_at(press.stamp_ns, None)
+            op.settled_error_at(press.stamp_ns, None)
             keyboard.append((op.now_ns() - press.stamp_ns) * 1e-9)
             time.sleep(0.02)
         say('  switching to condition 3 (the arm) ...')
