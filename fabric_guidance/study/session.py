@@ -19,7 +19,10 @@ from dataclasses import dataclass, field
 import math
 from typing import Sequence
 
+from ..core.geometry import wrap_deg
+from ..sim.wearer import angle_between_deg
 from .plan import Block, StudyDesign, TrialSpec, target_stream
+from .trial_columns import CONTEXT_COLUMNS, RECORD_COLUMNS, SESSION_COLUMNS
 
 #: What an Action asks of the operator layer.
 ACTION_KINDS = (
@@ -32,6 +35,13 @@ ACTION_KINDS = (
     'prompt',          # text: what the wearer reads on the headset
     'done',            # the display's done event: text 'sequence' or 'block'
 )
+#: What Step.presses tells of each resolved press: its stamp, receipt and source [s, steady
+#: clock], the gaze sample's time, the error [deg] (full angle; h/v for accuracy), accepted,
+#: and why not.
+PRESS_KEYS = ('stamp', 'received', 'resolved', 'source', 'gaze_t', 'error_deg', 'h_error_deg', 'v_error_deg',
+              'accepted', 'reason')
+#: The columns a session fills (store adds the rest).
+ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLUMNS)
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
 
@@ -57,6 +67,8 @@ class Step:
     blocks: list[Block] = field(default_factory=list)       # finished blocks
     refused: str | None = None                              # a refused press or command, why
     amended: list[tuple[str, int, str]] = field(default_factory=list)  # (block key, repetition, new status)
+    presses: list[dict] = field(default_factory=list)       # presses resolved now (PRESS_KEYS)
+    pending: bool = False                                   # a press waits for its gaze sample
 
 
 @dataclass(frozen=True)
@@ -76,51 +88,114 @@ class Press:
 class Session:
     """The session over `blocks` (those still to run, in order; store.SessionStore.remaining
     gives them after a restart). `context` holds what every row carries unchanged (gaze source,
-    clock state, calibration file and sha256, package version and commit; store.LIVE_CONTEXT)."""
+    clock state, calibration file and sha256, package version and commit:
+    trial_columns.LIVE_CONTEXT; 'scene' names the study)."""
 
     def __init__(self, design: StudyDesign, blocks: Sequence[Block], context: dict | None = None):
-        raise NotImplementedError
+        self.design = design
+        self.blocks = tuple(blocks)
+        for b in self.blocks:
+            if b.protocol != design.protocol:
+                raise ValueError(f'block {b.key}: protocol {b.protocol}, the design is {design.protocol}')
+        context = dict(context or {})
+        unknown = sorted(set(context) - set(CONTEXT_COLUMNS) - {'scene'})
+        if unknown:
+            raise ValueError(f'session context: unknown key(s) {", ".join(unknown)}')
+        self.context = context
+        self._phase = 'idle' if self.blocks else 'done'
+        self._bi = 0                       # block index
+        self._ti = 0                       # trial index within the block
+        self._history: deque[GazeSample] = deque()
+        self._rest_end: float | None = None
+        self._paused_from: str | None = None
+        self._last_stamp: float | None = None
+        self._pending: Press | None = None
+        self._last_done: tuple[str, int] | None = None   # (block key, repetition) of the last row
+        self._last_result = ''
+        self._dummy_set = 0
+        self._trial: dict | None = None
 
     # -- state -----------------------------------------------------------------------------
     @property
     def phase(self) -> str:
         """'idle', 'rest', 'target', 'front', 'paused', 'stopped' or 'done'."""
-        raise NotImplementedError
+        return self._phase
 
     @property
     def block(self) -> Block | None:
         """The block running (or next), None when done."""
-        raise NotImplementedError
+        return self.blocks[self._bi] if self._bi < len(self.blocks) else None
 
     @property
     def trial(self) -> TrialSpec | None:
-        raise NotImplementedError
+        b = self.block
+        return b.trials[self._ti] if b is not None and self._ti < len(b.trials) else None
 
     def status(self, t: float) -> dict:
         """What the operator's terminal shows: participant, condition, trial i of n (1-based),
         time left [s] of a speed trial (or until the accuracy timeout), phase, last result."""
-        raise NotImplementedError
+        b = self.block
+        left = max(0.0, self._trial['end'] - t) if self._trial is not None else None
+        return {'phase': self._phase, 'participant': b.participant if b else None,
+                'condition': b.condition if b else None, 'block': f'{self._bi + 1}/{len(self.blocks)}',
+                'trial': f'{min(self._ti + 1, len(b.trials))}/{len(b.trials)}' if b else None,
+                'time_left_s': left, 'identified': self._trial['identified'] if self._trial else None,
+                'last_result': self._last_result}
 
     def next_deadline(self) -> float | None:
         """The steady-clock time [s] the next tick must come by (trial end, rest end, a pending
         press's limit); None when nothing is timed."""
-        raise NotImplementedError
+        times = []
+        if self._trial is not None:
+            times.append(self._trial['end'])
+        if self._phase == 'rest' and self._rest_end is not None:
+            times.append(self._rest_end)
+        if self._pending is not None:
+            times.append(self._pending.stamp + self.design.max_press_age_s)
+        return min(times) if times else None
 
     # -- events ----------------------------------------------------------------------------
     def start(self, t: float) -> Step:
         """Begin: set the first block's condition, vent, rest, then its first trial."""
-        raise NotImplementedError
+        step = Step()
+        if self._phase != 'idle':
+            step.refused = f'the session has already started (phase {self._phase})'
+            return step
+        self._enter_block(t, step)
+        return step
 
     def tick(self, t: float) -> Step:
         """Time passed (call by next_deadline()): a speed trial ends at exactly trial start +
         trial_s, an accuracy trial at its timeout, a rest ends and the next trial starts."""
-        raise NotImplementedError
+        step = Step()
+        self._advance(t, step)
+        return step
 
     def gaze(self, t: float, yaw_deg: float, pitch_deg: float) -> Step:
         """A gaze sample captured at t [s]: kept in a bounded history (design.gaze_history_s)
         for the error at a press; in 'front' it may let the next target appear. Out-of-order
-        samples (t not after the last) are ignored."""
-        raise NotImplementedError
+        samples (t not after the last) and non-finite ones are ignored."""
+        step = Step()
+        if not (math.isfinite(t) and math.isfinite(yaw_deg) and math.isfinite(pitch_deg)):
+            return step
+        if self._history and t <= self._history[-1].t:
+            return step
+        self._advance(t, step)
+        h = self._history
+        h.append(GazeSample(t, yaw_deg, pitch_deg))
+        while h and t - h[0].t > self.design.gaze_history_s:
+            h.popleft()
+        if self._pending is not None and t >= self._pending.stamp:
+            self._resolve(t, step)
+        if self._phase == 'front' and self._trial is not None:
+            tr = self._trial
+            if angle_between_deg(yaw_deg, pitch_deg, 0.0, 0.0) <= self.design.acceptance_deg:
+                tr['inside_since'] = t if tr['inside_since'] is None else tr['inside_since']
+                if t - tr['inside_since'] >= self.design.front_dwell_s - 1e-9:
+                    self._show_next(t, step)
+            else:
+                tr['inside_since'] = None
+        return step
 
     def press(self, stamp: float, received: float, source: str = 'keyboard') -> Step:
         """A confirm press captured at `stamp` at its source, received at `received` [s]. Refused
@@ -128,27 +203,303 @@ class Session:
         stamp again, or within debounce_s of the last press), outside a trial, or (speed) with
         an error above acceptance_deg. The error is that of the last gaze sample at or before
         `stamp`; when that sample has not arrived yet the press waits for it (until
-        max_press_age_s after the stamp)."""
-        raise NotImplementedError
+        max_press_age_s after the stamp; Step.pending)."""
+        step = Step()
+        if not (math.isfinite(stamp) and math.isfinite(received)):
+            step.refused = f'press from {source}: its time is not a number'
+            return step
+        self._advance(received, step)
+        d = self.design
+        age = received - stamp
+        reason = None
+        if age > d.max_press_age_s:
+            reason = f'stale: captured {age:.3f} s before it arrived (limit {d.max_press_age_s:g} s)'
+        elif age < -d.max_press_age_s:
+            reason = f'stamped {-age:.3f} s in the future: the source clock is not synchronised'
+        elif self._last_stamp is not None and stamp <= self._last_stamp:
+            reason = 'duplicate: the same press again (not after the last press)'
+        elif self._last_stamp is not None and stamp - self._last_stamp < d.debounce_s:
+            reason = f'duplicate: {stamp - self._last_stamp:.3f} s after the last press (debounce {d.debounce_s:g} s)'
+        elif self._pending is not None:
+            reason = 'duplicate: the last press still waits for its gaze sample'
+        elif self._phase not in ('target', 'front') or self._trial is None:
+            reason = f'no trial is running (phase {self._phase})'
+        elif self._phase == 'front':
+            reason = 'the target is back at the front: look at the front for the next one'
+        elif stamp < self._trial['appeared']:
+            reason = 'captured before the target appeared'
+        if reason is not None:
+            if self._trial is not None:
+                self._trial['refused'] += 1
+            step.refused = f'press from {source} refused: {reason}'
+            return step
+        self._last_stamp = stamp
+        self._pending = Press(stamp, received, source)
+        if self._history and self._history[-1].t >= stamp:
+            self._resolve(received, step)
+        else:
+            step.pending = True
+        return step
 
     # -- operator commands -----------------------------------------------------------------
     def pause(self, t: float) -> Step:
         """Vent and hold; a trial running is abandoned (recorded 'repeated') and rerun on resume."""
-        raise NotImplementedError
+        step = Step()
+        self._advance(t, step)
+        if self._phase not in ('rest', 'target', 'front'):
+            step.refused = f'pause: nothing to pause (phase {self._phase})'
+            return step
+        if self._trial is not None:
+            self._abandon(t, 'repeated', step)
+        else:
+            step.actions.append(Action('vent', t))
+        step.actions.append(Action('prompt', t, text='Paused: please wait'))
+        self._phase, self._rest_end = 'paused', None
+        return step
 
     def resume(self, t: float) -> Step:
         """From 'paused' (or held between blocks): rest, then the next trial."""
-        raise NotImplementedError
+        step = Step()
+        if self._phase != 'paused':
+            step.refused = f'resume: the session is not paused (phase {self._phase})'
+            return step
+        self._rest(t, step)
+        return step
 
     def repeat(self, t: float) -> Step:
         """Run the current trial again (abandoned now, recorded 'repeated'), or in the rest after
         a trial, the last finished one (its row amended to 'repeated', Step.amended)."""
-        raise NotImplementedError
+        step = Step()
+        self._advance(t, step)
+        if self._trial is not None:
+            self._abandon(t, 'repeated', step)
+            self._rest(t, step)
+            return step
+        b = self.block
+        if self._phase not in ('rest', 'paused') or b is None:
+            step.refused = f'repeat: no trial to repeat (phase {self._phase})'
+            return step
+        if self._ti == 0 or self._last_done != (b.key, b.trials[self._ti - 1].repetition):
+            step.refused = 'repeat: no finished trial in this block to repeat'
+            return step
+        self._ti -= 1
+        step.amended.append((b.key, b.trials[self._ti].repetition, 'repeated'))
+        self._last_done = None
+        self._last_result = f'trial {self._ti + 1} to be repeated'
+        return step
 
     def skip(self, t: float) -> Step:
         """Give up the current (or next) trial: recorded 'skipped', the session moves on."""
-        raise NotImplementedError
+        step = Step()
+        self._advance(t, step)
+        if self._trial is not None:
+            self._abandon(t, 'skipped', step)
+        elif self._phase == 'rest' and self.trial is not None:
+            step.rows.append(self._row(self.trial, 'skipped', None, t, t, {}))
+            self._last_done = None
+        else:
+            step.refused = f'skip: no trial to skip (phase {self._phase})'
+            return step
+        self._last_result = f'trial {self._ti + 1} skipped'
+        self._next_trial(t, step)
+        return step
 
     def stop(self, t: float) -> Step:
         """Vent at once and end the session; the running block is unfinished (redone on resume)."""
-        raise NotImplementedError
+        step = Step()
+        if self._phase in ('stopped', 'done'):
+            step.refused = f'stop: the session has already ended (phase {self._phase})'
+            return step
+        step.actions.append(Action('vent', t))      # first: nothing waits before the vent
+        if self._trial is not None:
+            self._abandon(t, 'stopped', step, vent=False)
+        step.actions.append(Action('prompt', t, text='Stopped: thank you'))
+        self._phase, self._pending, self._rest_end = 'stopped', None, None
+        return step
+
+    # -- inside ----------------------------------------------------------------------------
+    def _advance(self, t: float, step: Step) -> None:
+        """Whatever is due by t: a pending press past its limit, a trial's end, a rest's end."""
+        d = self.design
+        if self._pending is not None and t >= self._pending.stamp + d.max_press_age_s:
+            self._resolve(t, step)
+        tr = self._trial
+        if tr is not None and t >= tr['end']:
+            if d.protocol == 'speed':
+                self._finish_speed(t, step)
+            else:
+                self._finish_accuracy(t, None, step)
+        if self._phase == 'rest' and self._rest_end is not None and t >= self._rest_end:
+            self._begin_trial(t, step)
+
+    def _enter_block(self, t: float, step: Step) -> None:
+        b = self.block
+        step.actions.append(Action('vent', t))
+        step.actions.append(Action('set_condition', t, condition=b.condition))
+        self._ti = 0
+        self._last_done = None
+        if self.design.hold_between_blocks and (self._phase != 'idle'):
+            step.actions.append(Action('prompt', t, text=f'Condition {b.order} of {len(self.blocks)}: please wait'))
+            self._phase, self._rest_end = 'paused', None
+        else:
+            self._rest(t, step)
+
+    def _rest(self, t: float, step: Step) -> None:
+        self._phase, self._rest_end = 'rest', t + self.design.rest_s
+        b = self.block
+        step.actions.append(Action('prompt', t, text=f'Rest: trial {self._ti + 1} of {len(b.trials)} is next'))
+
+    def _begin_trial(self, t: float, step: Step) -> None:
+        spec, b = self.trial, self.block
+        d = self.design
+        self._rest_end = None
+        tr = dict(spec=spec, start=t, appeared=t, identified=0, presented=1, finds=[], refused=0, presses=0,
+                  last_press=None, inside_since=None,
+                  end=t + (d.trial_s if d.protocol == 'speed' else d.timeout_s))
+        if d.protocol == 'speed':
+            tr['targets'] = target_stream(d, b.index, spec.repetition)
+            tr['target'] = next(tr['targets'])
+            self._dummy_set += 1
+            step.actions.append(Action('show_target', t, target=tr['target'], target_id='target', visible=True,
+                                       dummy_set=self._dummy_set))
+            text = 'Find the target and press when it is in the centre'
+        else:
+            tr['target'] = spec.target
+            step.actions.append(Action('show_target', t, target=spec.target, target_id='target', visible=False))
+            text = 'Follow the suit and press when you think you are there'
+        step.actions.append(Action('enable', t))
+        step.actions.append(Action('prompt', t, text=f'Trial {self._ti + 1} of {len(b.trials)}: {text}'))
+        self._trial = tr
+        self._phase = 'target'
+
+    def _show_next(self, t: float, step: Step) -> None:
+        tr = self._trial
+        tr['target'] = next(tr['targets'])
+        tr['presented'] += 1
+        tr['appeared'], tr['inside_since'] = t, None
+        self._dummy_set += 1
+        step.actions.append(Action('show_target', t, target=tr['target'], target_id='target', visible=True,
+                                   dummy_set=self._dummy_set))
+        self._phase = 'target'
+
+    def _sample_at(self, stamp: float) -> GazeSample | None:
+        """The last gaze sample captured at or before stamp."""
+        for s in reversed(self._history):
+            if s.t <= stamp:
+                return s
+        return None
+
+    def _resolve(self, t: float, step: Step) -> None:
+        """Judge the pending press on the gaze sample at its stamp."""
+        p, self._pending = self._pending, None
+        tr, d = self._trial, self.design
+        out = dict(stamp=p.stamp, received=p.received, resolved=t, source=p.source, gaze_t=None, error_deg=None,
+                   h_error_deg=None, v_error_deg=None, accepted=False, reason='')
+        step.presses.append(out)
+        s = self._sample_at(p.stamp)
+        if tr is None or self._phase != 'target':
+            out['reason'] = 'the trial ended before its gaze sample came'
+        elif s is None or p.stamp - s.t > d.gaze_gap_s:
+            out['reason'] = f'no gaze sample within {d.gaze_gap_s:g} s before the press'
+        else:
+            h, v = tr['target']
+            out.update(gaze_t=s.t, error_deg=angle_between_deg(s.yaw_deg, s.pitch_deg, h, v),
+                       h_error_deg=abs(wrap_deg(s.yaw_deg - h)), v_error_deg=abs(s.pitch_deg - v))
+            if d.protocol == 'speed' and out['error_deg'] > d.acceptance_deg:
+                out['reason'] = f'error {out["error_deg"]:.1f} deg > acceptance {d.acceptance_deg:g} deg'
+            else:
+                out['accepted'] = True
+        if not out['accepted']:
+            if tr is not None:
+                tr['refused'] += 1
+            step.refused = f'press from {p.source} refused: {out["reason"]}'
+            return
+        tr['presses'] += 1
+        tr['last_press'] = out
+        if d.protocol == 'accuracy':
+            self._finish_accuracy(t, out, step)
+            return
+        tr['identified'] += 1
+        tr['finds'].append(p.stamp - tr['appeared'])
+        self._last_result = f'target {tr["identified"]} found ({out["error_deg"]:.1f} deg)'
+        step.actions.append(Action('show_front', t, target=(0.0, 0.0), target_id='front', visible=True))
+        self._phase, tr['inside_since'] = 'front', None
+
+    def _finish_speed(self, t: float, step: Step) -> None:
+        tr = self._trial
+        finds = tr['finds']
+        measures = dict(identified=tr['identified'], presented=tr['presented'],
+                        mean_find_s=sum(finds) / len(finds) if finds else None)
+        self._last_result = f'{tr["identified"]} identified of {tr["presented"]}'
+        self._end_trial(t, 'ok', tr['end'], measures, step)
+
+    def _finish_accuracy(self, t: float, press: dict | None, step: Step) -> None:
+        tr = self._trial
+        h, v = tr['target']
+        if press is None:           # timed out: the gaze where it was at the timeout
+            s = self._sample_at(tr['end'])
+            he = abs(wrap_deg(s.yaw_deg - h)) if s else None
+            ve = abs(s.pitch_deg - v) if s else None
+            end, time_s, timed_out = tr['end'], self.design.timeout_s, True
+        else:
+            he, ve = press['h_error_deg'], press['v_error_deg']
+            end, time_s, timed_out = t, press['stamp'] - tr['start'], False
+        measures = dict(target_h_deg=h, target_v_deg=v, h_error_deg=he, v_error_deg=ve, tracked_h_error_deg=he,
+                        tracked_v_error_deg=ve, time_s=time_s, timed_out=timed_out)
+        self._last_result = ('timed out' if timed_out else
+                             f'error h {he:.1f} deg, v {ve:.1f} deg in {time_s:.1f} s')
+        self._end_trial(t, 'ok', end, measures, step)
+
+    def _abandon(self, t: float, status: str, step: Step, vent: bool = True) -> None:
+        """The running trial ends now without its measures."""
+        tr = self._trial
+        if vent:
+            step.actions.append(Action('vent', t))
+        step.actions.append(Action('hide', t))
+        step.rows.append(self._row(tr['spec'], status, tr, tr['start'], t, {}))
+        self._trial, self._pending = None, None
+        self._last_done = None
+        self._last_result = f'trial {self._ti + 1} {status}'
+
+    def _end_trial(self, t: float, status: str, end: float, measures: dict, step: Step) -> None:
+        tr = self._trial
+        step.actions.append(Action('vent', t))
+        step.actions.append(Action('hide', t))
+        step.actions.append(Action('done', t, text='sequence'))
+        step.rows.append(self._row(tr['spec'], status, tr, tr['start'], end, measures))
+        self._trial, self._pending = None, None
+        self._last_done = (self.block.key, tr['spec'].repetition)
+        self._next_trial(t, step)
+
+    def _next_trial(self, t: float, step: Step) -> None:
+        b = self.block
+        self._ti += 1
+        if self._ti < len(b.trials):
+            self._rest(t, step)
+            return
+        step.blocks.append(b)
+        step.actions.append(Action('done', t, text='block'))
+        self._bi += 1
+        if self._bi < len(self.blocks):
+            self._enter_block(t, step)
+        else:
+            step.actions.append(Action('prompt', t, text='Done: thank you'))
+            self._phase, self._rest_end = 'done', None
+
+    def _row(self, spec: TrialSpec, status: str, tr: dict | None, start: float, end: float, measures: dict) -> dict:
+        b = self.block
+        row = dict.fromkeys(ROW_FIELDS)
+        row.update(scene=self.context.get('scene', 'study'), protocol=b.protocol, subject=b.index,
+                   wearer=b.participant, condition=b.condition, repetition=spec.repetition, order=b.order,
+                   session=b.session, status=status, block=b.key, trial_start_s=start, trial_end_s=end)
+        if b.protocol == 'accuracy' and spec.target is not None:
+            row.update(target_h_deg=spec.target[0], target_v_deg=spec.target[1])
+        if tr is not None:
+            row.update(presses=tr['presses'], refused_presses=tr['refused'])
+            p = tr['last_press']
+            if p is not None:
+                row.update(press_s=p['stamp'], press_source=p['source'], press_age_s=p['received'] - p['stamp'],
+                           gaze_at_press_s=p['gaze_t'])
+        row.update(measures)
+        row.update({k: v for k, v in self.context.items() if k in CONTEXT_COLUMNS})
+        return row

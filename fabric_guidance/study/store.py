@@ -21,14 +21,31 @@ format version, an unknown participant, parameters that differ from those record
 """
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
+from datetime import datetime, timezone
+import errno
+import io
+import json
+import math
 from pathlib import Path
 from typing import Sequence
 
-from .plan import Block, StudyDesign
+from ..atomic import write_text
+from ..core.safe_input import excerpt
+from .plan import Block, StudyDesign, check_participant
+from .trial_columns import COLUMNS
 
 FORMAT_VERSION = 1
 FORMAT_KEY = 'FabricGuidanceStudyFormat'
+DESCRIPTION = 'dataset_description.json'
+PARTICIPANTS = 'participants.tsv'
+PARTICIPANT_COLUMNS = {
+    'participant_id': ('-', 'sub-<id>: the participant id with the BIDS prefix'),
+    'index': ('-', '0-based registration order; seeds the condition order and the targets'),
+    'registered_utc': ('-', 'when the participant was registered, ISO 8601 UTC'),
+}
+MISSING = 'n/a'                  # BIDS's empty cell
 
 
 class StudyError(ValueError):
@@ -37,6 +54,68 @@ class StudyError(ValueError):
 
 class DiskFull(OSError):
     """The disk is full: nothing was written, what was recorded before is intact."""
+
+
+def _utc() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec='milliseconds')
+
+
+def _write(path: Path, text: str) -> None:
+    """One file whole (atomic.write_text); a full disk becomes DiskFull, one line."""
+    try:
+        write_text(path, text)
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise DiskFull(exc.errno, f'disk full: cannot write {path}; what was recorded before is intact '
+                                      f'(free space, then go on)') from None
+        raise
+
+
+def _cell(value) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    if isinstance(value, float):
+        return repr(value)
+    return ' '.join(str(value).split()) or MISSING     # no tab or newline inside a cell
+
+
+def _tsv(columns: Sequence[str], rows: Sequence[dict]) -> str:
+    out = io.StringIO()
+    w = csv.writer(out, delimiter='\t', lineterminator='\n', quoting=csv.QUOTE_NONE, escapechar='\\')
+    w.writerow(columns)
+    for r in rows:
+        w.writerow([r.get(c, MISSING) for c in columns])
+    return out.getvalue()
+
+
+def read_tsv(path: Path) -> tuple[list[str], list[dict]]:
+    """Header and rows (strings) of a TSV; StudyError naming the file when unreadable."""
+    try:
+        with path.open(newline='', encoding='utf-8') as f:
+            lines = list(csv.reader(f, delimiter='\t', quoting=csv.QUOTE_NONE, escapechar='\\'))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise StudyError(f'{path}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
+    if not lines:
+        raise StudyError(f'{path}: empty, expected a header row')
+    header = lines[0]
+    bad = [i for i, r in enumerate(lines[1:], start=2) if len(r) != len(header)]
+    if bad:
+        raise StudyError(f'{path}: line {bad[0]} has a different number of cells than the header')
+    return header, [dict(zip(header, r)) for r in lines[1:]]
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise StudyError(f'{path}: cannot read: {getattr(exc, "strerror", None) or excerpt(str(exc))}') from None
+    if not isinstance(data, dict):
+        raise StudyError(f'{path}: expected a JSON object')
+    return data
+
+
+def _sidecar_columns(columns: dict[str, tuple[str, str]]) -> dict:
+    return {name: {'Description': text, 'Units': unit} for name, (unit, text) in columns.items()}
 
 
 @dataclass(frozen=True)
@@ -54,75 +133,247 @@ class Lost:
     trials: int                  # rows of it kept with status 'interrupted'
 
     def line(self) -> str:
-        raise NotImplementedError
+        return (f'block {self.block} was cut off: its {self.trials} finished trial(s) are kept as '
+                f"'interrupted' and the block is run again")
+
+
+def check_version(root: Path) -> dict:
+    """The study's description; StudyError when root is not a study folder of this format."""
+    path = root / DESCRIPTION
+    if not path.is_file():
+        raise StudyError(f'{root}: not a study folder (no {DESCRIPTION})')
+    data = _read_json(path)
+    version = data.get(FORMAT_KEY)
+    if version != FORMAT_VERSION:
+        raise StudyError(f'{path}: study format version {excerpt(version)}, this fabric_guidance reads version '
+                         f'{FORMAT_VERSION}; use the version that wrote it, or a new study folder')
+    return data
 
 
 class Study:
     """A study folder. Study.open(root) creates it when absent."""
 
     def __init__(self, root: Path):
-        raise NotImplementedError
+        self.root = Path(root)
+        self.description = check_version(self.root)
 
     @classmethod
     def open(cls, root: str | Path, name: str | None = None) -> 'Study':
         """Open (or create) the study folder `root`; StudyError for another format version or a
         folder that is not a study."""
-        raise NotImplementedError
+        root = Path(root).expanduser()
+        if not (root / DESCRIPTION).exists():
+            if root.exists() and (not root.is_dir() or any(root.iterdir())):
+                raise StudyError(f'{root}: not a study folder (no {DESCRIPTION}) and not empty')
+            from .. import __name__ as package
+            from importlib import metadata
+            try:
+                version = metadata.version(package)
+            except metadata.PackageNotFoundError:
+                version = 'unknown'
+            root.mkdir(parents=True, exist_ok=True)
+            _write(root / DESCRIPTION, json.dumps({
+                'Name': name or root.name, 'BIDSVersion': '1.9.0', 'DatasetType': 'raw', FORMAT_KEY: FORMAT_VERSION,
+                'GeneratedBy': [{'Name': package, 'Version': version}]}, indent=2) + '\n')
+            _write(root / 'participants.json', json.dumps(_sidecar_columns(PARTICIPANT_COLUMNS), indent=2) + '\n')
+            _write(root / PARTICIPANTS, _tsv(list(PARTICIPANT_COLUMNS), []))
+        return cls(root)
 
     def participants(self) -> list[Participant]:
-        raise NotImplementedError
+        path = self.root / PARTICIPANTS
+        if not path.exists():
+            return []
+        _, rows = read_tsv(path)
+        out = []
+        for i, r in enumerate(rows, start=2):
+            try:
+                pid = r['participant_id']
+                if not pid.startswith('sub-'):
+                    raise ValueError
+                out.append(Participant(check_participant(pid[4:]), int(r['index']), r['registered_utc']))
+            except (KeyError, ValueError):
+                raise StudyError(f'{path}: line {i}: not a participant row') from None
+        return out
 
     def add_participant(self, participant_id: str) -> Participant:
         """Register a new participant (index = the next); the existing one if already there."""
-        raise NotImplementedError
+        try:
+            check_participant(participant_id)
+        except ValueError as exc:
+            raise StudyError(str(exc)) from None
+        known = self.participants()
+        for p in known:
+            if p.participant_id == participant_id:
+                return p
+        p = Participant(participant_id, max((q.index for q in known), default=-1) + 1, _utc())
+        rows = [{'participant_id': f'sub-{q.participant_id}', 'index': str(q.index), 'registered_utc': q.registered_utc}
+                for q in known + [p]]
+        _write(self.root / PARTICIPANTS, _tsv(list(PARTICIPANT_COLUMNS), rows))
+        return p
 
     def participant(self, participant_id: str) -> Participant:
         """A registered participant; StudyError naming participants.tsv for an unknown id."""
-        raise NotImplementedError
+        known = self.participants()
+        for p in known:
+            if p.participant_id == participant_id:
+                return p
+        names = ', '.join(p.participant_id for p in known[:10]) or 'none'
+        raise StudyError(f'{self.root / PARTICIPANTS}: unknown participant {excerpt(participant_id)} '
+                         f'(registered: {names}); register them first')
 
     def session(self, participant_id: str, session: int, design: StudyDesign) -> 'SessionStore':
         """The trials file of one participant, session and task (design.protocol), created or
         reopened; StudyError when `design` differs from the recorded parameters."""
-        raise NotImplementedError
+        p = self.participant(participant_id)
+        if not isinstance(session, int) or session < 1:
+            raise StudyError(f'session must be a whole number >= 1, got {excerpt(session)}')
+        return SessionStore(self, p, session, design)
 
 
 class SessionStore:
     """One participant's trials of one task in one session."""
 
-    trials_path: Path
-    sidecar_path: Path
-    lost: Lost | None            # what the reopen found unfinished (None: nothing)
+    def __init__(self, study: Study, participant: Participant, session: int, design: StudyDesign):
+        self.study, self.participant, self.session, self.design = study, participant, session, design
+        folder = study.root / f'sub-{participant.participant_id}' / f'ses-{session}'
+        self.folder = folder
+        self.prefix = f'sub-{participant.participant_id}_ses-{session}_task-{design.protocol}'
+        self.trials_path = folder / f'{self.prefix}_trials.tsv'
+        self.sidecar_path = folder / f'{self.prefix}_trials.json'
+        self.lost: Lost | None = None
+        self._rows: list[dict] = []
+        self._unwritten = False
+        if self.sidecar_path.exists():
+            self._reopen()
+        else:
+            folder.mkdir(parents=True, exist_ok=True)
+            self._sidecar = {
+                'TaskName': design.protocol, FORMAT_KEY: FORMAT_VERSION, 'Participant': participant.participant_id,
+                'ParticipantIndex': participant.index, 'Session': session, 'Parameters': design.as_dict(),
+                'Units': {'time': 's, steady clock (monotonic) unless the column says UTC', 'angle': 'deg'},
+                'Columns': _sidecar_columns(COLUMNS), 'BlocksStarted': [], 'BlocksDone': []}
+            self._write_rows()
+            self._write_sidecar()
+
+    def _reopen(self) -> None:
+        side = _read_json(self.sidecar_path)
+        if side.get(FORMAT_KEY) != FORMAT_VERSION:
+            raise StudyError(f'{self.sidecar_path}: study format version {excerpt(side.get(FORMAT_KEY))}, '
+                             f'this fabric_guidance reads version {FORMAT_VERSION}')
+        recorded = StudyDesign.from_dict(side.get('Parameters') or {}, str(self.sidecar_path))
+        if recorded != self.design:
+            mine, theirs = self.design.as_dict(), recorded.as_dict()
+            diff = [f'{k} {theirs[k]!r} recorded, {mine[k]!r} given' for k in mine if mine[k] != theirs[k]]
+            raise StudyError(f'{self.sidecar_path}: parameters differ from those recorded: {"; ".join(diff)}')
+        self._sidecar = side
+        if self.trials_path.exists():
+            header, rows = read_tsv(self.trials_path)
+            if header != list(COLUMNS):
+                raise StudyError(f'{self.trials_path}: columns differ from this version\'s '
+                                 f'(first difference: {next((a for a, b in zip(header, COLUMNS) if a != b), "count")})')
+            self._rows = rows
+        done = set(self.done_blocks())
+        cut = [r for r in self._rows if r['block'] not in done and r['status'] != 'interrupted']
+        started = [b['block'] for b in side.get('BlocksStarted', []) if b['block'] not in done]
+        if cut or started:
+            block = cut[0]['block'] if cut else started[-1]
+            for r in cut:
+                r['status'] = 'interrupted'
+            self.lost = Lost(block, len(cut))
+            side['BlocksStarted'] = [b for b in side['BlocksStarted'] if b['block'] in done or b.get('interrupted')]
+            side.setdefault('BlocksInterrupted', []).append({'block': block, 'trials': len(cut), 'found_utc': _utc()})
+            self._write_rows()
+            self._write_sidecar()
+
+    def _write_rows(self) -> None:
+        _write(self.trials_path, _tsv(list(COLUMNS), self._rows))
+        self._unwritten = False
+
+    def _write_sidecar(self) -> None:
+        _write(self.sidecar_path, json.dumps(self._sidecar, indent=2) + '\n')
 
     def rows(self) -> list[dict]:
-        """Every row recorded, in order (values as written: strings; '' for none)."""
-        raise NotImplementedError
+        """Every row recorded, in order (values as written: strings; 'n/a' for none)."""
+        return [dict(r) for r in self._rows]
 
     def done_blocks(self) -> list[str]:
         """Block keys finished, in order."""
-        raise NotImplementedError
+        return [b['block'] for b in self._sidecar.get('BlocksDone', [])]
 
     def remaining(self, blocks: Sequence[Block]) -> list[Block]:
         """The blocks of `blocks` not yet done, in order (the session to run after a restart)."""
-        raise NotImplementedError
+        done = set(self.done_blocks())
+        return [b for b in blocks if b.key not in done]
 
     def bag_path(self, block: Block) -> Path:
         """Where the block's bag goes (a directory that does not exist yet: a redone block gets
-        a new name, the interrupted one's bag stays)."""
-        raise NotImplementedError
+        a new name, the interrupted one's bag stays); the block is recorded as started."""
+        run = 1 + sum(1 for b in self._sidecar['BlocksStarted'] + self._sidecar.get('BlocksInterrupted', [])
+                      if b['block'] == block.key)
+        path = self.folder / f'{self.prefix}_block-{block.order}_run-{run}_bag'
+        while path.exists():
+            run += 1
+            path = self.folder / f'{self.prefix}_block-{block.order}_run-{run}_bag'
+        self._sidecar['BlocksStarted'].append({'block': block.key, 'condition': block.condition,
+                                               'bag': path.name, 'started_utc': _utc()})
+        self._write_sidecar()
+        return path
 
     def append(self, row: dict) -> None:
-        """Record one finished trial durably (the whole file replaced atomically, fsynced)."""
-        raise NotImplementedError
+        """Record one finished trial durably (the whole file replaced atomically, fsynced).
+        DiskFull: the row is kept here and written with the next append (or flush())."""
+        unknown = sorted(set(row) - set(COLUMNS))
+        if unknown:
+            raise ValueError(f'trial row: unknown column(s) {", ".join(unknown)}')
+        full = dict(row)
+        if full.get('scene') in (None, 'study'):
+            full['scene'] = self.study.root.name
+        full['recorded_utc'] = _utc()
+        self._rows.append({c: _cell(full.get(c)) for c in COLUMNS})
+        self._unwritten = True
+        self._write_rows()
+
+    def flush(self) -> None:
+        """Write rows a full disk held back."""
+        if self._unwritten:
+            self._write_rows()
 
     def amend(self, block: str, repetition: int, status: str) -> None:
         """Change the status of the last row of (block, repetition), e.g. to 'repeated'."""
-        raise NotImplementedError
+        for r in reversed(self._rows):
+            if r['block'] == block and r['repetition'] == str(repetition):
+                r['status'] = status
+                self._write_rows()
+                return
+        raise ValueError(f'amend: no row of block {block}, repetition {repetition}')
+
+    def record(self, step) -> None:
+        """Write what a session.Step produced: its rows, its amended statuses, its finished blocks."""
+        for row in step.rows:
+            self.append(row)
+        for block, repetition, status in step.amended:
+            self.amend(block, repetition, status)
+        for block in step.blocks:
+            self.finish_block(block)
 
     def finish_block(self, block: Block) -> None:
         """Mark the block done in the sidecar (durable)."""
-        raise NotImplementedError
+        self._sidecar['BlocksDone'].append({'block': block.key, 'condition': block.condition, 'order': block.order,
+                                            'finished_utc': _utc()})
+        self._write_sidecar()
+
+
+def trials_files(root: str | Path) -> list[Path]:
+    """Every trials file of the study, sorted."""
+    return sorted(Path(root).glob('sub-*/ses-*/sub-*_ses-*_task-*_trials.tsv'))
 
 
 def study_trials(root: str | Path, protocol: str | None = None) -> list[dict]:
     """Every 'ok' row of every participant's trials files under root (protocol: only that task)."""
-    raise NotImplementedError
+    root = Path(root)
+    check_version(root)
+    out = []
+    for path in trials_files(root):
+        _, rows = read_tsv(path)
+        out.extend(r for r in rows if r.get('status') == 'ok' and (protocol is None or r.get('protocol') == protocol))
+    return out
