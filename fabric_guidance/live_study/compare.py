@@ -22,7 +22,7 @@ import yaml
 from ..atomic import write_text
 from ..sim.protocols import run_protocol, summarize
 from ..sim.scene import scene_from_dict
-from .session_sim import load_rows, trials_path
+from ..study.store import study_trials
 
 MEASURES = {'speed': ('identified', 'presented'),
             'accuracy': ('tracked_h_error_deg', 'tracked_v_error_deg', 'time_s')}
@@ -30,6 +30,24 @@ MEASURES = {'speed': ('identified', 'presented'),
 
 def condition_means(records, measure: str) -> dict[int, float]:
     return {c: row[measure] for c, row in summarize(records).items() if measure in row}
+
+
+def _typed(row: dict) -> dict:
+    """A trials file's text cells as numbers where they are."""
+    out = {}
+    for k, v in row.items():
+        if v in ('', 'n/a'):
+            out[k] = None
+            continue
+        for kind in (int, float):
+            try:
+                out[k] = kind(v)
+                break
+            except ValueError:
+                continue
+        else:
+            out[k] = {'True': True, 'False': False}.get(v, v)
+    return out
 
 
 def _record(row: dict):
@@ -41,9 +59,9 @@ def _record(row: dict):
 def compare(study: Path, seeds: int = 5, workers: int = 2) -> str:
     data = yaml.safe_load((study / 'scene.yaml').read_text())
     protocol = data['protocol']['kind']
-    subjects = sorted({p.name for p in study.glob('sub-*')})
-    n = len(subjects)
-    live = [_record(r) for i in range(n) for r in load_rows(trials_path(study, i, protocol))]
+    rows = study_trials(study, protocol)
+    n = len({r['subject'] for r in rows})
+    live = [_record(_typed(r)) for r in rows]
     headless = {}
     for k in range(seeds):
         d = dict(data, seed=int(data['seed']) + k)

@@ -22,8 +22,6 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
-
 from .. import interface
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg, ray_direction, target_direction, wrap_deg
 from ..core.task import angular_error_deg
@@ -289,8 +287,3 @@ class Operator:
         self.executor.shutdown()
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.context)
-
-
-def max_or_zero(values) -> float:
-    arr = np.asarray(list(values), dtype=float)
-    return float(arr.max()) if arr.size else 0.0

@@ -5,8 +5,8 @@ Per participant (wearer i of the scene): Algorithm 1 headless with the scene's e
 paper calibrates before the trials, and as `demo --scene` does), then the seven processes of the
 simulated graph (process_graph.sim_lab) with wearer_sim as that wearer pressing confirm
 (press_confirm), the study's target in target_selector (found_by_dwell off) and, for speed, 50
-dummies on the display. The session runs the conditions in the participant's order, each
-block of `trials` trials, through an Operator; the condition orders and targets are the study
+dummies on the display. The study's Session (session_graph.py) runs the blocks on it; the
+condition orders and targets are the study
 plan's (study/plan.py: the headless experiment's streams on the same seed, or a Latin square),
 so the live and the headless study meet the same targets.
 
@@ -28,8 +28,7 @@ from ..process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..study import plan
 from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S
-from .live import AccuracyParams, Phase, SpeedParams, TrialTiming, accuracy_trial, speed_trial, wait_front
-from .operator import STUDY_TARGET, Operator, max_or_zero, target_position
+from .operator import STUDY_TARGET, Operator, target_position
 
 PAPER_DUMMIES = 50
 #: Graph start-up (seven processes, discovery) on a loaded machine [s].
@@ -38,12 +37,8 @@ STARTUP_S = 60.0
 
 @dataclass
 class Timing:
-    """The session's timing, for `bench` and the report."""
-    press_latency_s: list[float] = field(default_factory=list)
-    timer_error_s: list[float] = field(default_factory=list)
+    """The condition switches of a participant's graph."""
     switch_s: list[tuple[int, float, str]] = field(default_factory=list)   # (condition, seconds, how)
-    vented_commands: int = 0        # pressure_command above 0 kPa while the session was between trials
-    vented_checked: int = 0
 
 
 def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path, gaze_rate_hz: float) -> None:
@@ -64,7 +59,7 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
 
 
 class SimulatedParticipant:
-    """One participant's graph and operator; run_block() runs a condition's trials."""
+    """One participant's graph and its operator: start(), switch(condition), close()."""
 
     def __init__(self, scene, subject: int, first_condition: int, log_dir: Path, say: Callable[[str], None],
                  design: plan.StudyDesign | None = None):
@@ -95,7 +90,6 @@ class SimulatedParticipant:
         wait_until(lambda: self.op.latest_gaze_error(None) is not None and self.op.controller_condition,
                    STARTUP_S, what='gaze and the controller on the study graph')
         self.op.enable(False)     # vented until the first trial
-        self.vented_since = time.monotonic_ns()
 
     def switch(self, cond: int) -> None:
         """The condition for the next block, within the running graph (see the module docstring)."""
@@ -109,42 +103,8 @@ class SimulatedParticipant:
             wait_until(lambda: self.op.controller_condition == cond, STARTUP_S,
                        what=f'pressure_controller under condition {cond}')
             self.op.enable(False)
-            self.vented_since = time.monotonic_ns()
         self.condition = cond
         self.timing.switch_s.append((cond, time.monotonic() - t0, how))
-
-    def run_trial(self, repetition: int) -> dict:
-        """One trial of the current condition; its measures and live fields."""
-        op, proto = self.op, self.scene.protocol
-        op.set_parameters('wearer_sim', condition=self.condition, repetition=repetition)
-        op.display('prompt Look at the front')
-        wait_front(op, getattr(proto, 'acceptance_deg', 5.0), getattr(proto, 'dwell_s', 0.3), time.monotonic() + 15)
-        op.display('prompt')
-        timing = TrialTiming(vented=[Phase(self.vented_since)])
-        targets = plan.target_stream(self.design, self.subject, repetition)
-        if proto.kind == 'speed':
-            measures = speed_trial(op, targets,
-                                   SpeedParams(proto.trial_s, proto.acceptance_deg, proto.dwell_s), timing, self.say)
-            self.timing.timer_error_s.append(timing.timer_error_s)
-        else:
-            measures = accuracy_trial(op, next(targets), AccuracyParams(proto.timeout_s), timing, self.say)
-        self.timing.press_latency_s += timing.press_latency_s
-        self._check_vented(timing)
-        self.vented_since = timing.vented[-1].start_ns
-        return measures
-
-    def _check_vented(self, timing: TrialTiming) -> None:
-        """pressure_command above 0 kPa in the vented phase before the trial (a 50 ms grace for
-        a command already on its way when the vent was acknowledged)."""
-        phase = timing.vented[0]
-        if phase.end_ns > phase.start_ns + 50_000_000:
-            values = self.op.commands_between(phase.start_ns + 50_000_000, phase.end_ns)
-            self.timing.vented_checked += len(values)
-            self.timing.vented_commands += sum(1 for v in values if v > 0.0)
-
-    def done(self) -> None:
-        if self.op is not None:
-            self.op.display('done')
 
     def close(self) -> None:
         try:
@@ -175,4 +135,4 @@ def participant_order(design: plan.StudyDesign, subject: int) -> tuple[int, ...]
     return plan.condition_order(design, subject)
 
 
-__all__ = ['SimulatedParticipant', 'Timing', 'design_of', 'graph_overrides', 'participant_order', 'max_or_zero']
+__all__ = ['SimulatedParticipant', 'Timing', 'design_of', 'graph_overrides', 'participant_order']

@@ -6,8 +6,10 @@ runs the session on the simulated graph with a scene's wearers as participants (
 presses the key as the headless model does); --trials and --trial-s shorten it, --seed changes
 the scene's seed (the population, the targets, the condition orders). The scene used is written
 to DIR/scene.yaml, so that `fabric-guidance experiment --scene DIR/scene.yaml` runs the same study
-headless. Every finished trial is in the study folder at once (atomically); run the same command
+headless. The session is study.session's state machine driven on the graph (driver.py); every
+finished trial is in the study folder (study.store) at once, atomically; run the same command
 again on the same DIR after a crash and the session resumes at the first unfinished block.
+`fabric-guidance analyze DIR` analyses it.
 
 `fabric-guidance study --keyboard` makes the operator's terminal the confirm source of a running
 graph: space or Enter publishes `confirm` (frame_id 'keyboard', stamped when the key is read);
@@ -89,8 +91,9 @@ def run(args: argparse.Namespace) -> int:
                          'run --simulated')
         return 2
     out = args.out.expanduser().resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    from ..study.store import Study, StudyError
     try:
+        Study.open(out)     # a new folder, or a study folder to resume; refused otherwise
         scene = study_scene(args, out)
         if args.latin_square and len(scene.conditions) % 2:
             raise ValueError(f'--latin-square: a balanced Latin square needs an even number of conditions, '
@@ -98,11 +101,15 @@ def run(args: argparse.Namespace) -> int:
         if not 1 <= args.participants <= scene.population.subjects:
             raise ValueError(f'--participants: 1..{scene.population.subjects} (the scene\'s wearers), '
                              f'got {args.participants}')
-    except (ValueError, OSError) as exc:
+    except (StudyError, ValueError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 2
-    from .session_sim import run_study
-    return run_study(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
+    from .session_graph import run_study_session
+    try:
+        return run_study_session(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
+    except (StudyError, OSError) as exc:     # DiskFull is an OSError: what was recorded is intact
+        subcommand.error(PROG, exc)
+        return 1
 
 
 def keyboard_only(say) -> int:
