@@ -1,11 +1,15 @@
 """A scripted participant for the study tests: drives a study Session on a fake steady clock
 (gaze at 90 Hz), looks at the shown target after a reaction time, presses once on it, looks back
 at the front when the target returns there. Also runs as a script (the kill test's child):
-python study_participant.py STUDY_DIR PARTICIPANT_ID ... writes each finished trial as it goes.
+python study_participant.py STUDY_DIR PARTICIPANT_ID PROTOCOL TRIALS TRIAL_S writes each finished
+trial as it goes; with STUDY_HANG_AFTER=N it stops still after its N-th trial is written (for a
+test to kill it there).
 """
 from __future__ import annotations
 
+import os
 import sys
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -60,12 +64,20 @@ def main(argv):
         print(store.lost.line(), flush=True)
     blocks = store.remaining(participant_blocks(design, pid, p.index))
 
+    hang_after = int(os.environ.get('STUDY_HANG_AFTER', '0'))
+    written = []
+
     def on_step(step):
-        for b in step.blocks:
-            print(f'block {b.key} done', flush=True)
         store.record(step)
         for row in step.rows:
+            written.append(row)
             print(f'trial {row["block"]} {row["repetition"]} {row["status"]}', flush=True)
+            if len(written) == hang_after:
+                print('hanging', flush=True)
+                while True:             # until the test kills it
+                    time.sleep(1.0)
+        for b in step.blocks:
+            print(f'block {b.key} done', flush=True)
 
     session = Session(design, blocks, {'gaze_source': 'script', 'clock_state': '-'})
     if blocks:

@@ -245,3 +245,37 @@ def test_status_for_the_terminal():
     st = s.status(t + 12.5)
     assert st['participant'] == 'P1' and st['trial'] == '1/2' and st['block'] == '1/4'
     assert st['time_left_s'] == pytest.approx(27.5) and st['phase'] == 'target'
+
+
+def test_a_press_pending_at_the_trial_end_is_judged_not_dropped():
+    s = speed_session(trial_s=10.0)
+    t = into_trial(s)
+    h, v = s._trial['target']
+    s.gaze(t + 9.99, h, v)
+    assert s.press(t + 9.995, t + 9.999).pending
+    st = s.tick(t + 10.0)                        # the trial ends before a later sample came
+    assert st.presses and st.presses[0]['accepted'] and st.rows[0]['identified'] == 1
+    assert st.rows[0]['trial_end_s'] == t + 10.0
+
+
+def test_the_gaze_history_has_a_hard_cap():
+    s = accuracy_session()
+    into_trial(s)
+    for k in range(3 * 2000):
+        s.gaze(20.0 + k * 1e-6, 0.0, 0.0)        # stamps a microsecond apart: time alone would keep all
+    assert len(s._history) == 2000
+
+
+def test_the_context_goes_into_the_rows_and_can_change():
+    s = accuracy_session()
+    s.set_context(clock_state='synced', calibration_file='P1.yaml', calibration_sha256='ab' * 32)
+    with pytest.raises(ValueError, match='unknown key'):
+        s.set_context(colour='red')
+    t = into_trial(s)
+    first = s.skip(t + 1.0).rows[0]
+    s.set_context(clock_state='free')
+    s.tick(t + 3.0)
+    second = s.skip(t + 4.0).rows[0]
+    assert (first['clock_state'], second['clock_state']) == ('synced', 'free')
+    assert second['calibration_file'] == 'P1.yaml' and second['gaze_source'] == 'test'
+    assert Session(s.design, []).start(0.0).refused == 'nothing to run: every block of this session is done'

@@ -42,6 +42,8 @@ PRESS_KEYS = ('stamp', 'received', 'resolved', 'source', 'gaze_t', 'error_deg', 
               'accepted', 'reason')
 #: The columns a session fills (store adds the rest).
 ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLUMNS)
+#: The most gaze samples kept, whatever their stamps (2 s at 1 kHz).
+MAX_GAZE_SAMPLES = 2000
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
 
@@ -97,15 +99,13 @@ class Session:
         for b in self.blocks:
             if b.protocol != design.protocol:
                 raise ValueError(f'block {b.key}: protocol {b.protocol}, the design is {design.protocol}')
-        context = dict(context or {})
-        unknown = sorted(set(context) - set(CONTEXT_COLUMNS) - {'scene'})
-        if unknown:
-            raise ValueError(f'session context: unknown key(s) {", ".join(unknown)}')
-        self.context = context
+        self.context: dict = {}
+        self.set_context(**(context or {}))
         self._phase = 'idle' if self.blocks else 'done'
         self._bi = 0                       # block index
         self._ti = 0                       # trial index within the block
-        self._history: deque[GazeSample] = deque()
+        # bounded by time (gaze_history_s) and, whatever the stamps, by count
+        self._history: deque[GazeSample] = deque(maxlen=MAX_GAZE_SAMPLES)
         self._rest_end: float | None = None
         self._paused_from: str | None = None
         self._last_stamp: float | None = None
@@ -114,6 +114,14 @@ class Session:
         self._last_result = ''
         self._dummy_set = 0
         self._trial: dict | None = None
+
+    def set_context(self, **values) -> None:
+        """Change what the next rows carry (e.g. the clock state as it changes); ValueError for a
+        key that is not a context column."""
+        unknown = sorted(set(values) - set(CONTEXT_COLUMNS) - {'scene'})
+        if unknown:
+            raise ValueError(f'session context: unknown key(s) {", ".join(unknown)}')
+        self.context.update(values)
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -158,10 +166,12 @@ class Session:
     def start(self, t: float) -> Step:
         """Begin: set the first block's condition, vent, rest, then its first trial."""
         step = Step()
-        if self._phase != 'idle':
+        if not self.blocks:
+            step.refused = 'nothing to run: every block of this session is done'
+        elif self._phase != 'idle':
             step.refused = f'the session has already started (phase {self._phase})'
-            return step
-        self._enter_block(t, step)
+        if step.refused is None:
+            self._enter_block(t, step)
         return step
 
     def tick(self, t: float) -> Step:
@@ -324,6 +334,9 @@ class Session:
         if self._pending is not None and t >= self._pending.stamp + d.max_press_age_s:
             self._resolve(t, step)
         tr = self._trial
+        if tr is not None and t >= tr['end'] and self._pending is not None and self._pending.stamp <= tr['end']:
+            self._resolve(t, step)      # pressed in time: judged on the samples there are
+            tr = self._trial
         if tr is not None and t >= tr['end']:
             if d.protocol == 'speed':
                 self._finish_speed(t, step)

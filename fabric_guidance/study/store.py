@@ -165,8 +165,8 @@ class Study:
         if not (root / DESCRIPTION).exists():
             if root.exists() and (not root.is_dir() or any(root.iterdir())):
                 raise StudyError(f'{root}: not a study folder (no {DESCRIPTION}) and not empty')
-            from .. import __name__ as package
             from importlib import metadata
+            package = __package__.split('.')[0]
             try:
                 version = metadata.version(package)
             except metadata.PackageNotFoundError:
