@@ -186,6 +186,10 @@ class Operator:
 
     # ---- requests
     def _client(self, srv_type, name: str):
+        # A node-private name of the table (`~/enable`) is the owner's: its full name.
+        full_name = getattr(interface, 'full_name', None)
+        if full_name is not None and name.startswith('~/'):
+            name = full_name(name)
         client = self._clients.get(name)
         if client is None:
             client = self._clients[name] = self.node.create_client(srv_type, name)
