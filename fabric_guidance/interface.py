@@ -165,9 +165,9 @@ TOPICS: tuple[Topic, ...] = (
           'what the simulated headset newly shows the wearer, a line each: `next <target>`, '
           '`found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`, `phrase <text>`, '
           '`targets <n>, active <name>`', recorded=False),
-    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge (the headset), the study keyboard, wearer_sim',
+    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge, wearer_sim, the study session',
           'the study session', "the wearer's key press: stamp = capture time on the PC clock, frame_id = "
-          "the source ('headset', 'keyboard', 'wearer_sim')"),
+          "the source ('headset'; 'keyboard': the operator's key, sent by the study session; 'wearer_sim')"),
     Topic(STUDY_DISPLAY, 'std_msgs/msg/String', EVENT, 'the study session', 'headset_display',
           'what the session shows the wearer, a line each: `prompt <text>` (`prompt` alone clears it), '
           '`found <target>`, `done`'),
