@@ -104,3 +104,19 @@ def test_key_press_follows_the_headless_rules():
     wearer.acting = False
     presses = [key.stepped(10.0 + i * dt, wearer) for i in range(1, int(acc.timeout_s / dt) + 2)]
     assert presses.count(True) == 1 and True in presses[-2:]                # at the timeout
+
+
+def test_key_press_is_repeated_while_a_refused_target_is_still_there():
+    """A target still shown REPRESS_S after a press was refused by the session: the simulated
+    participant presses again by the same rule; after withdraw() never."""
+    from fabric_guidance.sim.scene import SpeedProtocol
+    from fabric_guidance.sim.scene_wearer import REPRESS_S, KeyPress
+    dt = 1 / 90
+    key = KeyPress(SpeedProtocol(), dt)
+    key.present(0.0, (10.0, 0.0))
+    times = [i * dt for i in range(int(3.0 / dt))]
+    presses = [t for t in times if key.sent(t, 10.5, 0.0)]
+    assert len(presses) == 3
+    assert all(b - a >= REPRESS_S for a, b in zip(presses, presses[1:]))
+    key.withdraw()
+    assert not any(key.sent(3.0 + i * dt, 10.5, 0.0) for i in range(300))

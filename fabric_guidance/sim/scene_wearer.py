@@ -169,6 +169,10 @@ class SceneSide:
         return sample
 
 
+#: A press the target outlives by this much was refused: press again [s].
+REPRESS_S = 1.0
+
+
 class KeyPress:
     """When the simulated participant presses the confirm key, by the headless model's rule
     (sim.protocols), one press per target:
@@ -179,7 +183,9 @@ class KeyPress:
         than settle_speed_dps for settle_s, or at timeout_s (accuracy_trial's rule).
 
     present() when a target appears; sent(t, yaw, pitch) with each gaze sample sent and
-    stepped(t, wearer) after each step; each returns True once: press now.
+    stepped(t, wearer) after each step; each returns True once: press now. A target still there
+    REPRESS_S after a press (the session refused it: a stale or gapped gaze at the press) is
+    pressed for again by the same rule, as a person presses again.
     """
 
     def __init__(self, protocol, dt: float):
@@ -187,6 +193,7 @@ class KeyPress:
         self.speed = protocol.kind == 'speed'
         self.target: tuple[float, float] | None = None
         self.pressed = True      # nothing to press for until a target appears
+        self._pressed_at: float | None = None    # while the target is still there
         self._since = None
         self._appeared = 0.0
         self._prev = None
@@ -194,15 +201,21 @@ class KeyPress:
     def present(self, t: float, target: tuple[float, float] | None) -> None:
         """A target appeared at t (target: its (yaw, pitch) once known)."""
         self.target, self.pressed, self._since, self._appeared, self._prev = target, False, None, t, None
+        self._pressed_at = None
 
     def withdraw(self) -> None:
-        self.pressed = True
+        self.pressed, self._pressed_at = True, None
 
-    def _press(self) -> bool:
-        self.pressed = True
+    def _press(self, t: float) -> bool:
+        self.pressed, self._pressed_at = True, t
         return True
 
+    def _rearm(self, t: float) -> None:
+        if self.pressed and self._pressed_at is not None and t - self._pressed_at >= REPRESS_S:
+            self.pressed, self._pressed_at, self._since = False, None, None
+
     def sent(self, t: float, yaw: float, pitch: float) -> bool:
+        self._rearm(t)
         if not self.speed or self.pressed or self.target is None:
             return False
         proto = self.protocol
@@ -210,16 +223,18 @@ class KeyPress:
             self._since = None
             return False
         self._since = t if self._since is None else self._since
-        return t - self._since >= proto.dwell_s and self._press()
+        return t - self._since >= proto.dwell_s and self._press(t)
 
     def stepped(self, t: float, wearer) -> bool:
+        if not self.speed:
+            self._rearm(t)
         if self.speed or self.pressed:
             return False
         proto = self.protocol
         gy, gp = wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch
         prev, self._prev = self._prev, (gy, gp)
-        if t - self._appeared >= proto.timeout_s - 1e-9:
-            return self._press()
+        if t - self._appeared >= proto.timeout_s - 1e-9 and self._pressed_at is None:
+            return self._press(t)
         if prev is None:
             return False
         moved = math.hypot((gy - prev[0]) * math.cos(math.radians(gp)), gp - prev[1])
@@ -227,4 +242,4 @@ class KeyPress:
             self._since = None
             return False
         self._since = t if self._since is None else self._since
-        return t - self._since >= proto.settle_s - 1e-9 and self._press()
+        return t - self._since >= proto.settle_s - 1e-9 and self._press(t)
