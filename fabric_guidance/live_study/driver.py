@@ -66,7 +66,7 @@ class SessionDriver:
             if deadline is not None and now >= deadline:
                 phase = self.session.phase
                 self.handle(self.session.tick(now))
-                if phase == 'target' and self.session.phase != 'target':
+                if phase in ('target', 'front') and self.session.phase not in ('target', 'front'):
                     self.timing.timer_error_s.append(now - deadline)
             else:
                 time.sleep(POLL_S)
