@@ -5,6 +5,7 @@
   recover   a complete bag (summary, metadata.yaml) from the intact part of a cut-off recording
   calibration-report  a calibration file's fit per direction, as text and a PNG
   analyze   the paper's statistics (Friedman, Dunn-Bonferroni) on a subjects x conditions table
+  study     the paper's study session through the graph, trial rows in a study folder
   experiment  one of the paper's experiments on simulated wearers, with statistics, plots, report
   tradeoff  what accuracy costs in time: every knob swept, table, plots and a reading
   fit-wearer  fit the simulated population to the paper's whole speed table across seeds
@@ -41,6 +42,8 @@ SUBCOMMANDS = {
                            "write the fit report (text and PNG) of a wearer's calibration file"),
     'analyze': ('fabric_guidance.experiments.analyze', 'Friedman test + Dunn-Bonferroni post-hoc '
                 "on a subjects x conditions CSV (as the paper's table)"),
+    'study': ('fabric_guidance.live_study.study_command', "run the paper's study session through the graph "
+              "(--simulated: a scene's wearers as participants)"),
     'experiment': ('fabric_guidance.experiments.experiment',
                    "run one of the paper's experiments on simulated wearers"),
     'fit-wearer': ('fabric_guidance.experiments.fit_wearer',
@@ -77,7 +80,8 @@ def _command(argv: list[str]) -> str | None:
 
 
 #: How to install a Python module a command needs, where rosdep does not (package.xml).
-NOT_IN_ROSDEP = {'scikit_posthocs': 'pip install scikit-posthocs (it has no rosdep key)'}
+NOT_IN_ROSDEP = {'scikit_posthocs': 'pip install scikit-posthocs (it has no rosdep key)',
+                 'distributed': 'pip install distributed (it has no rosdep key)'}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,6 +37,7 @@ CONTROLLER_PARAMETERS = 'controller_parameters'
 CLOCK = '/clock'
 MAX_WRITTEN = '~/max_written_kpa'
 HEADSET_VIEW = 'headset_view'
+STUDY_DISPLAY = 'study_display'
 
 # Services: private to the node that answers them (the table's `node`).
 START_CALIBRATION = '~/start_calibration'
@@ -157,21 +158,24 @@ TOPICS: tuple[Topic, ...] = (
           'wearer_sim', "regulators' measured kPa, same order and label"),
     Topic(SPEECH, 'std_msgs/msg/String', EVENT, 'pressure_controller',
           'wearer_sim (with a scene, condition 4), headset_display', "condition 4's phrase, once per target"),
-    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', 'people (`ros2 topic echo`)',
-          '`rest before <direction> step 0/<n> 0 kPa <percent>%` (vented, face front) and '
+    Topic(CALIBRATION_STATUS, 'std_msgs/msg/String', EVENT, 'pressure_controller', '',
+          'for people (`ros2 topic echo`): `rest before <direction> step 0/<n> 0 kPa <percent>%` '
+          '(vented, face front) and '
           '`apply <direction> step <i>/<n> <P> kPa <percent>%` while running; '
           '`done: <file>; fit report <txt>, <png>` or '
           '`failed: <reason>; the previous calibration is kept (<its wearer>)` or, with none, '
           '`failed: <reason>; no previous calibration of <wearer>: no guidance until one succeeds`'),
-    Topic(CALIBRATION_STATE, 'std_msgs/msg/String', LATCHED, 'pressure_controller', 'headset_display, the study',
+    Topic(CALIBRATION_STATE, 'std_msgs/msg/String', LATCHED, 'pressure_controller',
+          'headset_display, the study session',
           "the live calibration's progress and outcome as fields: phase (`idle`, `rest`, `apply`, `done`, "
           '`failed`, `refused`), direction, step of steps, pressure [kPa], progress 0..1, file, report, error, '
           'previous_kept ([calibration state](#calibration-state)); the sentence on `calibration_status` is '
           'for people', type_note='(one JSON object)'),
-    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge', '',
+    Topic(CONFIRM, 'std_msgs/msg/Header', EVENT, 'gaze_bridge, wearer_sim, the study session', 'the study session',
           "the wearer's confirm press (\"I am there\"): stamp = when it was pressed (the headset's capture "
           'time on the PC clock, as `gaze`; the receive time before the clock is estimated), frame_id = '
-          "its source (`headset`: the clicker or an air tap, [headset_wire_format.md](headset_wire_format.md))"),
+          "its source (`headset`: the clicker or an air tap, [headset_wire_format.md](headset_wire_format.md); "
+          "`keyboard`: the operator's key, sent by the study session; `wearer_sim`)"),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', DEFAULT,
           'gaze_bridge, target_selector, pressure_controller, plc_output, mock_plc, '
           'bag_recorder, headset_display', '',
@@ -192,6 +196,9 @@ TOPICS: tuple[Topic, ...] = (
           'what the simulated headset newly shows the wearer, a line each: `next <target>`, '
           '`found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`, `phrase <text>`, '
           '`targets <n>, active <name>`', recorded=False),
+    Topic(STUDY_DISPLAY, 'std_msgs/msg/String', EVENT, 'the study session', 'headset_display',
+          'what the session shows the wearer, a line each: `prompt <text>` (`prompt` alone clears it), '
+          '`found <target>`, `done`'),
     Topic(MAX_WRITTEN, 'std_msgs/msg/Float64MultiArray', COMMAND, 'mock_plc', 'tests',
           "largest value ever written per channel [kPa], in the register map's order, labelled "
           'as `pressure_command`', recorded=False),

@@ -54,7 +54,7 @@ NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 
 LIFECYCLE_NODES: tuple[str, ...] = interface.MANAGED_NODES
 #: Words of the table's publisher and subscriber columns that name no node of the package: other
 #: software (which needs an enclave of its own where security is enforced) or people.
-NOT_NODES = ('RViz', 'micromanipulator stack', 'the demo', 'tests', '`fabric-guidance replay`')
+NOT_NODES = ('RViz', 'micromanipulator stack', 'the demo', 'tests', '`fabric-guidance replay`', 'the study session')
 #: The table's words for "every node of the package" (/clock's subscribers).
 EVERY_NODE = 'nodes with `use_sim_time`'
 

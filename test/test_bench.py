@@ -46,7 +46,7 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     out = tmp_path / 'results.json'
     run = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'bench', '--quick', '--repeat', '2',
                           '--out', str(out), '--work', str(tmp_path / 'work')],
-                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+                         capture_output=True, text=True, timeout=480, cwd=ROOT)
     assert run.returncode == 0, run.stdout + run.stderr
     r = json.loads(out.read_text())
 
@@ -88,6 +88,13 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     assert all(finite(v) and 10 < v < 4000 for v in r['rss_mb'].values())
     assert finite(r['headless_speedup']) and r['headless_speedup'] > 1
     assert finite(r['replay_speedup']) and r['replay_speedup'] > 0
+    # The study session: presses judged, the timer read, a switch timed, nothing guided between trials.
+    st = r['study_timing']
+    assert 'skipped' not in st, st
+    assert st['press_to_error_ms']['n'] > 0 and 0 < st['press_to_error_ms']['p50'] <= st['press_to_error_ms']['p99']
+    assert st['keyboard_to_error_ms']['n'] > 0 and len(st['timer_error_ms']) == 2
+    assert len(st['condition_switch']) == 1
+    assert st['commands_between_trials']['checked'] > 0 and st['commands_between_trials']['above_0_kpa'] == 0
     # The recorded event-driven session replays offline bit for bit.
     assert r['replay']['exact'] and r['replay']['compared'] > 0
     assert r['machine']['cores'] >= 1 and r['machine']['python'] and r['machine']['rclpy']

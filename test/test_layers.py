@@ -13,7 +13,8 @@ From the bottom up (docs/architecture.md):
     5  study                              a live study with people: plan, session, study folder
     6  nodes                              the ROS nodes: thin wiring over the layers below
     7  process_graph, launch_support      starting the nodes as processes, launch files' helpers
-    8  bench, demo, replay, recover       what a person runs: measurements, the demo, replay, recover
+    8  bench, demo, replay, recover,      what a person runs: measurements, the demo, replay, recover,
+       live_study                         the study session through the graph (an operator's client)
     9  cli, demo_command, example_command the entry point and its argument wiring (cli imports
                                           a subcommand's module by name, when it is chosen)
 
@@ -36,7 +37,7 @@ LAYERS = {
     'study': 5,
     'nodes': 6,
     'process_graph': 7, 'launch_support': 7,
-    'bench': 8, 'demo': 8, 'replay': 8, 'recover': 8,
+    'bench': 8, 'demo': 8, 'replay': 8, 'recover': 8, 'live_study': 8,
     'cli': 9, 'demo_command': 9, 'example_command': 9,
 }
 

@@ -393,3 +393,32 @@ def test_without_autostart_waits_for_next_target_and_the_speed_protocol_returns_
         s.wait_active(second, POSITIONS[second])
     finally:
         s.close()
+
+
+def test_a_study_session_places_its_target_and_the_dwell_alone_finds_nothing(tmp_path):
+    """target_positions set at run time with active_target in one call (the study session's
+    target at an angle); with found_by_dwell false the gaze on it finds nothing (the session
+    judges the key press); a wrong number of values is refused, naming the parameter."""
+    from rcl_interfaces.srv import SetParametersAtomically
+    s = Selector(tmp_path, target_names=['study'], target_positions=[2.0, 0.0, 1.2],
+                 found_by_dwell=False).start()
+    try:
+        def set_atomically(**values):
+            request = SetParametersAtomically.Request(
+                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+            return s.probe.call(SetParametersAtomically, '/target_selector/set_parameters_atomically', request,
+                                REPLY_DEADLINE_S).result
+        placed = (1.5, 1.0, 1.6)
+        assert set_atomically(target_positions=list(placed), active_target='study').successful
+        s.wait_active('study', placed)
+        start = time.monotonic()
+        s.look(towards(placed), lambda: time.monotonic() - start > 5 * DWELL_S, 5 * DWELL_S + 1.0)
+        assert len(s.found) == 0
+        bad = set_atomically(target_positions=[1.0, 2.0])
+        assert not bad.successful and 'target_positions' in bad.reason
+        assert s.target() == placed
+        assert set_atomically(found_by_dwell=True).successful
+        s.look(towards(placed), lambda: len(s.found) > 0, FOUND_DEADLINE_S)
+        assert [m.data for m in s.found] == ['study']
+    finally:
+        s.close()

@@ -74,3 +74,49 @@ def test_in_condition_4_the_cue_effects_are_unused_in_the_report_and_on_the_side
     where = effects_where(scene, condition(4), 0.15)
     assert set(cue) <= set(where['unused in condition 4'])
     assert set(cue) <= set(effects_where(scene, condition(1), 0.15)['wearer_sim'])
+
+
+def test_key_press_follows_the_headless_rules():
+    """KeyPress: speed presses once the sent gaze has stayed within acceptance_deg for dwell_s,
+    once per target; accuracy once the wearer has acted and held still for settle_s, or at
+    timeout_s."""
+    from types import SimpleNamespace
+
+    from fabric_guidance.sim.scene import AccuracyProtocol, SpeedProtocol
+    from fabric_guidance.sim.scene_wearer import KeyPress
+    dt = 1 / 60
+    key = KeyPress(SpeedProtocol(), dt)
+    key.present(0.0, (20.0, 10.0))
+    off = [key.sent(i * dt, 20.0 + 5.5, 10.0) for i in range(60)]          # 5.5 deg away: never
+    assert not any(off)
+    on = [key.sent(1.0 + i * dt, 21.0, 10.5) for i in range(60)]
+    first = on.index(True)
+    assert abs(first * dt - 0.3) < 1.5 * dt and on.count(True) == 1      # after the dwell, once
+    acc = AccuracyProtocol()
+    key = KeyPress(acc, dt)
+    key.present(0.0, (30.0, 0.0))
+    wearer = SimpleNamespace(torso_yaw=0.0, head_yaw=0.0, torso_pitch=0.0, head_pitch=0.0, acting=False)
+    assert not any(key.stepped(i * dt, wearer) for i in range(1, 120))     # still, but not acted yet
+    wearer.acting = True
+    presses = [key.stepped(2.0 + i * dt, wearer) for i in range(120)]
+    assert presses.count(True) == 1 and abs(presses.index(True) * dt - acc.settle_s) < 2 * dt
+    key.present(10.0, (30.0, 0.0))
+    wearer.acting = False
+    presses = [key.stepped(10.0 + i * dt, wearer) for i in range(1, int(acc.timeout_s / dt) + 2)]
+    assert presses.count(True) == 1 and True in presses[-2:]                # at the timeout
+
+
+def test_key_press_is_repeated_while_a_refused_target_is_still_there():
+    """A target still shown REPRESS_S after a press was refused by the session: the simulated
+    participant presses again by the same rule; after withdraw() never."""
+    from fabric_guidance.sim.scene import SpeedProtocol
+    from fabric_guidance.sim.scene_wearer import REPRESS_S, KeyPress
+    dt = 1 / 90
+    key = KeyPress(SpeedProtocol(), dt)
+    key.present(0.0, (10.0, 0.0))
+    times = [i * dt for i in range(int(3.0 / dt))]
+    presses = [t for t in times if key.sent(t, 10.5, 0.0)]
+    assert len(presses) == 3
+    assert all(b - a >= REPRESS_S for a, b in zip(presses, presses[1:]))
+    key.withdraw()
+    assert not any(key.sent(3.0 + i * dt, 10.5, 0.0) for i in range(300))

@@ -46,12 +46,15 @@ class Plan:
     blocks: int = 4
     csharp_90: int = 1000
     repeats: int = 1
+    study_trial_s: float = 40.0
+    study_keys: int = 50
 
 
 FULL = Plan()
 QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
              fits=30, allocations=300, log_calls=1000, diagnostics=200,
-             modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60)
+             modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60,
+             study_trial_s=8.0, study_keys=10)
 
 #: Goals, read off the figures (never asserted): the package's p99 within RATIO_GOAL of its
 #: transports' floor at both rates, 1 kHz p99 within P99_1000_GOAL_MS, and the nodes that run
@@ -178,6 +181,10 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     from .memory import node_rss
     results['node_rss_mb'] = node_rss(work, say)
     say('  idle: ' + ', '.join(f'{k} {_fmt(v, 0)} MB' for k, v in results['node_rss_mb'].items()))
+    say(f'the study session on the simulated graph: a {plan.study_trial_s:g} s trial, key presses, a condition '
+        'switch ...')
+    from . import study_timing
+    results['study_timing'] = study_timing.measure(work / 'study', plan.study_trial_s, plan.study_keys, say)
     results['ratio_p99'] = _ratio(results['e2e_latency_ms']['90'], results['floor_latency_ms'])
     results['ratio_p99_1000'] = _ratio(results['e2e_latency_ms']['1000'], results.get('floor_latency_1000_ms', {}))
     results['wall_s'] = time.monotonic() - t_all
@@ -301,6 +308,8 @@ def markdown(r: dict) -> str:
         ('offline replay [x real time]', _fmt(r['replay_speedup'], 0) if r['replay_speedup'] is not None
          else f"n/a ({r.get('replay_reason', '')})", '', ''),
     ]
+    from .study_timing import rows as study_rows
+    rows += study_rows(r.get('study_timing', {}), _fmt, ok)
     rows += [(f'resident memory after the runs, {k} [MB]', _fmt(v, 0), '', '') for k, v in r['rss_mb'].items()]
     from .memory import BARE, FITS
     for k, v in r.get('node_rss_mb', {}).items():

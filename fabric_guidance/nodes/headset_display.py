@@ -12,14 +12,17 @@ UDP to headset_address:display_port, and nowhere else:
   +-dummy_elevation_deg around the front, at the active target's distance;
 - prompt: Algorithm 1's steps from calibration_state's fields (core.calibration_state.prompt:
   "Face front and rest", "Hold still: <direction>, step i of n"), cleared when it ends;
-- phrase: condition 4's phrase from speech.
+- phrase: condition 4's phrase from speech;
+- from a study session (study_display): `prompt <text>` what to do now ("Look at the front",
+  "Rest: the next trial starts soon"; `prompt` alone clears it; a calibration prompt replaces
+  it), `found <target>` the accepted key press, `done` the end of a block (event `done`).
 
 targets, dummies, prompt and phrase are sent on change and again at refresh_hz, whole, so a
 lost datagram or a restarted app is repaired within one refresh. /diagnostics counts what was
 sent by kind and the send errors.
 
 Subscribed: target_markers (visualization_msgs/MarkerArray), active_target, target_found,
-            calibration_state, speech (std_msgs/String)
+            calibration_state, speech, study_display (std_msgs/String)
 Published:  /diagnostics; UDP datagrams to headset_address:display_port
 """
 from __future__ import annotations
@@ -38,8 +41,8 @@ from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from fabric_guidance.core import calibration_state, display_wire
-from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATE, DIAGNOSTICS, SPEECH, TARGET_FOUND,
-                                       TARGET_MARKERS)
+from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATE, DIAGNOSTICS, SPEECH, STUDY_DISPLAY,
+                                       TARGET_FOUND, TARGET_MARKERS)
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.parameters import declare
 from fabric_guidance.nodes.qos import EVENT_QOS, LATCHED_QOS
@@ -102,6 +105,7 @@ class HeadsetDisplay(Node):
         self.create_subscription(String, TARGET_FOUND, self.on_found, EVENT_QOS)
         self.create_subscription(String, CALIBRATION_STATE, self.on_calibration, LATCHED_QOS)
         self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
+        self.create_subscription(String, STUDY_DISPLAY, self.on_study, EVENT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_timer(1.0 / refresh_hz, self.send_state)
         self.create_timer(EVENT_REPEAT_S, self._send_repeats)
@@ -223,6 +227,19 @@ class HeadsetDisplay(Node):
         if prompt != self.prompt:
             self.prompt = prompt
             self._send('prompt', text=prompt[0], step=prompt[1], steps=prompt[2])
+
+    def on_study(self, msg: String) -> None:
+        """A study session's line: `prompt [text]`, `found <target>` or `done`."""
+        word, _, rest = msg.data.partition(' ')
+        if word == 'prompt' and len(rest) <= display_wire.MAX_TEXT_CHARS:
+            self.prompt = (rest, 0, 0)
+            self._send('prompt', text=rest, step=0, steps=0)
+        elif word in ('found', 'done') and len(rest) <= display_wire.MAX_ID_CHARS:
+            self.event(word, rest)
+        else:
+            self.get_logger().warn(f'study_display: {msg.data[:60]!r} ignored: not `prompt [text]` (text up to '
+                                   f'{display_wire.MAX_TEXT_CHARS} characters), `found <target>` or `done`',
+                                   throttle_duration_sec=5.0)
 
     def on_speech(self, msg: String) -> None:
         self.phrase = msg.data

@@ -11,7 +11,9 @@ reset_sequence (std_srvs/Trigger) and, with auto_advance, when the wearer finds 
 stays within acceptance_deg of the target for dwell_s (core.task.AcceptanceTracker). After the
 last target of the sequence no target is active (''). With autostart false no target is active
 at start-up; with return_to_front the next target waits until the gaze is back at the front.
-The parameter always shows the active target.
+The parameter always shows the active target. A study session places its target by setting
+target_positions at run time (same count) with active_target, and turns found_by_dwell off: the
+wearer's key press, judged by the session, finds it then.
 
 Published: target (geometry_msgs/PointStamped, latched; on every activation target, then
 active_target, then target again, so that whoever sees the new name gets a position after
@@ -72,8 +74,9 @@ class TargetSelector(Node):
                                 read_only=True)
         names = declare(self, 'target_names', DEFAULT_NAMES, 'names of the fixed targets', read_only=True)
         positions = declare(self, 'target_positions', DEFAULT_POSITIONS,
-                            'x, y, z of each fixed target in the immersive frame, in target_names order', 'm',
-                            read_only=True)
+                            'x, y, z of each fixed target in the immersive frame, in target_names order; '
+                            'settable at run time with the same number of values (a study session places '
+                            'its target)', 'm')
         sequence = declare(self, 'sequence', [''], 'task order by name; empty: target_names in order',
                            read_only=True)
         live = declare(self, 'live_targets', [''], 'names of live targets, each on live_targets/<name>',
@@ -98,6 +101,9 @@ class TargetSelector(Node):
         autostart = declare(self, 'autostart', True, 'activate the first target of the sequence at start-up; '
                             'false: no target until next_target (or active_target) starts the task',
                             read_only=True)
+        self.found_by_dwell = declare(self, 'found_by_dwell', True,
+                                      "a target is found when the gaze dwells on it; false: never here "
+                                      "(a study session judges the wearer's key press instead)")
         self.return_to_front = declare(self, 'return_to_front', False,
                                        "the paper's speed protocol: after a target is found no target is "
                                        'active until the gaze is back at the front (+x), then the next one')
@@ -258,7 +264,7 @@ class TargetSelector(Node):
                     self.activate_index(index)
                 return
             target = self.positions.get(self.active) if self.active else None
-            if target is None or self.found_current:
+            if target is None or self.found_current or not self.found_by_dwell:
                 return
             p, o = msg.pose.position, msg.pose.orientation
             origin = (p.x, p.y, p.z)
@@ -344,6 +350,13 @@ class TargetSelector(Node):
                 if param.value != '' and param.value not in self.positions:
                     return SetParametersResult(successful=False, reason=(
                         f'unknown target {param.value!r}; known: {list(self.positions)} or \'\' for none'))
+            elif param.name == 'target_positions':
+                values = list(param.value or [])
+                fixed = [n for n in self.positions if n not in self.live_names]
+                if len(values) != 3 * len(fixed) or not all(math.isfinite(v) for v in values):
+                    return SetParametersResult(successful=False, reason=(
+                        f'target_positions: needs {3 * len(fixed)} finite values (x, y, z of {fixed}), '
+                        f'got {values}'))
             elif param.name == 'acceptance_deg':
                 acceptance_deg = param.value
             elif param.name == 'dwell_s':
@@ -355,8 +368,15 @@ class TargetSelector(Node):
         return SetParametersResult(successful=True)
 
     def apply_parameters(self, params) -> None:
+        # New positions first: a session sets them and the target to activate in one call.
+        params = sorted(params, key=lambda p: p.name != 'target_positions')
         for param in params:
-            if param.name == 'active_target' and not self._setting_parameter:
+            if param.name == 'target_positions':
+                self.move_fixed(list(param.value))
+            elif param.name == 'found_by_dwell':
+                self.found_by_dwell = param.value
+                self.tracker.reset()
+            elif param.name == 'active_target' and not self._setting_parameter:
                 self.activate(param.value)
             elif param.name in ('acceptance_deg', 'dwell_s'):
                 self.tracker = AcceptanceTracker(self.get_parameter('acceptance_deg').value,
@@ -365,6 +385,16 @@ class TargetSelector(Node):
                                                        self.get_parameter('dwell_s').value)
             elif param.name == 'auto_advance':
                 self.auto_advance = param.value
+
+    def move_fixed(self, values: list[float]) -> None:
+        """The fixed targets at new positions (validated); the active one is announced again."""
+        fixed = [n for n in self.positions if n not in self.live_names]
+        for i, name in enumerate(fixed):
+            self.positions[name] = tuple(values[3 * i:3 * i + 3])
+        self.publish_markers()
+        if self.active in fixed:
+            self.tracker.reset()
+            self.publish_target()
 
     # --- helpers --------------------------------------------------------------------------
 

@@ -22,9 +22,15 @@ publishes on headset_view one line for each thing the wearer newly sees (core.di
 DisplayView): `next <target>`, `found <target>`, `dummies <n>`, `prompt <text> (<i>/<n>)`,
 `phrase <text>`, `targets <n>, active <name>`.
 
+With a scene and press_confirm it is also a study participant: it presses the confirm key
+(sim.scene_wearer.KeyPress: the headless protocols' rule) and publishes the press on `confirm`
+(frame_id 'wearer_sim', stamped now on the node's clock). A study session switches its
+condition and repetition at run time (parameters `condition`, `repetition`): the scene's wearer
+side starts afresh with that trial's random streams, as the headless engine's trial does.
+
 Subscribes  measured_pressure (Float64MultiArray, kPa), active_target (String); with a scene
             also target (PointStamped: visual capture) and speech (String, condition 4)
-Publishes   headset_view (String)
+Publishes   headset_view (String), confirm (std_msgs/Header; with press_confirm)
 Sends       UDP gaze datagrams and clock echoes to bridge_host:bridge_port
 """
 from __future__ import annotations
@@ -37,7 +43,8 @@ import time
 import numpy as np
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray, String
+from rcl_interfaces.msg import SetParametersResult
+from std_msgs.msg import Float64MultiArray, Header, String
 
 from ..core import ChannelMap, PowerLaw, condition as condition_of, ray_orientation
 from ..core import display_wire
@@ -45,9 +52,9 @@ from ..core.clock_sync import MAX_DATAGRAM_BYTES, answer_ping
 from ..core.gaze_wire import WireFormatError, encode_datagram, ros_to_unity_point, ros_to_unity_quaternion
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
-from ..sim.scene_wearer import REALISED_ELSEWHERE, SceneSide, load_scene_file
+from ..sim.scene_wearer import REALISED_ELSEWHERE, KeyPress, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
-from ..interface import ACTIVE_TARGET, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
+from ..interface import ACTIVE_TARGET, CONFIRM, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
 from .parameters import declare, declare_config_file
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
 from .spin import run
@@ -84,6 +91,10 @@ class WearerSim(Node):
         condition = declare(self, 'condition', 0, "with scene_file: the paper's condition 1-4 (its layout wins "
                             'over layout; 4: the wearer hears speech and ignores the suit); 0 = from layout '
                             '(suit: 1, arm: 3)', low=0, high=4)
+        repetition = declare(self, 'repetition', 0, "with scene_file: the trial's repetition (its random "
+                             'streams, as the headless trial)', low=0, high=9999)
+        self.press_confirm = declare(self, 'press_confirm', False, 'with scene_file: press the confirm key as '
+                                     "the headless protocol's wearer does (a study participant)")
         display_bind = declare(self, 'display_bind_address', '127.0.0.1',
                                "where the simulated headset's display listens", read_only=True)
         display_port = declare(self, 'display_port', 0, "the simulated headset's display port (display "
@@ -103,7 +114,9 @@ class WearerSim(Node):
                 self.get_logger().info(f'condition {cond.number} feels the {cond.layout} layout (parameter layout '
                                        f'{self.layout!r} ignored)')
                 self.layout = cond.layout
-            self.scene_side = SceneSide(scene, wearer_index, cond.number, self.dt, self.layout)
+            self.scene, self.wearer_index = scene, wearer_index
+            self.scene_side = SceneSide(scene, wearer_index, cond.number, self.dt, self.layout, repetition)
+            self.key = KeyPress(scene.protocol, self.dt)
             elsewhere = [f'{n} in {REALISED_ELSEWHERE[n]}' for n in scene.effect_names if n in REALISED_ELSEWHERE]
             self.get_logger().info(
                 f'scene {scene.name} ({scene.source}): wearer {self.scene_side.spec.name} (index {wearer_index}), '
@@ -124,6 +137,8 @@ class WearerSim(Node):
         if self.address[0] in ('localhost', '127.0.0.1') or self.address[0].startswith('127.'):
             # Sending alone would bind the socket to 0.0.0.0: reachable from the network.
             self.sock.bind(('127.0.0.1', 0))
+        self.confirm_pub = self.create_publisher(Header, CONFIRM, EVENT_QOS)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
         self.view = display_wire.DisplayView()
         self.view_pub = self.create_publisher(String, HEADSET_VIEW, EVENT_QOS)
         self._display_sock = None
@@ -149,6 +164,34 @@ class WearerSim(Node):
         else:
             self.create_timer(self.dt, self.step)
 
+    def on_set_parameters(self, params) -> SetParametersResult:
+        """condition / repetition at run time (a study session): the scene's wearer side anew."""
+        changed = {p.name: p.value for p in params if p.name in ('condition', 'repetition')}
+        if not changed or self.scene_side is None:
+            return SetParametersResult(successful=True)
+        old = self.scene_side
+        number = changed.get('condition', old.cond.number)
+        repetition = changed.get('repetition', old.run_key[2])
+        try:
+            cond = condition_of(number or 1)
+            side = SceneSide(self.scene, self.wearer_index, cond.number, self.dt, cond.layout or 'suit',
+                             repetition)
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        side.seq = old.seq    # gaze_bridge drops a sequence number that goes back
+        self.layout = side.layout
+        self.scene_side = side
+        self.start = time.monotonic()
+        if self.active:
+            side.present()
+        if side.cond.speech and not old.cond.speech:
+            self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
+        self.get_logger().info(f'condition {cond.number}, repetition {repetition}: the wearer side starts afresh')
+        return SetParametersResult(successful=True)
+
+    def press(self) -> None:
+        self.confirm_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id='wearer_sim'))
+
     def on_pressure(self, msg: Float64MultiArray) -> None:
         if len(msg.data) != len(self.channel_map.channels):
             return
@@ -164,8 +207,11 @@ class WearerSim(Node):
         if side is not None:
             if self.active:
                 side.present()
-            elif self.return_to_front:
-                side.withdraw()
+                self.key.present(side.t, None)
+            else:
+                self.key.withdraw()
+                if self.return_to_front:
+                    side.withdraw()
 
     def on_target(self, msg: PointStamped) -> None:
         if not self.active:
@@ -177,6 +223,7 @@ class WearerSim(Node):
         except GeometryError:
             return
         self.target = (yaw if yaw is not None else 0.0, pitch)   # straight up or down: any yaw
+        self.key.target = self.target
 
     def on_speech(self, msg: String) -> None:
         # Not gated on active_target: the phrase may overtake it (another publisher); the
@@ -209,12 +256,18 @@ class WearerSim(Node):
         felt = self.felt(now)
         for _ in range(due):
             sample = side.step(felt, follow, self.target if self.active else None)
+            pressed = self.press_confirm and self.key.stepped(side.t, side.wearer)
             if sample is None:
+                if pressed:
+                    self.press()
                 continue     # lost (datagram_loss) or still on its way (datagram_latency)
             seq, t_emitted, yaw, pitch = sample
             # The tracker's gaze (with its noise) on the wire; the head pose is the true posture.
             self.send(seq % 2 ** 32, self.start + t_emitted, gaze_from_angles(yaw, pitch),
                       gaze_from_angles(*side.sent_true_gaze))
+            # The press after the sample that decided it: the session reads the gaze at the press.
+            if pressed or (self.press_confirm and self.key.sent(side.t, yaw, pitch)):
+                self.press()
 
     def send(self, seq: int, stamp: float, gaze, head_direction) -> None:
         head = ros_to_unity_quaternion(ray_orientation(head_direction))

@@ -22,6 +22,7 @@ regulator_lag is not applied here: the mock PLC's regulator_tau_s is the regulat
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ..core import condition as condition_of
@@ -30,7 +31,7 @@ from .effects import RunContext, start_effects
 from .engine import trial_run
 from .population import sample_wearer
 from .scene import load_scene
-from .wearer import SceneWearer, Senses, haversine
+from .wearer import SceneWearer, Senses, hav_limit, haversine
 
 #: Effects the node does not apply because another part of the graph realises them.
 REALISED_ELSEWHERE = {'regulator_lag': 'mock_plc (regulator_tau_s)'}
@@ -82,7 +83,7 @@ class SceneSide:
     """
 
     def __init__(self, scene, wearer_index: int, condition: int, dt: float,
-                 layout: str | None = None):
+                 layout: str | None = None, repetition: int = 0):
         n = scene.population.subjects
         if not 0 <= wearer_index < n:
             raise ValueError(f'parameter wearer_index: the scene {scene.name} has wearers '
@@ -94,7 +95,7 @@ class SceneSide:
         self.scene, self.spec, self.dt = scene, spec, float(dt)
         self.cond = condition_of(condition)
         self.layout = layout or self.cond.layout or 'suit'
-        self.run_key = trial_run(self.cond.number, 0)
+        self.run_key = trial_run(self.cond.number, int(repetition))   # the headless trial's streams
         ctx = RunContext(self.dt, scene.seed, int(wearer_index), self.run_key)
         self.effects, stages = start_effects(scene.effects, ctx, spec.effect_params)
         self.gaze_fx = [e.gaze for e in stages['gaze']]
@@ -166,3 +167,79 @@ class SceneSide:
         elif len(self._true) > 1000:   # a long loss burst: forget the oldest
             self._true = dict(list(self._true.items())[-100:])
         return sample
+
+
+#: A press the target outlives by this much was refused: press again [s].
+REPRESS_S = 1.0
+
+
+class KeyPress:
+    """When the simulated participant presses the confirm key, by the headless model's rule
+    (sim.protocols), one press per target:
+
+    speed: the tracked gaze (the samples sent) has stayed within acceptance_deg of the target
+        for dwell_s (speed_loop's rule; hololens_view's confirm delay is headless only);
+    accuracy: once the wearer has acted on the guidance and their true gaze has moved slower
+        than settle_speed_dps for settle_s, or at timeout_s (accuracy_trial's rule).
+
+    present() when a target appears; sent(t, yaw, pitch) with each gaze sample sent and
+    stepped(t, wearer) after each step; each returns True once: press now. A target still there
+    REPRESS_S after a press (the session refused it: a stale or gapped gaze at the press) is
+    pressed for again by the same rule, as a person presses again.
+    """
+
+    def __init__(self, protocol, dt: float):
+        self.protocol, self.dt = protocol, float(dt)
+        self.speed = protocol.kind == 'speed'
+        self.target: tuple[float, float] | None = None
+        self.pressed = True      # nothing to press for until a target appears
+        self._pressed_at: float | None = None    # while the target is still there
+        self._since = None
+        self._appeared = 0.0
+        self._prev = None
+
+    def present(self, t: float, target: tuple[float, float] | None) -> None:
+        """A target appeared at t (target: its (yaw, pitch) once known)."""
+        self.target, self.pressed, self._since, self._appeared, self._prev = target, False, None, t, None
+        self._pressed_at = None
+
+    def withdraw(self) -> None:
+        self.pressed, self._pressed_at = True, None
+
+    def _press(self, t: float) -> bool:
+        self.pressed, self._pressed_at = True, t
+        return True
+
+    def _rearm(self, t: float) -> None:
+        if self.pressed and self._pressed_at is not None and t - self._pressed_at >= REPRESS_S:
+            self.pressed, self._pressed_at, self._since = False, None, None
+
+    def sent(self, t: float, yaw: float, pitch: float) -> bool:
+        self._rearm(t)
+        if not self.speed or self.pressed or self.target is None:
+            return False
+        proto = self.protocol
+        if haversine(yaw, pitch, *self.target) > hav_limit(proto.acceptance_deg):
+            self._since = None
+            return False
+        self._since = t if self._since is None else self._since
+        return t - self._since >= proto.dwell_s and self._press(t)
+
+    def stepped(self, t: float, wearer) -> bool:
+        if not self.speed:
+            self._rearm(t)
+        if self.speed or self.pressed:
+            return False
+        proto = self.protocol
+        gy, gp = wearer.torso_yaw + wearer.head_yaw, wearer.torso_pitch + wearer.head_pitch
+        prev, self._prev = self._prev, (gy, gp)
+        if t - self._appeared >= proto.timeout_s - 1e-9 and self._pressed_at is None:
+            return self._press(t)
+        if prev is None:
+            return False
+        moved = math.hypot((gy - prev[0]) * math.cos(math.radians(gp)), gp - prev[1])
+        if not wearer.acting or moved >= proto.settle_speed_dps * self.dt:
+            self._since = None
+            return False
+        self._since = t if self._since is None else self._since
+        return t - self._since >= proto.settle_s - 1e-9 and self._press(t)

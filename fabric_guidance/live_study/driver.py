@@ -1,0 +1,122 @@
+"""study.session.Session on the graph: the graph's events into the state machine, its actions
+onto the graph through an Operator, its rows into the study folder (study.store) as they come.
+
+The Session runs on the steady clock; the graph stamps gaze and presses on the PC clock (ROS
+time). Stamps are mapped with the offset between the two clocks read at start (both are read
+on this machine; the headset's clock was mapped to the PC clock by gaze_bridge already).
+
+Gaze is fed as it arrives (each sample once, in capture order), presses as they arrive, and
+tick() whenever the Session's next deadline has come; the loop sleeps at most 2 ms in between.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+from typing import Callable
+
+from ..core.geometry import azimuth_deg, elevation_deg
+from .operator import Operator
+
+#: The loop's sleep between polls [s].
+POLL_S = 0.002
+
+
+@dataclass
+class DriverTiming:
+    press_latency_s: list[float] = field(default_factory=list)   # press stamp -> its row's error resolved
+    timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
+    vented_from_ns: int | None = None                             # monotonic ns of the last vent
+    vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
+
+
+class SessionDriver:
+    """Run `session` on the graph through `op`, recording into `store`.
+
+    hooks: before_trial(condition, repetition) before a trial's enable (the simulated graph sets
+    wearer_sim's streams there); set_condition(condition) for a switch (default: the Operator's
+    set_condition)."""
+
+    def __init__(self, op: Operator, session, store, say: Callable[[str], None] = lambda s: None,
+                 set_condition: Callable[[int], None] | None = None,
+                 before_trial: Callable[[int, int], None] | None = None):
+        self.op, self.session, self.store, self.say = op, session, store, say
+        self.set_condition = set_condition or (lambda c: op.set_condition(c))
+        self.before_trial = before_trial
+        self.timing = DriverTiming()
+        self._offset_s = 0.0
+        self._last_gaze_ns = 0
+        self.rows: list[dict] = []
+
+    def steady(self, stamp_ns: int) -> float:
+        return stamp_ns * 1e-9 - self._offset_s
+
+    def run(self) -> list[dict]:
+        op = self.op
+        self._offset_s = op.now_ns() * 1e-9 - time.monotonic()
+        self._last_gaze_ns = op.now_ns()      # gaze before the start is not the session's
+        op.drain_presses()
+        self.handle(self.session.start(time.monotonic()))
+        while self.session.phase not in ('done', 'stopped'):
+            self.feed_gaze()
+            for press in op.drain_presses():
+                self.handle(self.session.press(self.steady(press.stamp_ns), self.steady(press.received_ns),
+                                               press.source))
+            deadline = self.session.next_deadline()
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                phase = self.session.phase
+                self.handle(self.session.tick(now))
+                if phase in ('target', 'front') and self.session.phase not in ('target', 'front'):
+                    self.timing.timer_error_s.append(now - deadline)
+            else:
+                time.sleep(POLL_S)
+        return self.rows
+
+    def feed_gaze(self) -> None:
+        with self.op.lock:
+            fresh = [s for s in self.op.gaze if s[0] > self._last_gaze_ns]
+        for stamp_ns, _origin, direction in fresh:
+            self._last_gaze_ns = stamp_ns
+            self.handle(self.session.gaze(self.steady(stamp_ns), azimuth_deg(direction) or 0.0,
+                                          elevation_deg(direction)))
+
+    def handle(self, step) -> None:
+        now = time.monotonic()
+        for p in step.presses:
+            self.timing.press_latency_s.append(now - p['stamp'])
+        for action in step.actions:
+            self.act(action)
+        if step.rows or step.amended or step.blocks:
+            self.store.record(step)
+            self.rows += step.rows
+            for row in step.rows:
+                self.say(f"  {row['block']} trial {row['repetition'] + 1}: {row['status']}" + (
+                    f", identified {row['identified']} of {row['presented']}" if row.get('identified') is not None
+                    else f", error h {row['h_error_deg']:.1f} v {row['v_error_deg']:.1f} deg"
+                    if row.get('h_error_deg') is not None else ''))
+        if step.refused:
+            self.say(f'  refused: {step.refused}')
+
+    def act(self, action) -> None:
+        op, kind = self.op, action.kind
+        if kind == 'set_condition':
+            self.set_condition(action.condition)
+        elif kind == 'enable':
+            trial = self.session.trial
+            if self.before_trial is not None and trial is not None:
+                self.before_trial(self.session.block.condition, trial.repetition)
+            if self.timing.vented_from_ns is not None:
+                self.timing.vented.append((self.timing.vented_from_ns, time.monotonic_ns()))
+                self.timing.vented_from_ns = None
+            op.enable(True)
+        elif kind == 'vent':
+            op.enable(False)
+            self.timing.vented_from_ns = time.monotonic_ns()
+        elif kind == 'show_target':
+            op.show_target(*action.target)
+        elif kind in ('show_front', 'hide'):
+            op.to_front()
+        elif kind == 'prompt':
+            op.display(f'prompt {action.text or ""}'.rstrip())
+        elif kind == 'done':
+            op.display('done')

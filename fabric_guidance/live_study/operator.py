@@ -1,0 +1,293 @@
+"""The study's client of the graph, as an operator at the console: it sets parameters, calls
+services and listens, and the guidance loop never waits on it.
+
+Operator(domain_id) is an rclpy node in its own context, spun on a background thread. It keeps
+the last GAZE_HISTORY_S of gaze (stamped at capture by gaze_bridge) so that a key press is
+judged on the gaze at the press's stamp, not on a later sample; it queues the presses of every
+`confirm` source; it places the session's target (target_selector's target_positions and
+active_target in one atomic call), brings it back to the front, enables or vents guidance,
+switches the condition, and sends prompts and the `done` event to the headset (study_display).
+
+Every blocking call has a deadline (OperatorError naming what did not answer). The guidance
+nodes never call back into it: a stalled session leaves the graph as a stalled operator would
+(vented between trials, guiding during one).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+import queue
+import threading
+import time
+from typing import Any
+
+from .. import interface
+from ..core.geometry import GeometryError, azimuth_deg, elevation_deg, ray_direction, target_direction, wrap_deg
+from ..core.task import angular_error_deg
+
+#: Gaze kept for looking up the sample at a press's stamp [s].
+GAZE_HISTORY_S = 5.0
+#: The session's one target in target_selector (its target_names in a study graph).
+STUDY_TARGET = 'study'
+#: Distance of the placed target from the eye [m] (the demo's scene targets are at 2 m).
+TARGET_DISTANCE_M = 2.0
+#: A press waits at most this long for the gaze sample captured after it [s].
+PRESS_GAZE_WAIT_S = 0.2
+#: How long a service or parameter call may take before the operator says so [s].
+CALL_TIMEOUT_S = 5.0
+
+
+class OperatorError(RuntimeError):
+    """A node of the graph did not answer, or refused a request (the message says which)."""
+
+
+@dataclass(frozen=True)
+class Press:
+    """One key press: its source, its stamp (PC clock, ns), and when the operator received it."""
+    source: str
+    stamp_ns: int
+    received_ns: int
+
+
+@dataclass(frozen=True)
+class PressError:
+    """The gaze at a press against the target (or the front): full, horizontal, vertical angle."""
+    error_deg: float
+    h_error_deg: float
+    v_error_deg: float
+    gaze_stamp_ns: int        # the sample used: the newest captured at or before the press
+    gaze_age_s: float         # press stamp minus that sample's stamp
+
+
+def target_position(yaw_deg: float, pitch_deg: float, eye_height_m: float,
+                    distance_m: float = TARGET_DISTANCE_M) -> list[float]:
+    """A target at (yaw, pitch) from the eye (REP 103: yaw positive left), in the immersive frame."""
+    y, p = math.radians(yaw_deg), math.radians(pitch_deg)
+    return [distance_m * math.cos(p) * math.cos(y), distance_m * math.cos(p) * math.sin(y),
+            eye_height_m + distance_m * math.sin(p)]
+
+
+class Operator:
+    """The session's hands on the graph (see the module docstring)."""
+
+    def __init__(self, domain_id: int | None = None, eye_height_m: float = 1.2, name: str = 'study_operator'):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from geometry_msgs.msg import PoseStamped
+        from std_msgs.msg import Float64MultiArray, Header, String
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        qos = interface.qos_profile
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context, **({} if domain_id is None else {'domain_id': domain_id}))
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.eye_height_m = float(eye_height_m)
+        self.lock = threading.Lock()
+        self.gaze: deque = deque()              # (stamp_ns, origin, direction)
+        self.presses: queue.Queue[Press] = queue.Queue()
+        self.active = ''
+        self.target: tuple[float, float] | None = None     # placed (yaw, pitch)
+        self.commands: deque = deque(maxlen=200_000)        # (monotonic_ns, max kPa) of pressure_command
+        self.controller_condition: int | None = None
+        self._header_type, self._string_type = Header, String
+        self.display_pub = self.node.create_publisher(String, interface.STUDY_DISPLAY, qos('event'))
+        self.confirm_pub = self.node.create_publisher(Header, interface.CONFIRM, qos('event'))
+        self.node.create_subscription(PoseStamped, interface.GAZE, self._on_gaze, qos('sensor'))
+        self.node.create_subscription(Header, interface.CONFIRM, self._on_confirm, qos('event'))
+        self.node.create_subscription(String, interface.ACTIVE_TARGET, self._on_active, qos('latched'))
+        self.node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self._on_command,
+                                      qos('command'))
+        self.node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS, self._on_diagnostics, 10)
+        self._clients: dict[str, Any] = {}
+        self._running = True
+        self._thread = threading.Thread(target=self._spin, name='study-operator', daemon=True)
+        self._thread.start()
+
+    # ---- spinning and callbacks (the executor thread)
+    def _spin(self) -> None:
+        while self._running and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def now_ns(self) -> int:
+        """The PC clock of the graph's stamps (the node's clock)."""
+        return self.node.get_clock().now().nanoseconds
+
+    def _on_gaze(self, msg) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        q, p = msg.pose.orientation, msg.pose.position
+        try:
+            direction = ray_direction((q.x, q.y, q.z, q.w))
+        except GeometryError:
+            return
+        with self.lock:
+            self.gaze.append((stamp, (p.x, p.y, p.z), direction))
+            while self.gaze and stamp - self.gaze[0][0] > GAZE_HISTORY_S * 1e9:
+                self.gaze.popleft()
+
+    def _on_confirm(self, msg) -> None:
+        stamp = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
+        self.presses.put(Press(msg.frame_id or 'unknown', stamp, self.now_ns()))
+
+    def _on_active(self, msg) -> None:
+        with self.lock:
+            self.active = msg.data
+
+    def _on_command(self, msg) -> None:
+        with self.lock:
+            self.commands.append((time.monotonic_ns(), max(msg.data, default=0.0)))
+
+    def _on_diagnostics(self, msg) -> None:
+        for st in msg.status:
+            if st.name.startswith('pressure_controller'):
+                for kv in st.values:
+                    if kv.key == 'condition':
+                        self.controller_condition = int(kv.value)
+
+    # ---- what the wearer's gaze is
+    def gaze_at(self, stamp_ns: int):
+        """The newest gaze sample captured at or before stamp_ns (else the oldest kept), or None."""
+        with self.lock:
+            samples = list(self.gaze)
+        before = [s for s in samples if s[0] <= stamp_ns]
+        return before[-1] if before else (samples[0] if samples else None)
+
+    def error_at(self, stamp_ns: int, target: tuple[float, float] | None) -> PressError | None:
+        """The gaze at stamp_ns against target (yaw, pitch from the eye; None: the front)."""
+        sample = self.gaze_at(stamp_ns)
+        if sample is None:
+            return None
+        gstamp, origin, direction = sample
+        yaw, pitch = target or (0.0, 0.0)
+        goal = target_direction(origin, target_position(yaw, pitch, self.eye_height_m))
+        g_yaw, t_yaw = azimuth_deg(direction) or 0.0, azimuth_deg(goal) or 0.0
+        return PressError(angular_error_deg(direction, goal), abs(wrap_deg(g_yaw - t_yaw)),
+                          abs(elevation_deg(direction) - elevation_deg(goal)), gstamp, (stamp_ns - gstamp) * 1e-9)
+
+    def settled_error_at(self, stamp_ns: int, target: tuple[float, float] | None,
+                         wait_s: float = PRESS_GAZE_WAIT_S) -> PressError | None:
+        """error_at once a sample captured after stamp_ns has arrived (the one captured at the
+        press may still be on its way: UDP, the bridge, DDS), or after wait_s."""
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                newest = self.gaze[-1][0] if self.gaze else None
+            if newest is not None and newest > stamp_ns:
+                break
+            time.sleep(0.0005)
+        return self.error_at(stamp_ns, target)
+
+    def latest_gaze_error(self, target: tuple[float, float] | None) -> PressError | None:
+        return self.error_at(self.now_ns() + 10 ** 12, target)
+
+    # ---- requests
+    def _client(self, srv_type, name: str):
+        # A node-private name of the table (`~/enable`) is the owner's: its full name.
+        full_name = getattr(interface, 'full_name', None)
+        if full_name is not None and name.startswith('~/'):
+            name = full_name(name)
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name)
+        return client
+
+    def call(self, srv_type, name: str, request, timeout_s: float = CALL_TIMEOUT_S):
+        client = self._client(srv_type, name)
+        deadline = time.monotonic() + max(timeout_s, 15.0)   # discovery may take seconds under load
+        while not client.service_is_ready():
+            if time.monotonic() > deadline:
+                raise OperatorError(f'service {name} is not on the graph')
+            time.sleep(0.02)
+        future = client.call_async(request)
+        deadline = time.monotonic() + timeout_s
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise OperatorError(f'service {name} did not answer within {timeout_s:.0f} s')
+            time.sleep(0.002)
+        return future.result()
+
+    def set_parameters(self, node: str, **values) -> None:
+        """Set `values` on `node` in one atomic call (all or none); OperatorError with the reason."""
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.parameter import Parameter
+        request = SetParametersAtomically.Request(
+            parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        result = self.call(SetParametersAtomically, f'/{node}/set_parameters_atomically', request).result
+        if not result.successful:
+            raise OperatorError(f'{node} refused {sorted(values)}: {result.reason}')
+
+    def enable(self, on: bool) -> None:
+        from std_srvs.srv import SetBool
+        response = self.call(SetBool, interface.ENABLE, SetBool.Request(data=bool(on)))
+        if not response.success:
+            raise OperatorError(f'{interface.ENABLE}: {response.message}')
+
+    def vent(self) -> None:
+        from std_srvs.srv import Trigger
+        self.call(Trigger, interface.VENT, Trigger.Request())
+
+    def show_target(self, yaw_deg: float, pitch_deg: float) -> None:
+        """The session's target at (yaw, pitch) from the eye, active (the display draws new dummies)."""
+        self.set_parameters('target_selector', target_positions=target_position(yaw_deg, pitch_deg, self.eye_height_m),
+                            active_target=STUDY_TARGET)
+        self.target = (float(yaw_deg), float(pitch_deg))
+
+    def to_front(self) -> None:
+        """No active target: the controller vents, the wearer looks back at the front."""
+        self.set_parameters('target_selector', active_target='')
+        self.target = None
+
+    def display(self, line: str) -> None:
+        """A line to the headset (headset_display's study_display: `prompt ...`, `found ...`, `done`)."""
+        self.display_pub.publish(self._string_type(data=line))
+
+    def press_key(self, source: str = 'keyboard') -> None:
+        """A key at the operator's terminal: a confirm stamped now on the PC clock."""
+        msg = self._header_type(frame_id=source)
+        msg.stamp = self.node.get_clock().now().to_msg()
+        self.confirm_pub.publish(msg)
+
+    def set_condition(self, condition: int, extra_nodes: tuple[str, ...] = (), timeout_s: float = 3.0) -> bool:
+        """The controller's condition (and of `extra_nodes`, e.g. wearer_sim); True once the
+        controller's diagnostics report it within timeout_s (False: it takes the condition only
+        when configured; the caller restarts it)."""
+        self.set_parameters('pressure_controller', condition=int(condition))
+        for node in extra_nodes:
+            self.set_parameters(node, condition=int(condition))
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.controller_condition == condition:
+                return True
+            time.sleep(0.05)
+        return False
+
+    def next_press(self, timeout_s: float) -> Press | None:
+        try:
+            return self.presses.get(timeout=max(0.0, timeout_s))
+        except queue.Empty:
+            return None
+
+    def drain_presses(self) -> list[Press]:
+        """Presses nobody asked for (between trials): taken off the queue, returned."""
+        out = []
+        while True:
+            try:
+                out.append(self.presses.get_nowait())
+            except queue.Empty:
+                return out
+
+    def commands_between(self, start_ns: int, end_ns: int) -> list[float]:
+        """The largest value of each pressure_command received in [start_ns, end_ns] (monotonic)."""
+        with self.lock:
+            return [kpa for t, kpa in self.commands if start_ns <= t <= end_ns]
+
+    def close(self) -> None:
+        self._running = False
+        self._thread.join(5)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.shutdown(context=self.context)

@@ -1,0 +1,138 @@
+"""`fabric-guidance study --simulated`: the study session on the simulated graph, a scene's
+wearers as the participants.
+
+Per participant (wearer i of the scene): Algorithm 1 headless with the scene's effects (as the
+paper calibrates before the trials, and as `demo --scene` does), then the seven processes of the
+simulated graph (process_graph.sim_lab) with wearer_sim as that wearer pressing confirm
+(press_confirm), the study's target in target_selector (found_by_dwell off) and, for speed, 50
+dummies on the display. The study's Session (session_graph.py) runs the blocks on it; the
+condition orders and targets are the study
+plan's (study/plan.py: the headless experiment's streams on the same seed, or a Latin square),
+so the live and the headless study meet the same targets.
+
+A condition is switched within the graph (pressure_controller's and wearer_sim's `condition`
+parameters). A controller that takes its condition only at configure is restarted with it
+(the switch's time says which happened).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import time
+from typing import Callable
+
+from ..core import condition as condition_of
+from ..process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
+from ..sim.population import calibrate_wearer, sample_wearer
+from ..study import plan
+from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S
+from .operator import STUDY_TARGET, Operator, target_position
+
+PAPER_DUMMIES = 50
+#: Graph start-up (seven processes, discovery) on a loaded machine [s].
+STARTUP_S = 60.0
+
+
+@dataclass
+class Timing:
+    """The condition switches of a participant's graph."""
+    switch_s: list[tuple[int, float, str]] = field(default_factory=list)   # (condition, seconds, how)
+
+
+def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path, gaze_rate_hz: float) -> None:
+    """The node overrides of a study graph for wearer `subject` (in place on lab.overrides)."""
+    ov = lab.overrides
+    lag = scene.effect('regulator_lag')
+    ov['mock_plc'].update(regulator_tau_s=float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S)
+    ov['pressure_controller'].update(calibration_file=str(calibration_file), wearer=f'sub{subject + 1:02d}',
+                                     **dataclasses.asdict(scene.controller), step_on_gaze=False, condition=cond)
+    speed = scene.protocol.kind == 'speed'
+    ov['target_selector'].update(target_names=[STUDY_TARGET], target_positions=target_position(0.0, 0.0, 1.2),
+                                 found_by_dwell=False, return_to_front=False, auto_advance=False)
+    if speed:
+        ov['target_selector'].update(acceptance_deg=scene.protocol.acceptance_deg, dwell_s=scene.protocol.dwell_s)
+        ov['headset_display'].update(dummies=PAPER_DUMMIES, dummy_seed=scene.seed + subject)
+    ov['wearer_sim'].update(scene_file=str(Path(scene.source).resolve()), wearer_index=subject, condition=cond,
+                            gaze_rate_hz=gaze_rate_hz, press_confirm=True, repetition=0)
+
+
+class SimulatedParticipant:
+    """One participant's graph and its operator: start(), switch(condition), close()."""
+
+    def __init__(self, scene, subject: int, first_condition: int, log_dir: Path, say: Callable[[str], None],
+                 design: plan.StudyDesign | None = None):
+        self.scene, self.subject, self.say = scene, subject, say
+        self.design = design or design_of(scene)
+        self.log_dir = log_dir
+        wearer = sample_wearer(scene, subject)
+        outcome = calibrate_wearer(scene, wearer)
+        if not outcome.ok:
+            raise ValueError(f'calibration of {wearer.name} refused: {outcome.error}')
+        log_dir.mkdir(parents=True, exist_ok=True)
+        self.calibration_file = outcome.calibration.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
+        cond = condition_of(first_condition)
+        self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
+        self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
+        graph_overrides(self.lab, scene, subject, cond.number, self.calibration_file, self.gaze_rate_hz)
+        # Domains 101-200: the tests' graphs take 1-100 (process_graph.fresh_domain_id), and a
+        # session that meets another graph's target_selector on its domain would steer that one.
+        self.graph = Graph(log_dir / 'graph', domain_id=101 + (os.getpid() * 7 + subject) % 100)
+        self.op: Operator | None = None
+        self.timing = Timing()
+        self.condition = cond.number
+
+    def start(self) -> None:
+        start_nodes(self.graph, self.lab, FILES)
+        os.environ.update(loopback_dds_env())
+        self.op = Operator(self.graph.domain_id)
+        wait_until(lambda: self.op.latest_gaze_error(None) is not None and self.op.controller_condition,
+                   STARTUP_S, what='gaze and the controller on the study graph')
+        self.op.enable(False)     # vented until the first trial
+
+    def switch(self, cond: int) -> None:
+        """The condition for the next block, within the running graph (see the module docstring)."""
+        t0 = time.monotonic()
+        how = 'parameter'
+        if not self.op.set_condition(cond, extra_nodes=('wearer_sim',)):
+            how = 'restart'
+            self.graph.stop('pressure_controller')
+            self.lab.overrides['pressure_controller']['condition'] = cond
+            self.graph.start('pressure_controller', FILES, **self.lab.overrides['pressure_controller'])
+            wait_until(lambda: self.op.controller_condition == cond, STARTUP_S,
+                       what=f'pressure_controller under condition {cond}')
+            self.op.enable(False)
+        self.condition = cond
+        self.timing.switch_s.append((cond, time.monotonic() - t0, how))
+
+    def close(self) -> None:
+        try:
+            if self.op is not None:
+                try:
+                    self.op.enable(False)
+                except Exception:   # noqa: BLE001 - closing anyway; the controller vents on shutdown
+                    pass
+                self.op.close()
+        finally:
+            self.graph.stop_all()
+
+
+def design_of(scene, order: str = 'random') -> plan.StudyDesign:
+    """The study design of a scene: its seed, conditions, repetitions and protocol (plan.py
+    draws the condition orders and targets as the headless experiment does on that seed)."""
+    proto = scene.protocol
+    speed = proto.kind == 'speed'
+    extra = dict(trial_s=proto.trial_s, acceptance_deg=proto.acceptance_deg, front_dwell_s=proto.dwell_s) if speed \
+        else dict(timeout_s=proto.timeout_s)
+    return plan.StudyDesign(proto.kind, seed=scene.seed, conditions=tuple(scene.conditions), order=order,
+                            trials=scene.repetitions, horizontal_deg=proto.horizontal_deg,
+                            vertical_deg=proto.vertical_deg, **extra)
+
+
+def participant_order(design: plan.StudyDesign, subject: int) -> tuple[int, ...]:
+    """The condition order of participant `subject` (random from the seed, or the Latin square's row)."""
+    return plan.condition_order(design, subject)
+
+
+__all__ = ['SimulatedParticipant', 'Timing', 'design_of', 'graph_overrides', 'participant_order']

@@ -1,0 +1,138 @@
+"""`fabric-guidance study`: the paper's study session, through the graph.
+
+  fabric-guidance study --simulated --participants 5 --protocol speed --out DIR
+
+runs the session on the simulated graph with a scene's wearers as participants (wearer_sim
+presses the key as the headless model does); --trials and --trial-s shorten it, --seed changes
+the scene's seed (the population, the targets, the condition orders). The scene used is written
+to DIR/scene.yaml, so that `fabric-guidance experiment --scene DIR/scene.yaml` runs the same study
+headless. The session is study.session's state machine driven on the graph (driver.py); every
+finished trial is in the study folder (study.store) at once, atomically; run the same command
+again on the same DIR after a crash and the session resumes at the first unfinished block.
+`fabric-guidance analyze DIR` analyses it.
+
+`fabric-guidance study --keyboard` makes the operator's terminal the confirm source of a running
+graph: space or Enter publishes `confirm` (frame_id 'keyboard', stamped when the key is read);
+q ends (live_study/keyboard.py also reads p pause, r repeat, s skip, c resume for a session).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+
+import yaml
+
+from .. import subcommand
+from ..atomic import write_text
+
+PROG = 'fabric-guidance study'
+HELP = "run the paper's study session through the graph (--simulated: a scene's wearers as participants)"
+SCENES = {'speed': 'paper-speed', 'accuracy': 'paper-accuracy'}
+
+
+def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    p.add_argument('--simulated', action='store_true', help="the simulated graph, the scene's wearers as participants")
+    p.add_argument('--participants', type=int, default=5, help='simulated participants (the first N wearers)')
+    p.add_argument('--participant', default=None, help='the participant id of a live session')
+    p.add_argument('--protocol', choices=sorted(SCENES), default='speed')
+    p.add_argument('--scene', default=None, help='a scene file or name (default: paper-speed / paper-accuracy)')
+    p.add_argument('--keyboard', action='store_true',
+                   help="only the operator's key as the confirm source on the running graph (ROS_DOMAIN_ID "
+                        'from the environment): space or Enter publishes confirm, q ends')
+    p.add_argument('--out', type=Path, default=None, help='the study folder (required with --simulated)')
+    p.add_argument('--trials', type=int, default=None, help='trials per condition (default: the scene\'s)')
+    p.add_argument('--trial-s', type=float, default=None, help='seconds per speed trial (default: the scene\'s, 40)')
+    p.add_argument('--seed', type=int, default=None, help="the scene's seed (default: the scene's)")
+    p.add_argument('--latin-square', action='store_true', help='condition orders from a Latin square')
+    return p
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    return subcommand.add(subparsers, 'study', HELP, __doc__, configure, run)
+
+
+def study_scene(args, out: Path):
+    """The scene of the study with --seed/--trials/--trial-s applied, written to out/scene.yaml
+    (wearer_sim reads the scene from that file) and loaded from there."""
+    from ..sim.scene import load_scene, scene_path
+    source = scene_path(args.scene or SCENES[args.protocol])
+    data = yaml.safe_load(Path(source).read_text())
+    if args.seed is not None:
+        data['seed'] = int(args.seed)
+    if args.trials is not None:
+        data['repetitions'] = int(args.trials)
+    if args.trial_s is not None:
+        if data['protocol'].get('kind') != 'speed':
+            raise ValueError('--trial-s: only the speed protocol has timed trials')
+        data['protocol']['trial_s'] = float(args.trial_s)
+    written = out / 'scene.yaml'
+    existing = written.read_text() if written.exists() else None
+    text = yaml.safe_dump(data, sort_keys=False)
+    if existing is not None and yaml.safe_load(existing) != data:
+        raise ValueError(f'{written}: this study folder was started with another scene or other options; '
+                         'use a new --out or the same options')
+    write_text(written, text)
+    scene = load_scene(written)
+    if scene.protocol.kind != args.protocol:
+        raise ValueError(f'--scene: {scene.name} is a {scene.protocol.kind} scene, not {args.protocol}')
+    return scene
+
+
+def run(args: argparse.Namespace) -> int:
+    say = subcommand.printer(sys.stdout)
+    if args.keyboard:
+        return keyboard_only(say)
+    if args.out is None:
+        subcommand.error(PROG, '--out DIR: the study folder is required')
+        return 2
+    if not args.simulated:
+        subcommand.error(PROG, 'a live session (--participant on a running graph) is not in this build yet; '
+                         'run --simulated')
+        return 2
+    out = args.out.expanduser().resolve()
+    from ..study.store import Study, StudyError
+    try:
+        Study.open(out)     # a new folder, or a study folder to resume; refused otherwise
+        scene = study_scene(args, out)
+        if args.latin_square and len(scene.conditions) % 2:
+            raise ValueError(f'--latin-square: a balanced Latin square needs an even number of conditions, '
+                             f'the scene has {len(scene.conditions)}')
+        if not 1 <= args.participants <= scene.population.subjects:
+            raise ValueError(f'--participants: 1..{scene.population.subjects} (the scene\'s wearers), '
+                             f'got {args.participants}')
+    except (StudyError, ValueError, OSError) as exc:
+        subcommand.error(PROG, exc)
+        return 2
+    from .session_graph import run_study_session
+    try:
+        return run_study_session(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
+    except (StudyError, OSError) as exc:     # DiskFull is an OSError: what was recorded is intact
+        subcommand.error(PROG, exc)
+        return 1
+
+
+def keyboard_only(say) -> int:
+    """The operator's key as confirm on the running graph until q (or end of input)."""
+    from .keyboard import KeyboardSource
+    from .operator import Operator
+    op = Operator(name='study_keyboard')
+    try:
+        say('keyboard: space or Enter presses confirm (frame_id keyboard); q ends')
+
+        def press():
+            op.press_key('keyboard')
+            say(f'confirm at {op.now_ns() * 1e-9:.3f} s')
+        src = KeyboardSource(press).start()
+        src.join()
+    finally:
+        op.close()
+    return 0
+
+
+def main(argv=None) -> int:
+    return subcommand.main(PROG, __doc__, configure, run, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

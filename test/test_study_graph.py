@@ -1,0 +1,111 @@
+"""The study session through the simulated graph: wearer_sim presses confirm as the headless
+model does, the session judges the press on the gaze at its stamp, switches the condition within
+the graph, keeps the suit vented between trials, writes every trial as it ends, and a session
+killed with SIGKILL mid-block resumes at that block with the finished trials intact."""
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from fabric_guidance.sim.scene import load_scene, scene_path
+from fabric_guidance.live_study.session_graph import run_study_session
+from fabric_guidance.study.store import read_tsv, study_trials
+from rosgraph import wait_until
+
+pytestmark = pytest.mark.graph
+
+
+def short_scene(tmp_path: Path, conditions=(1, 3), trials=1, trial_s=6.0, protocol='speed') -> Path:
+    """paper-speed / paper-accuracy with two conditions (a switch to the arm layout) and short blocks."""
+    data = yaml.safe_load(scene_path(f'paper-{protocol}').read_text())
+    data.update(conditions=list(conditions), repetitions=trials)
+    if protocol == 'speed':
+        data['protocol']['trial_s'] = trial_s
+    path = tmp_path / f'short-{protocol}.yaml'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def rows_of(out: Path, protocol: str) -> list[dict]:
+    return read_tsv(out / 'sub-01' / 'ses-1' / f'sub-01_ses-1_task-{protocol}_trials.tsv')[1]
+
+
+def test_speed_session_wearer_presses_and_no_command_between_trials(tmp_path):
+    scene = load_scene(short_scene(tmp_path))
+    out = tmp_path / 'study'
+    lines = []
+    assert run_study_session(scene, 1, out, lines.append) == 0
+    rows = rows_of(out, 'speed')
+    assert sorted(int(r['condition']) for r in rows) == [1, 3] and {r['status'] for r in rows} == {'ok'}
+    for r in rows:
+        # wearer_sim pressed confirm and the session accepted presses within 5 deg
+        assert int(r['presses']) >= int(r['identified']) >= 1, r
+        assert int(r['presented']) >= int(r['identified']) and r['press_source'] == 'wearer_sim'
+    timing = next(line for line in lines if line.startswith('timing:'))
+    # the controller publishes every step, vented too: commands were seen between trials, none above 0
+    checked = int(timing.rsplit(' of ', 1)[1].split()[0])
+    assert checked > 0 and timing.endswith(f'0 of {checked} commands between trials above 0 kPa'), timing
+    # what analyze reads of the folder: both trials, finished
+    assert sorted(int(r['condition']) for r in study_trials(out, 'speed')) == [1, 3]
+
+
+def test_accuracy_session_records_the_error_at_the_press(tmp_path):
+    scene = load_scene(short_scene(tmp_path, conditions=(1,), trials=2, protocol='accuracy'))
+    out = tmp_path / 'study'
+    assert run_study_session(scene, 1, out, lambda line: None) == 0
+    rows = rows_of(out, 'accuracy')
+    assert len(rows) == 2
+    for r in rows:
+        assert r['status'] == 'ok' and r['press_source'] == 'wearer_sim' and r['timed_out'] == 'False', r
+        assert 0.0 <= float(r['h_error_deg']) < 60.0 and 0.0 <= float(r['v_error_deg']) < 60.0
+        assert float(r['time_s']) < scene.protocol.timeout_s
+
+
+def _study(scene: Path, out: Path, **kw):
+    cmd = [sys.executable, '-m', 'fabric_guidance.live_study.study_command', '--simulated', '--participants', '1',
+           '--protocol', 'speed', '--scene', str(scene), '--out', str(out)]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
+
+
+def test_sigkill_mid_block_resumes_at_that_block(tmp_path):
+    scene = short_scene(tmp_path, conditions=(1, 2), trials=2, trial_s=5.0)
+    out = tmp_path / 'study'
+    tsv = out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.tsv'
+    # its own session: SIGKILL to the group takes the seven nodes down with it, as a power loss would
+    proc = _study(scene, out, start_new_session=True)
+    try:
+        wait_until(lambda: tsv.exists() and len(read_tsv(tsv)[1]) >= 3, 240, 0.05, what='three trials written')
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+    before = read_tsv(tsv)[1]
+    assert len(before) == 3          # block 1 whole, one trial of block 2: the kill was mid-block
+    time.sleep(0.5)
+    rerun = _study(scene, out)
+    output, _ = rerun.communicate(timeout=300)
+    assert rerun.returncode == 0, output
+    assert f"block {before[2]['block']} was cut off: its 1 finished trial(s) are kept as 'interrupted'" in output
+    after = read_tsv(tsv)[1]
+    assert after[:2] == before[:2]     # the finished block is intact
+    assert after[2]['status'] == 'interrupted'
+    redone = [r for r in after[3:] if r['block'] == before[2]['block']]
+    assert [(r['status'], r['repetition']) for r in redone] == [('ok', '0'), ('ok', '1')]
+    # the analysis reads the finished trials only
+    assert len(study_trials(out, 'speed')) == 4
+
+
+def test_keyboard_keys_press_confirm_and_send_commands():
+    import io
+
+    from fabric_guidance.live_study.keyboard import KeyboardSource
+    presses, commands = [], []
+    src = KeyboardSource(lambda: presses.append(1), commands.append, io.StringIO(' x\nprs q '))
+    src.start().join(5)
+    assert len(presses) == 3 and commands == ['pause', 'repeat', 'skip', 'stop']   # nothing read after q
