@@ -53,6 +53,9 @@ ARGUMENTS = {
     'plc_port': ('plc_output', 'plc_port', int, "the PLC's Modbus TCP port"),
     'calibration_file': ('pressure_controller', 'calibration_file', str,
                          "the wearer's calibration (YAML)"),
+    'wearer': ('pressure_controller', 'wearer', str,
+               "the participant's id: a calibration is written as <wearer>.yaml in calibration_dir, and "
+               'that file is loaded when it exists'),
     'condition': ('pressure_controller', 'condition', int,
                   '1 surface adjusted, 2 surface fixed, 3 arm adjusted, 4 speech'),
     'bind_address': ('gaze_bridge', 'bind_address', str, 'UDP address the gaze bridge listens on'),
