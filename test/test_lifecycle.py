@@ -15,7 +15,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool
 
 from deadlines import DeadlineLog
-from fabric_guidance.interface import CONTROLLER_PARAMETERS, DIAGNOSTICS, ENABLE, PRESSURE_COMMAND
+from fabric_guidance.interface import CONTROLLER_PARAMETERS, DIAGNOSTICS, ENABLE, PRESSURE_COMMAND, VENT
 from fabric_guidance.nodes.qos import COMMAND_QOS, LATCHED_QOS
 from rosgraph import Graph, Probe, wait_until
 from test_node_plc import (COMMAND_DEADLINE_S, EXIT_DEADLINE_S, OUTPUT_STATUS, PARAMS_FILES, STARTUP_DEADLINE_S,
@@ -232,7 +232,7 @@ def test_an_operators_vent_holds_through_deactivate_and_activate(tmp_path):
         upstream.activate('t1', 40.0)
         wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 30.0, what='guiding')
         t0 = time.monotonic()
-        assert probe.call(Trigger, '/vent', Trigger.Request()).success
+        assert probe.call(Trigger, VENT, Trigger.Request()).success
         wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
         TIMES.record('pressure_controller vent -> zeros published', time.monotonic() - t0, 1.0)
         assert transition(probe, 'pressure_controller', Transition.TRANSITION_DEACTIVATE)[0]

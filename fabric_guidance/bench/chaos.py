@@ -283,7 +283,7 @@ class ChaosLab:
         # request, not from this probe's discovery of the service.
         from lifecycle_msgs.srv import ChangeState
         from std_srvs.srv import Trigger
-        for srv_type, name in ((Trigger, '/vent'), (ChangeState, '/pressure_controller/change_state')):
+        for srv_type, name in ((Trigger, interface.VENT), (ChangeState, '/pressure_controller/change_state')):
             self.probe._client(srv_type, name, 30.0)
         self.wait_pressurised(RECOVERY_DEADLINE_S, 'first guidance')
 
@@ -338,7 +338,7 @@ class ChaosLab:
 
     def disable(self) -> None:
         from std_srvs.srv import SetBool
-        response = self.probe.call(SetBool, '/enable', SetBool.Request(data=False), timeout=3.0, attempts=5)
+        response = self.probe.call(SetBool, interface.ENABLE, SetBool.Request(data=False), timeout=3.0, attempts=5)
         if not response.success:
             raise AssertionError(f'enable false refused: {response.message}')
 
@@ -347,7 +347,7 @@ class ChaosLab:
         from lifecycle_msgs.msg import Transition
         from lifecycle_msgs.srv import ChangeState
         from std_srvs.srv import Trigger
-        if not self.probe.call(Trigger, '/vent', Trigger.Request(), timeout=3.0, attempts=5).success:
+        if not self.probe.call(Trigger, interface.VENT, Trigger.Request(), timeout=3.0, attempts=5).success:
             raise AssertionError('vent refused')
         for transition in (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_ACTIVATE):
             request = ChangeState.Request(transition=Transition(id=transition))
