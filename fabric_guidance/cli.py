@@ -41,7 +41,7 @@ SUBCOMMANDS = {
     'calibration-report': ('fabric_guidance.calibration_report',
                            "write the fit report (text and PNG) of a wearer's calibration file"),
     'analyze': ('fabric_guidance.experiments.analyze', 'Friedman test + Dunn-Bonferroni post-hoc '
-                "on a subjects x conditions CSV (as the paper's table)"),
+                "on a subjects x conditions CSV (as the paper's table) or on a live study's folder"),
     'study': ('fabric_guidance.live_study.study_command', "run the paper's study session through the graph "
               "(--simulated: a scene's wearers as participants)"),
     'experiment': ('fabric_guidance.experiments.experiment',
