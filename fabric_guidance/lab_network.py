@@ -9,7 +9,7 @@ other interface. Discovery stays Fast DDS's simple discovery (multicast on that 
 a discovery server when ROS_DISCOVERY_SERVER is set (fabric_guidance/discovery_server.py).
 
     fabric-guidance dds-profile --interface enp3s0 --out ~/lab/fastdds_lab.xml
-    export FASTDDS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml FASTRTPS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml
+    export FASTDDS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml   # Kilted (Jazzy: FASTRTPS_DEFAULT_PROFILES_FILE)
     export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
 
 (FASTRTPS_... is the name Fast DDS 2.x reads, on ROS 2 Jazzy; FASTDDS_... Fast DDS 3's, on Kilted.)
@@ -21,6 +21,7 @@ commands). No rclpy here: the tests and the CLI write and check profiles without
 from __future__ import annotations
 
 import argparse
+import os
 import ipaddress
 from pathlib import Path
 import socket
@@ -72,8 +73,8 @@ def interface_profile(interface: str) -> str:
     return f'''<?xml version="1.0" encoding="UTF-8"?>
 <!-- Written by fabric-guidance dds-profile: DDS on interface {interface} only
      (docs/lab_network.md). Load it with
-     FASTDDS_DEFAULT_PROFILES_FILE=<this file> (Fast DDS 3), FASTRTPS_DEFAULT_PROFILES_FILE=<this file>
-     (Fast DDS 2.14+) and ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT.
+     FASTDDS_DEFAULT_PROFILES_FILE=<this file> (Fast DDS 3, Kilted) or FASTRTPS_DEFAULT_PROFILES_FILE=<this file>
+     (Fast DDS 2.14, Jazzy) and ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT.
      One UDPv4 transport allowed on that interface; no shared memory (it would cross network
      namespaces on one machine, and the test of this profile relies on there being none). -->
 <dds xmlns="{NS}">
@@ -155,14 +156,24 @@ def write_profile(path: str | Path, interface: str) -> Path:
 
 
 #: The variables that name the profiles file: Fast DDS 3 (ROS 2 Kilted) reads the first, Fast DDS
-#: 2.x (ROS 2 Jazzy, Fast DDS 2.14) only the second; each ignores the other's. Both are set, so
-#: that one environment holds on either distribution.
+#: 2.x (ROS 2 Jazzy, Fast DDS 2.14) only the second.
 PROFILE_VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+#: ROS 2 distributions whose rmw_fastrtps runs Fast DDS 2.x.
+FAST_DDS_2_DISTROS = ('humble', 'iron', 'jazzy')
 
 
-def profile_env(profile: str | Path) -> dict[str, str]:
-    """Every variable of PROFILE_VARIABLES set to `profile`."""
-    return {name: str(Path(profile).expanduser()) for name in PROFILE_VARIABLES}
+def profile_variable(distro: str | None = None) -> str:
+    """The variable the running distribution's Fast DDS reads: ROS_DISTRO (a workspace's
+    setup.bash sets it) names it; without it, the stand-alone Kilted wheels: Fast DDS 3. One
+    only: Fast DDS 3 also takes the old name, prefers it when both are set, and warns about it
+    in every process."""
+    distro = (os.environ.get('ROS_DISTRO', '') if distro is None else distro).strip().lower()
+    return PROFILE_VARIABLES[1] if distro in FAST_DDS_2_DISTROS else PROFILE_VARIABLES[0]
+
+
+def profile_env(profile: str | Path, distro: str | None = None) -> dict[str, str]:
+    """The running distribution's profile variable (profile_variable) set to `profile`."""
+    return {profile_variable(distro): str(Path(profile).expanduser())}
 
 
 def process_env(profile: str | Path) -> dict[str, str]:

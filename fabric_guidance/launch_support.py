@@ -25,7 +25,8 @@ import shutil
 import sys
 import tempfile
 
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler, SetEnvironmentVariable
+from launch.actions import (DeclareLaunchArgument, ExecuteProcess, RegisterEventHandler, SetEnvironmentVariable,
+                            UnsetEnvironmentVariable)
 from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
@@ -37,13 +38,16 @@ MOCK_PLC_LISTENING = 'mock PLC listening on'
 
 def loopback_dds_actions(share: str) -> list:
     """Environment actions that keep every later process of the launch on loopback DDS: the
-    package's loopback profile under both Fast DDS variable names, the profile deciding alone
+    package's loopback profile under the distribution's Fast DDS variable name, the profile deciding alone
     (rmw's LOCALHOST range would add a send socket on every interface); without the profile, at
     least discovery stays on this machine."""
     profile = os.path.join(share, 'config', 'fastdds_loopback.xml')
     if not os.path.isfile(profile):
         return [SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')]
-    return [*(SetEnvironmentVariable(name, value) for name, value in lab_network.profile_env(profile).items()),
+    env = lab_network.profile_env(profile)
+    # The other name unset: Fast DDS 3 would take an inherited old one over this profile.
+    return [*(UnsetEnvironmentVariable(name) for name in lab_network.PROFILE_VARIABLES if name not in env),
+            *(SetEnvironmentVariable(name, value) for name, value in env.items()),
             SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT')]
 
 

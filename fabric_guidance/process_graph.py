@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 from . import interface
-from .lab_network import profile_env
+from .lab_network import PROFILE_VARIABLES, profile_env, profile_variable
 from .paths import share_dir
 
 ROOT = share_dir()
@@ -120,6 +120,9 @@ class Graph:
         self.token = f'{os.getpid()}-{self.domain_id}-{next(_counter)}-{time.monotonic_ns()}'
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1',
                         RCUTILS_COLORIZED_OUTPUT='0', **{GRAPH_TOKEN: self.token}, **loopback_dds_env())
+        for name in PROFILE_VARIABLES:   # an inherited other name would win over the loopback profile
+            if name != profile_variable():
+                self.env.pop(name, None)
         self.specs: dict[str, tuple[str, tuple, dict]] = {}   # key -> node, files, overrides
         self.started_at: dict[str, float] = {}
         self.pids: list[tuple[str, int]] = []   # every process ever started, restarts included

@@ -18,6 +18,7 @@ import time
 import pytest
 
 from deadlines import DeadlineLog
+from fabric_guidance.lab_network import profile_variable
 from fabric_guidance.plc.records import load_records
 from rosgraph import CONFIG, Graph, free_port, wait_until
 from guided_lab import GUIDED, GuidedLab, guided_overrides, guided_until_closed
@@ -185,6 +186,5 @@ def test_every_node_of_the_graph_keeps_dds_discovery_on_localhost(lab):
     for node, proc in lab.graph.processes.items():
         environ = dict(item.split('=', 1) for item in
                        open(f'/proc/{proc.pid}/environ').read().split('\0') if '=' in item)
-        assert environ.get('FASTDDS_DEFAULT_PROFILES_FILE') == str(CONFIG / 'fastdds_loopback.xml'), node
-        assert environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') == str(CONFIG / 'fastdds_loopback.xml'), node
+        assert environ.get(profile_variable()) == str(CONFIG / 'fastdds_loopback.xml'), node
         assert environ.get('ROS_DOMAIN_ID') == str(lab.graph.domain_id), node

@@ -80,22 +80,32 @@ def test_the_profile_is_valid_fast_dds_xml_and_pins_exactly_that_interface(tmp_p
     path = write_profile(tmp_path / 'lab.xml', interface)
     fastdds_schema().validate(str(path))
     assert lab_network.validate_profile(path.read_text(), str(path)) == interface
-    assert process_env(path) == {'FASTDDS_DEFAULT_PROFILES_FILE': str(path),
-                                 'FASTRTPS_DEFAULT_PROFILES_FILE': str(path),
+    assert process_env(path) == {lab_network.profile_variable(): str(path),
                                  'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
 
 
-def test_every_profile_setting_names_the_variable_of_fast_dds_2_and_of_fast_dds_3(tmp_path):
-    """Fast DDS 2.x (Jazzy) reads only FASTRTPS_DEFAULT_PROFILES_FILE, Fast DDS 3 (Kilted) only
-    FASTDDS_DEFAULT_PROFILES_FILE: with one of them alone, the other distribution silently drops
-    the profile, and a simulated graph's DDS reaches the network (SYSTEM_DEFAULT range)."""
+FAST_DDS_CASES = [('jazzy', 'FASTRTPS_DEFAULT_PROFILES_FILE'), ('humble', 'FASTRTPS_DEFAULT_PROFILES_FILE'),
+                  ('kilted', 'FASTDDS_DEFAULT_PROFILES_FILE'), ('', 'FASTDDS_DEFAULT_PROFILES_FILE')]
+
+
+@pytest.mark.parametrize('distro, variable', FAST_DDS_CASES)
+def test_every_profile_setting_names_the_variable_of_the_distributions_fast_dds(tmp_path, monkeypatch, distro,
+                                                                                variable):
+    """Fast DDS 2.x (Jazzy) reads only FASTRTPS_DEFAULT_PROFILES_FILE, Fast DDS 3 (Kilted)
+    FASTDDS_DEFAULT_PROFILES_FILE: with the other one alone, the distribution silently drops the
+    profile, and a simulated graph's DDS reaches the network (SYSTEM_DEFAULT range). With both,
+    Kilted prefers the old name and warns in every process: the one of ROS_DISTRO is set."""
     from fabric_guidance.process_graph import Graph, loopback_dds_env
+    monkeypatch.setenv('ROS_DISTRO', distro)
+    monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE' if variable.startswith('FASTDDS') else
+                       'FASTDDS_DEFAULT_PROFILES_FILE', '/an/inherited/profile.xml')
+    other = next(v for v in lab_network.PROFILE_VARIABLES if v != variable)
     loopback = str(CONFIG / 'fastdds_loopback.xml')
     for where, env, profile in (('lab_network.process_env', process_env(tmp_path / 'p.xml'), str(tmp_path / 'p.xml')),
                                 ('process_graph.loopback_dds_env', loopback_dds_env(), loopback),
                                 ('process_graph.Graph.env', Graph(tmp_path / 'g').env, loopback)):
-        for variable in ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE'):
-            assert env.get(variable) == profile, f'{where}: {variable}'
+        assert env.get(variable) == profile, f'{where}: {variable}'
+        assert other not in env, f'{where}: {other}'
         assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT', where
     # The launch files set the profile through launch_support.loopback_dds_actions only (run under
     # the real launch system by test_launch.py), never one variable by hand.
@@ -150,8 +160,9 @@ def test_dds_profile_command_writes_checks_and_refuses(tmp_path):
                               capture_output=True, text=True, timeout=60, cwd=ROOT)
     out = cli('--interface', 'lo', '--out', str(tmp_path / 'p.xml'))
     assert out.returncode == 0, out.stderr
-    assert f'export FASTDDS_DEFAULT_PROFILES_FILE={tmp_path / "p.xml"}' in out.stdout
-    assert f'export FASTRTPS_DEFAULT_PROFILES_FILE={tmp_path / "p.xml"}' in out.stdout
+    # The variable of the distribution it runs on (ROS_DISTRO; Kilted's without it), the other not.
+    assert f'export {lab_network.profile_variable()}={tmp_path / "p.xml"}' in out.stdout
+    assert sum(f'export {v}=' in out.stdout for v in lab_network.PROFILE_VARIABLES) == 1
     assert 'export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT' in out.stdout
     assert 'no interface named' not in out.stderr     # lo exists everywhere
     checked = cli('--check', str(tmp_path / 'p.xml'))

@@ -202,10 +202,13 @@ def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_s
         for s in interface.SERVICES:
             assert interface.full_name(s.name, SIM_NAMESPACE) in services, s.name
         assert not services & set(interface.OLD_NAMES)
-    # Fast DDS 2 (Jazzy) and 3 (Kilted) both take the loopback profile.
+    # The distribution's Fast DDS variable (FASTRTPS_ on Jazzy, FASTDDS_ on Kilted) names the
+    # loopback profile, and the other name is not there to win over it.
+    from fabric_guidance.lab_network import PROFILE_VARIABLES, profile_variable
     env = _environ(watch.pids[watch.name('plc_output')])
     profile = os.path.join(SHARE, 'config', 'fastdds_loopback.xml')
-    assert env.get('FASTDDS_DEFAULT_PROFILES_FILE') == env.get('FASTRTPS_DEFAULT_PROFILES_FILE') == profile
+    assert env.get(profile_variable()) == profile
+    assert not any(v in env for v in PROFILE_VARIABLES if v != profile_variable())
     # Ctrl-C at its worst: the mock PLC gets SIGINT first and the others only later (a terminal
     # signals the whole group at once; any order must vent). The mock must still be there.
     os.kill(watch.pids[watch.name('mock_plc')], signal.SIGINT)

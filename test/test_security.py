@@ -44,8 +44,8 @@ def test_the_package_writes_only_mapped_registers():
 def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     env = Graph(tmp_path).env   # the loopback profile decides alone (test_bad_input checks with ss)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
-    assert env['FASTDDS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')
-    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(CONFIG / 'fastdds_loopback.xml')   # Fast DDS 2 (Jazzy)
+    from fabric_guidance.lab_network import profile_variable
+    assert env[profile_variable()] == str(CONFIG / 'fastdds_loopback.xml')   # the distribution's Fast DDS name
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).
     assert 'loopback_dds_actions(' in launch
