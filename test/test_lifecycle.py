@@ -240,7 +240,7 @@ def test_an_operators_vent_holds_through_deactivate_and_activate(tmp_path):
         n = len(commands)
         wait_until(lambda: len(commands) > n + 30, 10.0, what='a second of commands once active again')
         assert all(not np.any(m.data) for m in commands[n:]), 'guiding again without the operator\'s enable'
-        assert probe.call(SetBool, f'/{ENABLE}', SetBool.Request(data=True)).success
+        assert probe.call(SetBool, ENABLE, SetBool.Request(data=True)).success
         wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 10.0, what='guiding once enabled')
     finally:
         if upstream is not None:
