@@ -433,10 +433,15 @@ class MockPlcServer:
             self._writers.discard(writer)
             writer.close()
             with self._lock:
-                if self._holding.connection_closed(connection) and self._sim.watchdog.armed:
-                    # Tripped by the close, not by the time: the outputs vent at once.
+                h = self._holding
+                pressurised = any(h.holding[a] for a in h.commands)
+                if h.connection_closed(connection) and self._sim.watchdog.armed:
+                    # Tripped by the close, not by the time: the outputs vent at once. Counted as
+                    # a trip only when it vented something: a writer that vented, then closed
+                    # (plc_output's shutdown), left nothing for the PLC to vent.
                     self._sim.watchdog.armed = False
-                    self._sim.watchdog.trips += 1
+                    if pressurised:
+                        self._sim.watchdog.trips += 1
 
     async def _scan_loop(self) -> None:
         period = 1.0 / self.update_hz
