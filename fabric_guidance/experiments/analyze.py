@@ -99,6 +99,17 @@ def study_frame(root: Path, protocol: str | None = None):
     return data.reset_index(drop=True), protocol
 
 
+def write_report(args: argparse.Namespace, title: str, analyses: dict, plots: dict) -> None:
+    """The markdown report at --report, if asked for (a table's or a study's analyses)."""
+    if args.report is None:
+        return
+    from .analysis_report import markdown_report
+    text = markdown_report(title, analyses, plots, notes=[f'Source: {args.table}'],
+                           relative_to=args.report.parent)
+    write_text(args.report, text)
+    print(f'report: {args.report}')
+
+
 def run_study(args: argparse.Namespace) -> int:
     """analyze STUDY_DIR: one analysis per measure of the study's protocol."""
     try:
@@ -133,14 +144,9 @@ def run_study(args: argparse.Namespace) -> int:
                                              significance=analysis)
                 print(f'plot: {plots[measure]}')
             print()
-        if args.report is not None:
-            from .analysis_report import markdown_report
-            text = markdown_report(f'Statistics of the study {args.table.name} ({protocol})',
-                                   {f'{m} (per participant)': a for m, a in analyses.items()},
-                                   {f'{m} (per participant)': p for m, p in plots.items()},
-                                   notes=[f'Source: {args.table}'], relative_to=args.report.parent)
-            write_text(args.report, text)
-            print(f'report: {args.report}')
+        write_report(args, f'Statistics of the study {args.table.name} ({protocol})',
+                     {f'{m} (per participant)': a for m, a in analyses.items()},
+                     {f'{m} (per participant)': p for m, p in plots.items()})
     except OSError as exc:
         subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1
@@ -165,13 +171,8 @@ def run(args: argparse.Namespace) -> int:
             from .violin_plots import violin_plot  # matplotlib only when a plot is asked for
             plot = violin_plot(analysis, label, args.plot, significance=analysis)
             print(f'\nplot: {plot}')
-        if args.report is not None:
-            from .analysis_report import markdown_report
-            text = markdown_report(f'Statistics of {args.table.name}', {label: analysis},
-                                   {label: plot} if plot is not None else {},
-                                   notes=[f'Source: {args.table}'], relative_to=args.report.parent)
-            write_text(args.report, text)
-            print(f'report: {args.report}')
+        write_report(args, f'Statistics of {args.table.name}', {label: analysis},
+                     {label: plot} if plot is not None else {})
     except OSError as exc:
         subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1
