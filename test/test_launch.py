@@ -198,10 +198,13 @@ def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_s
             [node_parameters(sim, 'wearer_sim')['tau_s'], sim_ports['gaze_port']]
         assert _parameters(probe, 'gaze_bridge', ['port', 'headset_address']) == [sim_ports['gaze_port'], '127.0.0.1']
         assert _parameters(probe, 'mock_plc', ['port']) == [sim_ports['plc_port']]
-        services = {name for name, _ in probe.node.get_service_names_and_types()}
-        for s in interface.SERVICES:
-            assert interface.full_name(s.name, SIM_NAMESPACE) in services, s.name
-        assert not services & set(interface.OLD_NAMES)
+        # Discovery of a probe that joined late takes its time: wait for the names, then check.
+        def services():
+            return {name for name, _ in probe.node.get_service_names_and_types()}
+        wanted = {interface.full_name(s.name, SIM_NAMESPACE) for s in interface.SERVICES}
+        wait_until(lambda: wanted <= services(), 30.0,
+                   what=f'every service in {SIM_NAMESPACE}: {sorted(wanted)}')
+        assert not services() & set(interface.OLD_NAMES)
     # The distribution's Fast DDS variable (FASTRTPS_ on Jazzy, FASTDDS_ on Kilted) names the
     # loopback profile, and the other name is not there to win over it.
     from fabric_guidance.lab_network import PROFILE_VARIABLES, profile_variable
