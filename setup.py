@@ -37,7 +37,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'fabric-guidance = fabric_guidance.cli:main',
+            'fabric-guidance = fabric_guidance.commands.cli:main',
             'gaze_bridge = fabric_guidance.nodes.gaze_bridge:main',
             'target_selector = fabric_guidance.nodes.target_selector:main',
             'pressure_controller = fabric_guidance.nodes.pressure_controller:main',

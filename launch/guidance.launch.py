@@ -42,10 +42,10 @@ from launch_ros.actions import LifecycleNode, Node
 import yaml
 
 from fabric_guidance.interface import MANAGED_NODES
-from fabric_guidance.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
-                                            lab_node_kwargs, launch_namespace, lifecycle_bring_up,
-                                            namespace_argument, respawn_arguments, respawn_enabled,
-                                            respawn_kwargs)
+from fabric_guidance.graph.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
+                                                  lab_node_kwargs, launch_namespace, lifecycle_bring_up,
+                                                  namespace_argument, respawn_arguments, respawn_enabled,
+                                                  respawn_kwargs)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)

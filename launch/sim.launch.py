@@ -19,8 +19,8 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fabric_guidance.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
-                                            launch_namespace, loopback_dds_actions, namespace_argument)
+from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
+                                                  launch_namespace, loopback_dds_actions, namespace_argument)
 
 
 def _graph(context, *args, **kwargs):

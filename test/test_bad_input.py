@@ -36,13 +36,13 @@ def cli(*args) -> subprocess.CompletedProcess:
     import contextlib
     import io
     import traceback
-    from fabric_guidance.cli import main
+    from fabric_guidance.commands.cli import main
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             if args[0] == 'replay':   # replay.run binds sys.stdout at import: hand it the stream
                 import argparse
-                from fabric_guidance import replay
+                from fabric_guidance.commands import replay
                 parser = argparse.ArgumentParser(prog='fabric-guidance')
                 replay.add_parser(parser.add_subparsers(dest='command', required=True))
                 code = replay.run(parser.parse_args([str(a) for a in args]), stream=out)
@@ -59,7 +59,7 @@ def cli(*args) -> subprocess.CompletedProcess:
 def cli_process(*args, cwd=None, timeout=120) -> subprocess.CompletedProcess:
     """fabric-guidance ARGS in a process of bounded memory."""
     env = {**os.environ, 'MPLBACKEND': 'Agg'}
-    return subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', *map(str, args)], cwd=cwd or ROOT,
+    return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', *map(str, args)], cwd=cwd or ROOT,
                           env=env, capture_output=True, text=True, timeout=timeout, preexec_fn=_cap_memory)
 
 
@@ -120,7 +120,7 @@ def test_defect1_calibration_file_with_a_path_wearer_is_refused(tmp_path):
 
 
 def test_defect1_report_paths_refuse_a_path_wearer(tmp_path):
-    from fabric_guidance.calibration_report import report_paths
+    from fabric_guidance.lab.calibration_report import report_paths
     from fabric_guidance.core.calibration import Calibration
     cal = Calibration.load(SIM_CAL)
     bad = Calibration('../victim', cal.p_max, cal.directions)
@@ -470,7 +470,7 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
     import ipaddress
     import socket
     from std_msgs.msg import String
-    from fabric_guidance.demo import NODES
+    from fabric_guidance.commands.demo import NODES
     from fabric_guidance.nodes.qos import LATCHED_QOS
     from rosgraph import Graph, Probe, free_port, wait_until
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)

@@ -39,7 +39,7 @@ EXPECTED = {'/gaze', '/head_pose', '/target', '/active_target', '/target_found',
 @functools.lru_cache(maxsize=None)
 def recorded_demo_bag() -> Path:
     """One demo session recorded (shared with test_replay.py: run once per test process)."""
-    from fabric_guidance.demo import run_demo
+    from fabric_guidance.commands.demo import run_demo
     out = Path(tempfile.mkdtemp(prefix='fabric-guidance-test-record-'))
     with open(out / 'demo.out', 'w') as stream:
         code = run_demo(1, timeout_s=45.0, out_dir=out / 'logs', stream=stream, record_dir=out / 'bags')
@@ -146,7 +146,7 @@ def test_offline_replay_reproduces_the_demo_exactly():
           f'{result.read_s + result.run_s:.3f} s: {result.speedup:.0f}x real time '
           '(printed, not asserted: the speed goal lives in `make bench`)')
     # The CLI as the user runs it.
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.replay', str(bag), '--offline'],
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.replay', str(bag), '--offline'],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
     assert 'reproduced exactly' in out.stdout and 'x real time' in out.stdout

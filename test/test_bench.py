@@ -44,7 +44,7 @@ def test_a_landing_is_the_latest_sample_of_its_level_and_counted_once():
 
 def test_a_quick_bench_writes_every_key(tmp_path):
     out = tmp_path / 'results.json'
-    run = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'bench', '--quick', '--repeat', '2',
+    run = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'bench', '--quick', '--repeat', '2',
                           '--out', str(out), '--work', str(tmp_path / 'work')],
                          capture_output=True, text=True, timeout=480, cwd=ROOT)
     assert run.returncode == 0, run.stdout + run.stderr

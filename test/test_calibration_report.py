@@ -1,7 +1,7 @@
 """The calibration workflow around Algorithm 1: the fit report (text and PNG) of a wearer's
 calibration, its command line, and a failed calibration that writes nothing.
 
-The core stays free of matplotlib; the report lives in fabric_guidance.calibration_report.
+The core stays free of matplotlib; the report lives in fabric_guidance.lab.calibration_report.
 pressure_controller writes the report next to <calibration_dir>/<wearer>.yaml (the last test,
 as a process, reusing the fixture and the simulated wearer of test_node_pressure_controller).
 """
@@ -15,8 +15,8 @@ from std_srvs.srv import Trigger
 
 from fabric_guidance import interface
 
-from fabric_guidance.calibration_report import (direction_fits, draw_fit_figure, format_fit_report, main,
-                                                report_paths, write_fit_report)
+from fabric_guidance.lab.calibration_report import (direction_fits, draw_fit_figure, format_fit_report, main,
+                                                    report_paths, write_fit_report)
 from fabric_guidance.core.calibration import (DONE, FAILED, Calibration, CalibrationProcedure,
                                               DirectionCalibration)
 from fabric_guidance.core.geometry import DIRECTIONS
@@ -150,7 +150,7 @@ def test_the_shipped_example_is_reported_into_the_current_folder_not_config(tmp_
 
 
 def test_the_module_runs_as_a_command(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.calibration_report', str(SIM_CAL), '--out',
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.lab.calibration_report', str(SIM_CAL), '--out',
                           str(tmp_path)], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / 'sim-wearer-fit.png').exists()

@@ -10,14 +10,14 @@ import sys
 
 import pytest
 
-from fabric_guidance.cli import SUBCOMMANDS
+from fabric_guidance.commands.cli import SUBCOMMANDS
 
 #: Imported by the statistics and plotting subcommands only.
 HEAVY = ('pandas', 'scikit_posthocs', 'matplotlib')
 
 PROBE = '''
 import json, sys
-from fabric_guidance.cli import main
+from fabric_guidance.commands.cli import main
 try:
     main(sys.argv[1:])
 except SystemExit:
@@ -64,7 +64,7 @@ def test_every_module_lists_itself_with_the_tables_help():
 
 
 def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
-    from fabric_guidance.cli import main
+    from fabric_guidance.commands.cli import main
     with pytest.raises(SystemExit) as exc:
         main(['no-such-command'])
     assert exc.value.code == 2
@@ -73,7 +73,7 @@ def test_an_unknown_subcommand_is_argparses_one_line_error(capsys):
 
 
 def test_a_mistyped_option_prints_the_subcommands_usage(tmp_path, capsys):
-    from fabric_guidance.cli import main
+    from fabric_guidance.commands.cli import main
     table = tmp_path / 't.csv'
     table.write_text('subject,1,2\nS01,1,2\n')
     with pytest.raises(SystemExit) as exc:

@@ -203,7 +203,7 @@ def test_a_recorded_bag_played_back_moves_no_register(rig, tmp_path):
     assert '/rosbag2_player' in refusals(r)[2]['refused by publisher']
 
     # The package's own player (`fabric-guidance replay BAG --topics pressure_command`).
-    replay = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'replay', str(bag), '--topics',
+    replay = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'replay', str(bag), '--topics',
                              PRESSURE_COMMAND, '--wait', str(MATCH_DEADLINE_S)],
                             env={**r.graph.env}, capture_output=True, text=True, timeout=120)
     assert replay.returncode == 0, replay.stdout + replay.stderr

@@ -21,7 +21,7 @@ from std_srvs.srv import SetBool, Trigger
 from fabric_guidance.core import Calibration, ChannelMap, PowerLaw, ray_orientation
 from fabric_guidance.core.geometry import DIRECTIONS
 from fabric_guidance.nodes.pressure_controller import PressureController
-from fabric_guidance.process_graph import CONFIG, fresh_domain_id
+from fabric_guidance.graph.process_graph import CONFIG, fresh_domain_id
 
 SIM_CAL_FILE = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 F40 = Calibration.load(SIM_CAL_FILE).laws[0].pressure(40.0)

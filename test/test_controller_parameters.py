@@ -148,7 +148,7 @@ def test_the_node_declares_the_table():
     node in its own process, DDS on loopback in a domain of its own)."""
     import json
     import os
-    from fabric_guidance.process_graph import fresh_domain_id, loopback_dds_env
+    from fabric_guidance.graph.process_graph import fresh_domain_id, loopback_dds_env
     env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), **loopback_dds_env())
     out = subprocess.run([sys.executable, '-c', NODE_DESCRIPTORS], capture_output=True, text=True,
                          timeout=120, env=env, check=True).stdout

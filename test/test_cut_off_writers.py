@@ -171,7 +171,7 @@ def test_a_stale_metadata_file_and_a_cut_in_the_summary(written, tmp_path):
 
 
 def _cli(*args, env=None):
-    return subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', *map(str, args)], capture_output=True,
                           text=True, timeout=120, cwd=ROOT, env=env)
 
 
@@ -211,7 +211,7 @@ def test_recover_writes_a_complete_bag_and_never_overwrites(written, tmp_path):
     assert again.returncode == 2 and 'exists already' in again.stdout, again.stdout
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith('.')] == []   # no staging left
     # the graph replay republishes the intact part and says so (no subscriber here: --wait 0)
-    from fabric_guidance.process_graph import fresh_domain_id, loopback_dds_env
+    from fabric_guidance.graph.process_graph import fresh_domain_id, loopback_dds_env
     env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), **loopback_dds_env())
     played = _cli('replay', cut, '--wait', '0', '--rate', '1000', '--topics', 'a', 'b', env=env)
     assert played.returncode == 0, played.stdout + played.stderr

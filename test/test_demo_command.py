@@ -3,7 +3,7 @@ keeps its logs where --out names a folder."""
 import io
 import tempfile
 
-from fabric_guidance.demo import run_demo
+from fabric_guidance.commands.demo import run_demo
 
 
 def test_failed_demo_removes_its_temporary_folder(tmp_path, monkeypatch):

@@ -1,5 +1,5 @@
 """A scene of the headless simulator through the real ROS graph: `fabric-guidance demo --scene`
-(fabric_guidance.demo.run_demo(scene=...)) and wearer_sim with scene_file.
+(fabric_guidance.commands.demo.run_demo(scene=...)) and wearer_sim with scene_file.
 
 The demos run as separate processes on their own ROS domain (as `make demo` does); the
 wearer_sim test binds the UDP socket the node sends its gaze datagrams to.
@@ -31,7 +31,7 @@ WEARER_EFFECTS = ('suit_hysteresis', 'weber_perception', 'reaction_delay', 'body
 
 def run_scene_demo(scene: Path, out: Path, timeout_s: float = 40.0) -> tuple[subprocess.CompletedProcess, float]:
     """run_demo(scene=...) in its own process, as the CLI will call it; (result, seconds)."""
-    code = ('import sys; from fabric_guidance.demo import run_demo; '
+    code = ('import sys; from fabric_guidance.commands.demo import run_demo; '
             'sys.exit(run_demo(scene=sys.argv[1], out_dir=sys.argv[2], timeout_s=float(sys.argv[3])))')
     t0 = time.monotonic()
     out_proc = subprocess.run([sys.executable, '-c', code, str(scene), str(out), str(timeout_s)],

@@ -106,7 +106,7 @@ def test_every_declared_key_is_imported():
 def test_a_module_without_a_rosdep_key_is_imported_only_where_it_is_used():
     """Without it everything else imports and starts; the command that needs it says in one line
     what to install."""
-    from fabric_guidance import cli
+    from fabric_guidance.commands import cli
     package = _third_party('fabric_guidance')
     for module in NOT_IN_ROSDEP:
         assert module not in MODULE_KEYS
@@ -118,7 +118,7 @@ def test_a_module_without_a_rosdep_key_is_imported_only_where_it_is_used():
 def test_a_missing_module_is_one_line_naming_it(monkeypatch, capsys):
     """`fabric-guidance analyze` in a workspace without scikit-posthocs."""
     import builtins
-    from fabric_guidance import cli
+    from fabric_guidance.commands import cli
     real_import = builtins.__import__
 
     def no_posthocs(name, *args, **kwargs):

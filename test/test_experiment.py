@@ -2,7 +2,7 @@
 and report, and refuses bad arguments with a clear message."""
 import pandas as pd
 
-from fabric_guidance.cli import main
+from fabric_guidance.commands.cli import main
 
 
 def test_speed_experiment_writes_everything(tmp_path, capsys):

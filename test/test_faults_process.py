@@ -18,7 +18,7 @@ import time
 import pytest
 
 from deadlines import DeadlineLog
-from fabric_guidance.lab_network import profile_variable
+from fabric_guidance.lab.lab_network import profile_variable
 from fabric_guidance.plc.records import load_records
 from rosgraph import CONFIG, Graph, free_port, wait_until
 from guided_lab import GUIDED, GuidedLab, guided_overrides, guided_until_closed

@@ -143,7 +143,7 @@ def test_demo_runs_the_whole_simulated_graph(tmp_path):
     """`fabric-guidance demo` (= make demo): every target found, nothing over P_MAX, vented at
     the end, no process left behind."""
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'demo', '--out', str(tmp_path)],
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'demo', '--out', str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     elapsed = time.monotonic() - t0
     assert out.returncode == 0, out.stdout + out.stderr

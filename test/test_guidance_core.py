@@ -230,7 +230,7 @@ def test_useless_calibrations_are_refused_naming_direction_and_threshold(angles,
     assert 'left' in proc.fits and threshold in proc.refused['left']
     attempt = proc.attempt(Calibration.from_laws('w', [LAW] * 4))
     assert threshold in attempt.directions['left'].fit['refused']
-    from fabric_guidance.calibration_report import format_fit_report
+    from fabric_guidance.lab.calibration_report import format_fit_report
     assert 'REFUSED' in format_fit_report(attempt)
 
 

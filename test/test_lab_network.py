@@ -38,9 +38,9 @@ import time
 
 import pytest
 
-from fabric_guidance import discovery_server, lab_network
-from fabric_guidance.discovery_server import client_env
-from fabric_guidance.lab_network import process_env, write_profile
+from fabric_guidance.lab import discovery_server, lab_network
+from fabric_guidance.lab.discovery_server import client_env
+from fabric_guidance.lab.lab_network import process_env, write_profile
 from netns import NetnsGraph, add_host, dds_env, delete_host, ip, link_stats, start_graph, why_no_netns
 from rosgraph import CONFIG, ROOT, free_port, fresh_domain_id, wait_until
 from test_graph import F_LEFT_40, RESOLUTION_KPA, end_to_end
@@ -95,7 +95,7 @@ def test_every_profile_setting_names_the_variable_of_the_distributions_fast_dds(
     FASTDDS_DEFAULT_PROFILES_FILE: with the other one alone, the distribution silently drops the
     profile, and a simulated graph's DDS reaches the network (SYSTEM_DEFAULT range). With both,
     Kilted prefers the old name and warns in every process: the one of ROS_DISTRO is set."""
-    from fabric_guidance.process_graph import Graph, loopback_dds_env
+    from fabric_guidance.graph.process_graph import Graph, loopback_dds_env
     monkeypatch.setenv('ROS_DISTRO', distro)
     monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE' if variable.startswith('FASTDDS') else
                        'FASTDDS_DEFAULT_PROFILES_FILE', '/an/inherited/profile.xml')
@@ -156,7 +156,7 @@ def test_a_profile_that_does_not_pin_one_interface_is_refused_naming_the_field(o
 
 def test_dds_profile_command_writes_checks_and_refuses(tmp_path):
     def cli(*argv):
-        return subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'dds-profile', *argv],
+        return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'dds-profile', *argv],
                               capture_output=True, text=True, timeout=60, cwd=ROOT)
     out = cli('--interface', 'lo', '--out', str(tmp_path / 'p.xml'))
     assert out.returncode == 0, out.stderr
@@ -204,12 +204,12 @@ def test_the_discovery_server_is_found_in_the_wheels_and_runs(tmp_path):
     discovery-server graph test below.)"""
     tool = discovery_server.find_server()
     assert Path(tool.prefix[0]).name == 'fast-discovery-server' and os.access(tool.prefix[0], os.X_OK)
-    printed = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'discovery-server', '--listen',
+    printed = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'discovery-server', '--listen',
                               '127.0.0.1:0', '--print'], capture_output=True, text=True, timeout=60)
     assert printed.returncode == 2 and "port '0' is not 1-65535" in printed.stderr
     port = free_port(socket.SOCK_DGRAM)
     log = open(tmp_path / 'server.log', 'w')
-    server = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.cli', 'discovery-server', '--listen',
+    server = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.commands.cli', 'discovery-server', '--listen',
                                f'127.0.0.1:{port}'], stdout=log, stderr=subprocess.STDOUT)
     try:
         wait_until(lambda: f'UDPv4:[127.0.0.1]:{port}' in (tmp_path / 'server.log').read_text(), 30.0,
@@ -428,7 +428,7 @@ def test_with_a_discovery_server_and_no_multicast_the_graph_works_and_an_unconfi
     multicast_route(c, 'br0')
     server_address = f'{LAB}.1:11811'
     server_log = open(tmp_path / 'discovery_server.log', 'w')
-    server = subprocess.Popen(['ip', 'netns', 'exec', a, sys.executable, '-m', 'fabric_guidance.cli',
+    server = subprocess.Popen(['ip', 'netns', 'exec', a, sys.executable, '-m', 'fabric_guidance.commands.cli',
                                'discovery-server', '--listen', server_address],
                               stdout=server_log, stderr=subprocess.STDOUT)
     hosts = {**{n: a for n in HOST_A}, **{n: b for n in HOST_B}}

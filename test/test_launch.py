@@ -43,8 +43,8 @@ from fabric_guidance.core import ChannelMap  # noqa: E402
 from fabric_guidance import interface  # noqa: E402
 from fabric_guidance.nodes import qos  # noqa: E402
 from fabric_guidance.plc import MockPlcServer, RegisterMap  # noqa: E402
-from fabric_guidance.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
-                                           wait_until)
+from fabric_guidance.graph.process_graph import (Probe, free_port, fresh_domain_id,  # noqa: E402
+                                                 wait_until)
 
 PREFIX = os.path.join(INSTALL, 'fabric_guidance')
 SHARE = os.path.join(PREFIX, 'share', 'fabric_guidance')
@@ -208,7 +208,7 @@ def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_s
         assert not services() & set(interface.OLD_NAMES)
     # The distribution's Fast DDS variable (FASTRTPS_ on Jazzy, FASTDDS_ on Kilted) names the
     # loopback profile, and the other name is not there to win over it.
-    from fabric_guidance.lab_network import PROFILE_VARIABLES, profile_variable
+    from fabric_guidance.lab.lab_network import PROFILE_VARIABLES, profile_variable
     env = _environ(watch.pids[watch.name('plc_output')])
     profile = os.path.join(SHARE, 'config', 'fastdds_loopback.xml')
     assert env.get(profile_variable()) == profile

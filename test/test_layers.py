@@ -5,18 +5,17 @@ From the bottom up (docs/architecture.md):
     0  paths, atomic, interface,          where files are; writing a file whole or not at all; topic
        subcommand, workers                names, types, QoS; the CLI pattern; the simulations' pool
     1  core                               the paper's algorithms, no ROS
-    2  plc, calibration_report, views,   the PLC link; a calibration's report (core data only);
-       lab_network, discovery_server,     the operator's Foxglove layout; the lab network's DDS
-       security_policy                    profile, discovery server and SROS2 policy (no ROS)
+    2  plc, lab                           the PLC link; what a lab sets up around the graph without
+                                          ROS (DDS profile, discovery server, SROS2 policy, operator
+                                          views, a calibration's report)
     3  sim, bag                           the simulator; bags (neither imports the other)
     4  experiments                        the paper's experiments and studies on sim
     5  study                              a live study with people: plan, session, study folder
     6  nodes                              the ROS nodes: thin wiring over the layers below
-    7  process_graph, launch_support      starting the nodes as processes, launch files' helpers
-    8  bench, demo, replay, recover,      what a person runs: measurements, the demo, replay, recover,
-       live_study                         the study session through the graph (an operator's client)
-    9  cli, demo_command, example_command the entry point and its argument wiring (cli imports
-                                          a subcommand's module by name, when it is chosen)
+    7  graph                              starting the nodes as processes; launch files' helpers
+    8  bench, live_study                  measurements; the study session through the graph
+    9  commands                           what a person runs: the entry point (it imports a
+                                          subcommand's module by name), demo, example, replay, recover
 
 A module may import its own package and any lower layer; packages of the same layer do not
 import each other. Every import counts, also those inside functions: a lazy import that runs
@@ -31,15 +30,17 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1] / 'fabric_guidance'
 LAYERS = {
     'paths': 0, 'atomic': 0, 'interface': 0, 'subcommand': 0, 'workers': 0,
     'core': 1,
-    'plc': 2, 'calibration_report': 2, 'views': 2, 'lab_network': 2, 'discovery_server': 2, 'security_policy': 2,
+    'plc': 2, 'lab': 2,
     'sim': 3, 'bag': 3,
     'experiments': 4,
     'study': 5,
     'nodes': 6,
-    'process_graph': 7, 'launch_support': 7,
-    'bench': 8, 'demo': 8, 'replay': 8, 'recover': 8, 'live_study': 8,
-    'cli': 9, 'demo_command': 9, 'example_command': 9,
+    'graph': 7,
+    'bench': 8, 'live_study': 8,
+    'commands': 9,
 }
+#: The top level: interface.py, the package's centre, and at most five small utilities.
+TOP_LEVEL_MODULES = {'interface', 'paths', 'atomic', 'subcommand', 'workers'}
 
 
 def _module_name(path: Path) -> str:
@@ -139,3 +140,10 @@ def test_no_module_file_name_is_used_twice():
             seen.setdefault(path.name, []).append(str(path.relative_to(PACKAGE_DIR)))
     repeated = {name: paths for name, paths in seen.items() if len(paths) > 1}
     assert not repeated, f'file names used more than once: {repeated}'
+
+
+def test_the_top_level_keeps_interface_and_five_utilities():
+    """Everything else lives in a package named after what it is (docs/architecture.md)."""
+    loose = {p.stem for p in PACKAGE_DIR.glob('*.py') if p.name != '__init__.py'}
+    assert loose == TOP_LEVEL_MODULES, f'loose modules at the top: {sorted(loose - TOP_LEVEL_MODULES)}'
+    assert len(TOP_LEVEL_MODULES - {'interface'}) <= 5

@@ -257,7 +257,7 @@ def test_a_transition_that_raises_goes_through_error_processing_and_releases():
     from rclpy.context import Context
     from rclpy.lifecycle import TransitionCallbackReturn
     from fabric_guidance.nodes.managed import ManagedNode
-    from fabric_guidance.process_graph import fresh_domain_id
+    from fabric_guidance.graph.process_graph import fresh_domain_id
 
     class Flaky(ManagedNode):
         def __init__(self, **kwargs):

@@ -10,7 +10,8 @@ import sys
 import pytest
 import yaml
 
-from fabric_guidance import interface, views
+from fabric_guidance import interface
+from fabric_guidance.lab import views
 from fabric_guidance.core.channels import ChannelMap
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -106,8 +107,8 @@ def foxglove():
 def test_foxglove_layout_is_the_generated_one():
     assert FOXGLOVE.read_text() == views.foxglove_json(), (
         f'{FOXGLOVE.relative_to(ROOT)} differs from the generator: '
-        f'python -m fabric_guidance.views --foxglove > {FOXGLOVE.relative_to(ROOT)}')
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.views', '--foxglove'], capture_output=True,
+        f'python -m fabric_guidance.lab.views --foxglove > {FOXGLOVE.relative_to(ROOT)}')
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.lab.views', '--foxglove'], capture_output=True,
                          text=True, timeout=60, check=True).stdout
     assert out == FOXGLOVE.read_text()
 

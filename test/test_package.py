@@ -62,7 +62,7 @@ def test_ament_layout():
 
 
 def test_example_prints_the_worked_example(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'example', '--out', str(tmp_path)],
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'example', '--out', str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert '4 of 4 targets found' in out.stdout
@@ -70,7 +70,7 @@ def test_example_prints_the_worked_example(tmp_path):
 
 
 def test_analyze_is_a_subcommand_of_the_cli(capsys):
-    from fabric_guidance.cli import main
+    from fabric_guidance.commands.cli import main
     table = ROOT / 'test' / 'data' / 'table-identified-targets.csv'
     assert main(['analyze', str(table)]) == 0
     assert 'Friedman chi-square = 16.837' in capsys.readouterr().out

@@ -108,7 +108,7 @@ def test_offline_replay_exact_and_the_gain_shows(turning_session):
     assert grown > min(c[L1] for c in rec.commands if c[L1] > 0) + 1.0   # Eq. 5 raised the pressure
     changed = offline.replay(rec, {'gain': 0.1})
     assert changed.largest > 1.0 and changed.worst['channel'] in ('L1', 'L2'), changed.worst
-    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.replay', str(turning_session), '--offline',
+    out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.replay', str(turning_session), '--offline',
                           '--set', 'gain=0.1'], capture_output=True, text=True, timeout=60)
     assert out.returncode == 1, out.stdout + out.stderr
     assert 'largest difference' in out.stdout and 'on L' in out.stdout and 'gain=0.1' in out.stdout
@@ -128,7 +128,7 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
                    what='controller and recorder')
         # --wait: start only once the controller hears every topic, /clock included (discovery of
         # the replay process can take seconds on a loaded machine; the bag is under 2 s long).
-        out = subprocess.run([sys.executable, '-m', 'fabric_guidance.replay', str(turning_session), '--loop',
+        out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.replay', str(turning_session), '--loop',
                               '--loops', '2', '--wait', '20'], capture_output=True, text=True, timeout=60,
                              env=graph.env)
         assert out.returncode == 0, out.stdout + out.stderr

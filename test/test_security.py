@@ -44,7 +44,7 @@ def test_the_package_writes_only_mapped_registers():
 def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     env = Graph(tmp_path).env   # the loopback profile decides alone (test_bad_input checks with ss)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
-    from fabric_guidance.lab_network import profile_variable
+    from fabric_guidance.lab.lab_network import profile_variable
     assert env[profile_variable()] == str(CONFIG / 'fastdds_loopback.xml')   # the distribution's Fast DDS name
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).

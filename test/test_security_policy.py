@@ -1,4 +1,4 @@
-"""The SROS2 policy generated from the interface table (fabric_guidance/security_policy.py,
+"""The SROS2 policy generated from the interface table (fabric_guidance/lab/security_policy.py,
 docs/security.md): read back, it grants each node exactly what the table says and what every
 rclpy node opens, nothing else, under fully qualified names; against sros2's own schema and
 permissions transform where sros2 is installed; and enforcement, where the RMW has the DDS
@@ -143,7 +143,7 @@ def test_read_policy_refuses_what_the_generator_never_writes(old, new, reason):
 
 def test_security_policy_command(tmp_path):
     def cli(*argv):
-        return subprocess.run([sys.executable, '-m', 'fabric_guidance.cli', 'security-policy', *argv],
+        return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'security-policy', *argv],
                               capture_output=True, text=True, timeout=60, cwd=ROOT)
     out = cli('--out', str(tmp_path / 'policy.xml'))
     assert out.returncode == 0, out.stderr
@@ -296,6 +296,6 @@ def test_enforced_only_the_controllers_enclave_reaches_the_plc(tmp_path):
 
 def test_the_lab_network_modules_import_no_rclpy():
     """The generators and their commands run without ROS (a lab PC writing a profile, CI)."""
-    code = ('import sys, fabric_guidance.security_policy, fabric_guidance.lab_network, '
-            'fabric_guidance.discovery_server; sys.exit(any(m.split(".")[0] == "rclpy" for m in sys.modules))')
+    code = ('import sys, fabric_guidance.lab.security_policy, fabric_guidance.lab.lab_network, '
+            'fabric_guidance.lab.discovery_server; sys.exit(any(m.split(".")[0] == "rclpy" for m in sys.modules))')
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0

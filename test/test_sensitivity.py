@@ -254,7 +254,7 @@ def test_bad_options_give_one_clear_line(tmp_path, argv, words):
 
 
 def test_registered_as_a_subcommand(tmp_path):
-    from fabric_guidance import cli
+    from fabric_guidance.commands import cli
     code = None
     err = io.StringIO()
     with contextlib.redirect_stderr(err):

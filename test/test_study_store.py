@@ -18,7 +18,7 @@ import pytest
 from fabric_guidance import atomic
 from fabric_guidance.experiments import analyze
 from fabric_guidance.experiments.stats import analyze_trials
-from fabric_guidance.process_graph import wait_until
+from fabric_guidance.graph.process_graph import wait_until
 from fabric_guidance.study import store as store_module
 from fabric_guidance.study.plan import StudyDesign, participant_blocks
 from fabric_guidance.study.session import Session

@@ -18,7 +18,7 @@ if not INSTALL:
     pytest.skip('FABRIC_GUIDANCE_INSTALL is not set: run through `make test-launch` (a colcon '
                 'build first)', allow_module_level=True)
 
-from fabric_guidance.process_graph import Probe, free_port, fresh_domain_id, wait_until  # noqa: E402
+from fabric_guidance.graph.process_graph import Probe, free_port, fresh_domain_id, wait_until  # noqa: E402
 
 PREFIX = os.path.join(INSTALL, 'fabric_guidance')
 SHARE = os.path.join(PREFIX, 'share', 'fabric_guidance')
@@ -50,7 +50,7 @@ def test_every_node_of_the_install_tree_starts_and_stops_cleanly(tmp_path):
     arguments = _node_arguments(tmp_path)
     assert set(arguments) == set(nodes)
     domain_id = fresh_domain_id()
-    from fabric_guidance.process_graph import loopback_dds_env
+    from fabric_guidance.graph.process_graph import loopback_dds_env
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED='1', **loopback_dds_env())
     files = [os.path.join(SHARE, 'config', 'params', name) for name in ('guidance.yaml', 'sim.yaml')]
     processes, logs = {}, {}
@@ -87,7 +87,7 @@ def test_every_node_of_the_install_tree_starts_and_stops_cleanly(tmp_path):
 def test_every_command_of_the_cli_starts(tmp_path):
     """`fabric-guidance` and each subcommand's --help from the install tree (each subcommand's
     module is imported when it is chosen: replay and recover import rosbags and mcap)."""
-    from fabric_guidance.cli import SUBCOMMANDS
+    from fabric_guidance.commands.cli import SUBCOMMANDS
     exe = os.path.join(PREFIX, 'lib', 'fabric_guidance', 'fabric-guidance')
     started = []
     for argv in [['--help']] + [[name, '--help'] for name in SUBCOMMANDS]:

@@ -50,7 +50,7 @@ from .. import interface, subcommand
 from ..atomic import write_text
 from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
-from ..process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
+from ..graph.process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
 from . import second_writer
 from .faultproxy import FaultProxy
 from .graphs import state
@@ -275,7 +275,7 @@ class ChaosLab:
         g.supervise(*SUPERVISED, delay_s=0.5, max_delay_s=4.0, stable_s=10.0,
                     fresh={'bag_recorder': lambda n: {'output': str(self.bags / f'session-{n}')}})
         self.gaze = GazeStub(self.gaze_port)
-        from ..process_graph import Probe
+        from ..graph.process_graph import Probe
         self.probe = Probe(g.domain_id, 'chaos_operator')
         self.wait_active('pressure_controller', 60.0)
         self.enable()

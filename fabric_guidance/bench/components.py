@@ -205,7 +205,7 @@ def _bare_node():
     """A bare rclpy node in its own context and ROS domain (for its logger and a publisher)."""
     import rclpy
     from rclpy.context import Context
-    from ..process_graph import fresh_domain_id
+    from ..graph.process_graph import fresh_domain_id
     context = Context()
     rclpy.init(context=context, domain_id=fresh_domain_id())
     return rclpy.create_node('bench_components', context=context), context

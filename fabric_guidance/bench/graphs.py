@@ -14,7 +14,7 @@ from typing import Callable
 
 from ..core import Calibration
 from ..plc import RegisterMap
-from ..process_graph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
+from ..graph.process_graph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
 from . import floor
 from .latency import Sender, WriteLog, landings, percentiles_ms
 from .gaze_sweep import Sweep

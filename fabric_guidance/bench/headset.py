@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from ..process_graph import free_port, wait_until
+from ..graph.process_graph import free_port, wait_until
 from .latency import landings, percentiles_ms
 
 HOLOLENS = Path(__file__).resolve().parents[2] / 'hololens'

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..process_graph import wait_until
+from ..graph.process_graph import wait_until
 
 
 def percentiles_ms(latencies_ns: Sequence[int]) -> dict:

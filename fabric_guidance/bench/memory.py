@@ -14,7 +14,7 @@ import sys
 import time
 from typing import Callable
 
-from ..process_graph import Graph, free_port
+from ..graph.process_graph import Graph, free_port
 from .graphs import FILES, SIM_CALIBRATION, rss_mb
 
 #: The lab nodes (the simulators stand in for hardware and are left out).

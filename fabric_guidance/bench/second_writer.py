@@ -15,7 +15,7 @@ import threading
 import time
 
 from ..plc.register_log import vent_time
-from ..process_graph import CONFIG, wait_until
+from ..graph.process_graph import CONFIG, wait_until
 
 #: What the second writer commands on every channel [kPa]: no guidance or calibration pattern,
 #: so it is recognisable in the register log.

@@ -43,8 +43,8 @@ from .. import interface, subcommand
 from ..atomic import write_text
 from ..paths import config_path, node_parameters
 from ..plc.register_log import RegisterLog
-from ..process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
-                             wait_until)
+from ..graph.process_graph import (FILES, NODES, Graph, PlcInvariantError, Probe, sim_lab, start_nodes, start_task,
+                                   wait_until)
 from .graphs import cpu_s, fds, rss_mb, threads
 from .soak_latency import LAND_TIMEOUT_S, LATENCY, PAIR_WAIT_S, LatencyMatcher
 from .soak_report import harmful, number, plot, summary, verdicts

@@ -6,7 +6,7 @@ from collections import Counter
 import threading
 import time
 
-from ..process_graph import Probe
+from ..graph.process_graph import Probe
 from .soak_latency import LatencyMatcher
 
 #: Statuses of the nodes' /diagnostics that are routine in a guided session (between targets).

@@ -24,7 +24,7 @@ import time
 from typing import Callable
 
 from ..core import condition as condition_of
-from ..process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
+from ..graph.process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..study import plan
 from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S

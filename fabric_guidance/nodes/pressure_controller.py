@@ -514,7 +514,7 @@ class PressureController(LiveParameters, ManagedNode):
         """The fit report (text and PNG) in `folder`. Drawing takes about a second, so it runs
         off the control loop; the calibration is saved (or kept) whatever happens to it."""
         import threading
-        from ..calibration_report import report_paths, write_fit_report
+        from ..lab.calibration_report import report_paths, write_fit_report
         txt, png = report_paths(cal, folder)
         logger = self.get_logger()
 

@@ -33,7 +33,7 @@ import shutil
 import subprocess
 import sys
 
-from . import subcommand
+from .. import subcommand
 
 PROG = 'fabric-guidance discovery-server'
 HELP = "run Fast DDS's discovery server for the lab graph (no multicast discovery)"

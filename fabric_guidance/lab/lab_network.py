@@ -6,7 +6,7 @@ by default Fast DDS discovers and sends on all of them. The profile written here
 participant of the process one UDPv4 transport allowed on the named interface alone (a device
 name such as `enp3s0`, or its IPv4 address) and nothing else: no shared-memory transport, no
 other interface. Discovery stays Fast DDS's simple discovery (multicast on that interface), or
-a discovery server when ROS_DISCOVERY_SERVER is set (fabric_guidance/discovery_server.py).
+a discovery server when ROS_DISCOVERY_SERVER is set (fabric_guidance/lab/discovery_server.py).
 
     fabric-guidance dds-profile --interface enp3s0 --out ~/lab/fastdds_lab.xml
     export FASTDDS_DEFAULT_PROFILES_FILE=~/lab/fastdds_lab.xml   # Kilted (Jazzy: FASTRTPS_DEFAULT_PROFILES_FILE)
@@ -28,8 +28,8 @@ import socket
 import sys
 import xml.etree.ElementTree as ET
 
-from . import subcommand
-from .atomic import write_text
+from .. import subcommand
+from ..atomic import write_text
 
 PROG = 'fabric-guidance dds-profile'
 HELP = 'write (or check) a Fast DDS profile that keeps DDS on one network interface of the lab PC'

@@ -1,6 +1,6 @@
 """`fabric-guidance demo` (= `make demo`): the simulated ROS graph, a short guided session, and
-what happened. The graph is started as processes (fabric_guidance/process_graph.py) and watched
-by fabric_guidance/demo.py; rclpy is imported only when the demo runs.
+what happened. The graph is started as processes (fabric_guidance/graph/process_graph.py) and watched
+by fabric_guidance/commands/demo.py; rclpy is imported only when the demo runs.
 """
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 import sys
 
-from . import subcommand
+from .. import subcommand
 
 PROG = 'fabric-guidance demo'
 HELP = 'run the simulated ROS graph for a short guided session and report it'

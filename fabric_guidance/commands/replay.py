@@ -24,7 +24,7 @@ import argparse
 import math
 import sys
 
-from . import subcommand
+from .. import subcommand
 
 PROG = 'fabric-guidance replay'
 HELP = ('replay a recorded session: offline through the controller, or republished with /clock '
@@ -55,14 +55,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args, stream=sys.stdout) -> int:
     say = subcommand.printer(stream)
 
-    from .bag.reader import bag_dir
+    from ..bag.reader import bag_dir
     try:
         bag_dir(args.bag)
     except FileNotFoundError as exc:
         say(f'fabric-guidance replay: {exc}')
         return 2
     if args.offline:
-        from .bag import offline
+        from ..bag import offline
         try:
             overrides = offline.parse_overrides(args.set)
             rec = offline.load(args.bag)
@@ -78,8 +78,8 @@ def run(args, stream=sys.stdout) -> int:
     if args.set:
         say('fabric-guidance replay: --set applies to --offline; set parameters of the live nodes instead')
         return 2
-    from .bag.player import play
-    from .bag.topics import REPLAYED_INPUTS
+    from ..bag.player import play
+    from ..bag.topics import REPLAYED_INPUTS
     try:
         n = play(args.bag, args.topics or REPLAYED_INPUTS, args.rate, args.loop, args.loops, args.wait, say)
     except KeyboardInterrupt:

@@ -19,7 +19,7 @@ import shutil
 import sys
 import tempfile
 
-from . import subcommand
+from .. import subcommand
 
 PROG = 'fabric-guidance recover'
 HELP = 'write a complete bag (summary, metadata.yaml) from the intact part of a cut-off recording'
@@ -41,8 +41,8 @@ def write_recovered(found, out: Path, note: str) -> dict[str, int]:
     topic with its type and the QoS profiles its channel carried; returns messages per topic.
     Written beside `out` under a temporary name and renamed when closed and read back whole."""
     from rosbags.rosbag2.metadata import parse_qos
-    from .bag.reader import raw_messages
-    from .bag.writer import BagWriter
+    from ..bag.reader import raw_messages
+    from ..bag.writer import BagWriter
 
     messages = []
     topics = {}
@@ -78,7 +78,7 @@ def write_recovered(found, out: Path, note: str) -> dict[str, int]:
 
 def run(args, stream=sys.stdout) -> int:
     say = subcommand.printer(stream)
-    from .bag.reader import BagReadError, scan_bag
+    from ..bag.reader import BagReadError, scan_bag
     try:
         directory, found, missing = scan_bag(args.bag)
     except (FileNotFoundError, BagReadError) as exc:

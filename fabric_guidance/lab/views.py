@@ -3,8 +3,8 @@ generated from the interface table and the channel map so that its topics and it
 channels' names and indices cannot drift from the code: test/test_operator_views.py fails when
 the committed file differs from foxglove_json().
 
-    python -m fabric_guidance.views --foxglove [CHANNEL_MAP]   # print it (default: the package's map)
-    python -m fabric_guidance.views --foxglove --namespace suit_a   # the layout of a namespaced graph
+    python -m fabric_guidance.lab.views --foxglove [CHANNEL_MAP]   # print it (default: the package's map)
+    python -m fabric_guidance.lab.views --foxglove --namespace suit_a   # the layout of a namespaced graph
 
 Foxglove's Plot panel names a series by its `label` setting, or by index when it expands an
 array; it does not read a MultiArray's layout label. So each channel is one series
@@ -23,9 +23,9 @@ from pathlib import Path
 import sys
 from typing import Sequence
 
-from . import interface
-from .core.channels import ChannelMap
-from .paths import config_path
+from .. import interface
+from ..core.channels import ChannelMap
+from ..paths import config_path
 
 #: Where the generated layout is committed (under config/).
 FOXGLOVE_LAYOUT = 'foxglove/fabric_guidance.json'
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         namespace = argv[i + 1]
         del argv[i:i + 2]
     if not argv or argv[0] != '--foxglove' or len(argv) > 2:
-        print('usage: python -m fabric_guidance.views --foxglove [CHANNEL_MAP] [--namespace NS]', file=sys.stderr)
+        print('usage: python -m fabric_guidance.lab.views --foxglove [CHANNEL_MAP] [--namespace NS]', file=sys.stderr)
         return 2
     sys.stdout.write(foxglove_json(argv[1] if len(argv) == 2 else None, namespace))
     return 0

@@ -26,19 +26,19 @@ import argparse
 from importlib import import_module
 import sys
 
-from . import subcommand
+from .. import subcommand
 
 #: Every subcommand: its module (which has add_parser(subparsers) and run(args)) and the one line
 #: `fabric-guidance --help` lists. A module is imported only when its subcommand runs, so each
 #: pays only for its own dependencies (bench needs no scikit-posthocs, example no pandas).
 SUBCOMMANDS = {
-    'demo': ('fabric_guidance.demo_command',
+    'demo': ('fabric_guidance.commands.demo_command',
              'run the simulated ROS graph for a short guided session and report it'),
-    'replay': ('fabric_guidance.replay', 'replay a recorded session: offline through the '
+    'replay': ('fabric_guidance.commands.replay', 'replay a recorded session: offline through the '
                'controller, or republished with /clock for the graph'),
-    'recover': ('fabric_guidance.recover', 'write a complete bag (summary, metadata.yaml) from the intact '
+    'recover': ('fabric_guidance.commands.recover', 'write a complete bag (summary, metadata.yaml) from the intact '
                 'part of a cut-off recording'),
-    'calibration-report': ('fabric_guidance.calibration_report',
+    'calibration-report': ('fabric_guidance.lab.calibration_report',
                            "write the fit report (text and PNG) of a wearer's calibration file"),
     'analyze': ('fabric_guidance.experiments.analyze', 'Friedman test + Dunn-Bonferroni post-hoc '
                 "on a subjects x conditions CSV (as the paper's table) or on a live study's folder"),
@@ -63,13 +63,13 @@ SUBCOMMANDS = {
               'checked from the PLC register log'),
     'soak': ('fabric_guidance.bench.soak', 'the simulated lab graph guiding target after target for N minutes: '
              'latency, resources and losses per minute, a verdict on drift'),
-    'example': ('fabric_guidance.example_command',
+    'example': ('fabric_guidance.commands.example_command',
                 'the core alone on a worked example: calibration and guided turns'),
-    'dds-profile': ('fabric_guidance.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '
+    'dds-profile': ('fabric_guidance.lab.lab_network', 'write (or check) a Fast DDS profile that keeps DDS on one '
                     'network interface of the lab PC'),
-    'discovery-server': ('fabric_guidance.discovery_server',
+    'discovery-server': ('fabric_guidance.lab.discovery_server',
                          "run Fast DDS's discovery server for the lab graph (no multicast discovery)"),
-    'security-policy': ('fabric_guidance.security_policy', 'write the SROS2 permissions policy of the lab graph, '
+    'security-policy': ('fabric_guidance.lab.security_policy', 'write the SROS2 permissions policy of the lab graph, '
                         'generated from the interface table'),
 }
 

@@ -30,7 +30,7 @@ from launch.actions import (DeclareLaunchArgument, ExecuteProcess, RegisterEvent
 from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
-from . import discovery_server, lab_network, security_policy
+from ..lab import discovery_server, lab_network, security_policy
 
 #: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
 MOCK_PLC_LISTENING = 'mock PLC listening on'
@@ -231,5 +231,5 @@ def lab_network_actions(context) -> list:
     if not server:
         raise ValueError('launch argument start_discovery_server:=true needs discovery_server:=ADDRESS[:PORT]')
     discovery_server.parse_locator(server)
-    return [ExecuteProcess(cmd=[sys.executable, '-m', 'fabric_guidance.cli', 'discovery-server', '--listen', server],
-                           name='discovery_server', output='screen')]
+    return [ExecuteProcess(cmd=[sys.executable, '-m', 'fabric_guidance.commands.cli', 'discovery-server',
+                                '--listen', server], name='discovery_server', output='screen')]

@@ -28,13 +28,13 @@ import sys
 
 import numpy as np
 
-from . import subcommand
-from .atomic import atomic_write, write_text
-from .paths import share_dir
-from .core.calibration import Calibration, CalibrationFileError
-from .core.geometry import DIRECTIONS
-from .core.power_law import THETA_MAX
-from .core.safe_input import check_wearer
+from .. import subcommand
+from ..atomic import atomic_write, write_text
+from ..paths import share_dir
+from ..core.calibration import Calibration, CalibrationFileError
+from ..core.geometry import DIRECTIONS
+from ..core.power_law import THETA_MAX
+from ..core.safe_input import check_wearer
 
 PROG = 'fabric-guidance calibration-report'
 HELP = "write the fit report (text and PNG) of a wearer's calibration file"

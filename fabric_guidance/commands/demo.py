@@ -26,15 +26,15 @@ import time
 
 import numpy as np
 
-from .bag.recorder_status import hears, recorded_counts
-from .core import ChannelMap, condition as condition_of, ray_direction, target_direction
-from .core.geometry import DIRECTIONS
-from .core.feedback import PAPER_P_MAX
-from .core.task import angular_error_deg
-from .paths import config_path, node_parameters
-from .plc import PlcClient, RegisterMap
-from .process_graph import FILES, NODES, Graph, Probe, sim_lab, start_nodes, start_task, wait_until
-from .sim.scene_plan import ScenePlan, plan_scene
+from ..bag.recorder_status import hears, recorded_counts
+from ..core import ChannelMap, condition as condition_of, ray_direction, target_direction
+from ..core.geometry import DIRECTIONS
+from ..core.feedback import PAPER_P_MAX
+from ..core.task import angular_error_deg
+from ..paths import config_path, node_parameters
+from ..plc import PlcClient, RegisterMap
+from ..graph.process_graph import FILES, NODES, Graph, Probe, sim_lab, start_nodes, start_task, wait_until
+from ..sim.scene_plan import ScenePlan, plan_scene
 
 #: Distractor spheres of the paper's speed task (Section VI).
 PAPER_DUMMIES = 50
@@ -58,8 +58,8 @@ class SessionWatch:
         from geometry_msgs.msg import PointStamped, PoseStamped
         from std_msgs.msg import Float64MultiArray, String
 
-        from . import interface
-        from .nodes import qos
+        from .. import interface
+        from ..nodes import qos
         self.cmap, self.layout, self.say = channel_map, layout, say
         self.sequence = sequence
         self.lock = threading.Lock()
@@ -83,7 +83,7 @@ class SessionWatch:
         probe.subscribe(String, interface.HEADSET_VIEW, qos.EVENT_QOS, self.on_view)
         from diagnostic_msgs.msg import DiagnosticArray
 
-        from .nodes.mock_plc import MAX_WRITTEN
+        from ..nodes.mock_plc import MAX_WRITTEN
         probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10, self.on_diagnostics)
         probe.subscribe(Float64MultiArray, MAX_WRITTEN, qos.COMMAND_QOS, self.on_max_written)
 
@@ -253,7 +253,7 @@ def _run_demo(condition, timeout_s, log_dir: Path, say, scene, record_dir, kept:
         deadline = time.monotonic() + timeout_s
         # Start the task, as an operator would, once the whole graph (the watch included) is up:
         # every target's time is then guidance time, not process start-up.
-        from . import interface
+        from .. import interface
         wait_until(lambda: all(probe.messages.get(t) for t in (
             interface.PRESSURE_COMMAND, interface.GAZE, interface.MEASURED_PRESSURE, interface.ACTIVE_TARGET)),
             timeout_s, what='the graph to come up')

@@ -11,12 +11,12 @@ from pathlib import Path
 import sys
 import tempfile
 
-from . import subcommand
-from .core import (DIRECTIONS, PAPER_GAIN, PAPER_P_MAX, ChannelMap, GuidanceController, PowerLaw,
-                   condition, phrase)
-from .paths import config_path
-from .sim.worked_example import calibrate, guide, within
-from .sim.wearer import SimulatedWearer
+from .. import subcommand
+from ..core import (DIRECTIONS, PAPER_GAIN, PAPER_P_MAX, ChannelMap, GuidanceController, PowerLaw,
+                    condition, phrase)
+from ..paths import config_path
+from ..sim.worked_example import calibrate, guide, within
+from ..sim.wearer import SimulatedWearer
 
 PROG = 'fabric-guidance example'
 HELP = 'the core alone on a worked example: calibration and guided turns'

@@ -31,9 +31,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
-from . import interface
-from .lab_network import PROFILE_VARIABLES, profile_env, profile_variable
-from .paths import share_dir
+from .. import interface
+from ..lab.lab_network import PROFILE_VARIABLES, profile_env, profile_variable
+from ..paths import share_dir
 
 ROOT = share_dir()
 CONFIG = ROOT / 'config'
@@ -274,7 +274,7 @@ class Graph:
     def plc_violations(self) -> list[str]:
         """Broken invariants in the records of every mock_plc started so far (a mock that never
         listened, e.g. refused at start-up, has no records)."""
-        from .plc.records import load_records, violations
+        from ..plc.records import load_records, violations
         found = []
         for path in self.records_files:
             if path.exists():

@@ -36,8 +36,8 @@ import re
 import sys
 import xml.etree.ElementTree as ET
 
-from . import interface, subcommand
-from .atomic import write_text
+from .. import interface, subcommand
+from ..atomic import write_text
 
 PROG = 'fabric-guidance security-policy'
 HELP = 'write the SROS2 permissions policy of the lab graph, generated from the interface table'
