@@ -112,7 +112,7 @@ def test_every_profile_setting_names_the_variable_of_the_distributions_fast_dds(
     for launch_file in sorted((ROOT / 'launch').glob('*.launch.py')):
         text = launch_file.read_text()
         assert 'FASTDDS_DEFAULT_PROFILES_FILE' not in text and 'FASTRTPS' not in text, launch_file.name
-    assert 'lab_network.profile_env(profile)' in (ROOT / 'fabric_guidance' / 'launch_support.py').read_text()
+    assert 'lab_network.profile_env(profile)' in (ROOT / 'fabric_guidance' / 'graph' / 'launch_support.py').read_text()
 
 
 def test_the_loopback_profile_of_the_demo_passes_the_same_check():

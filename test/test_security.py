@@ -49,7 +49,7 @@ def test_simulated_and_test_graphs_keep_dds_discovery_on_localhost(tmp_path):
     launch = (ROOT / 'launch' / 'sim.launch.py').read_text()
     # The simulated launch sets the same profile (LOCALHOST discovery if the file were missing).
     assert 'loopback_dds_actions(' in launch
-    support = (ROOT / 'fabric_guidance' / 'launch_support.py').read_text()
+    support = (ROOT / 'fabric_guidance' / 'graph' / 'launch_support.py').read_text()
     assert "'fastdds_loopback.xml'" in support and "'LOCALHOST'" in support
     assert 'ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST' in (ROOT / 'Makefile').read_text()
     assert ipaddress.ip_address(node_parameters('params/sim.yaml', 'mock_plc')['host']).is_loopback
