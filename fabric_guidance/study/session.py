@@ -44,6 +44,12 @@ PRESS_KEYS = ('stamp', 'received', 'resolved', 'source', 'gaze_t', 'error_deg', 
 ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLUMNS)
 #: The most gaze samples kept, whatever their stamps (2 s at 1 kHz).
 MAX_GAZE_SAMPLES = 2000
+#: A press captured less than this share of a gaze frame after the newest sample is judged at
+#: once: a sample captured between the two would have to come sooner than the stream ever has
+#: (its shortest interval over the last FRAME_SAMPLES), so none can still be on its way. Later
+#: in the frame the press waits for a sample captured after it.
+EARLY_SHARE = 0.75
+FRAME_SAMPLES = 16
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
 
@@ -195,7 +201,7 @@ class Session:
         h.append(GazeSample(t, yaw_deg, pitch_deg))
         while h and t - h[0].t > self.design.gaze_history_s:
             h.popleft()
-        if self._pending is not None and t >= self._pending.stamp:
+        if self._pending is not None and self._sample_settled(self._pending.stamp):
             self._resolve(t, step)
         if self._phase == 'front' and self._trial is not None:
             tr = self._trial
@@ -245,7 +251,7 @@ class Session:
             return step
         self._last_stamp = stamp
         self._pending = Press(stamp, received, source)
-        if self._history and self._history[-1].t >= stamp:
+        if self._sample_settled(stamp):
             self._resolve(received, step)
         else:
             step.pending = True
@@ -394,6 +400,26 @@ class Session:
         step.actions.append(Action('show_target', t, target=tr['target'], target_id='target', visible=True,
                                    dummy_set=self._dummy_set))
         self._phase = 'target'
+
+    def _shortest_frame_s(self) -> float | None:
+        """The shortest interval between the last FRAME_SAMPLES + 1 samples (None: too few)."""
+        h = self._history
+        if len(h) <= FRAME_SAMPLES:
+            return None
+        recent = [h[i].t for i in range(len(h) - FRAME_SAMPLES - 1, len(h))]
+        shortest = min(b - a for a, b in zip(recent, recent[1:]))
+        return shortest if shortest > 0.0 else None
+
+    def _sample_settled(self, stamp: float) -> bool:
+        """Whether the sample at or before `stamp` is known: one captured after it has come, or
+        the stamp is early in the newest sample's frame (EARLY_SHARE)."""
+        h = self._history
+        if not h:
+            return False
+        if h[-1].t >= stamp:
+            return True
+        frame = self._shortest_frame_s()
+        return frame is not None and stamp - h[-1].t < EARLY_SHARE * frame
 
     def _sample_at(self, stamp: float) -> GazeSample | None:
         """The last gaze sample captured at or before stamp."""
