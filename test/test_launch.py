@@ -199,6 +199,7 @@ def test_sim_launch_in_a_namespace_keeps_its_configuration_guides_and_vents_on_s
         assert _parameters(probe, 'gaze_bridge', ['port', 'headset_address']) == [sim_ports['gaze_port'], '127.0.0.1']
         assert _parameters(probe, 'mock_plc', ['port']) == [sim_ports['plc_port']]
         # Discovery of a probe that joined late takes its time: wait for the names, then check.
+
         def services():
             return {name for name, _ in probe.node.get_service_names_and_types()}
         wanted = {interface.full_name(s.name, SIM_NAMESPACE) for s in interface.SERVICES}
