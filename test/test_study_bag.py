@@ -140,3 +140,30 @@ def test_a_simulated_sessions_blocks_each_have_their_bag(tmp_path):
         lines = [m.data for m in msgs['/study_display']]
         assert 'done sequence' in lines and 'done block' in lines, lines
     assert 'done session' in [m.data for m in read_bag(bags[-1])['/study_display']]
+
+
+def test_a_bag_that_cannot_be_written_costs_one_line_not_the_block(tmp_path):
+    from fabric_guidance.live_study.block_bag import BlockBags
+
+    class Store:
+        recorded = []
+
+        def bag_path(self, block):
+            path = tmp_path / 'taken_bag'
+            path.mkdir(exist_ok=True)         # a folder already there: the recorder refuses it
+            return path
+
+        def record(self, step):
+            self.recorded.append(step)
+
+    class Block:
+        key, order = 'accuracy-order1-cond1', 1
+
+    lines = []
+    bags = BlockBags(None, Store(), say=lines.append)
+    bags.begin(Block())
+    assert len(lines) == 1 and 'block 1: no bag' in lines[0] and 'taken_bag: exists' in lines[0], lines
+    assert bags.recorder.process is None and bags.block is None
+    bags.record('step')                       # the trials go on being recorded
+    assert Store.recorded == ['step']
+    bags.close()

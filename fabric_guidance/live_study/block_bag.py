@@ -145,9 +145,17 @@ class BlockBags:
         self.block = None
 
     def begin(self, block) -> None:
+        """Record `block` into its reserved folder. A recorder that cannot start (its log says
+        why) costs the block's bag, not the participant's block: one line, and the trials are
+        written as always."""
         self.close()
+        path = self.store.bag_path(block)
+        try:
+            self.recorder.start(path)
+        except (BlockRecorderError, OSError) as exc:
+            self.say(f'  block {block.order}: no bag ({exc}); its trials are recorded as always')
+            return
         self.block = block
-        path = self.recorder.start(self.store.bag_path(block))
         self.say(f'  recording block {block.order} into {path.name}')
 
     def record(self, step) -> None:
@@ -157,7 +165,10 @@ class BlockBags:
 
     def close(self) -> None:
         self.block = None
-        self.recorder.stop()
+        try:
+            self.recorder.stop()
+        except BlockRecorderError as exc:     # killed: the flushed part is recoverable
+            self.say(f'  {exc}')
 
     def __getattr__(self, name):
         return getattr(self.store, name)
