@@ -616,3 +616,8 @@ def test_a_short_accuracy_study_on_the_launched_sim_graph_writes_its_trials_and_
         presses = [reader.deserialize(raw, c.msgtype).frame_id
                    for c, _, raw in reader.messages(connections=[topics['/confirm']])]
     assert presses and set(presses) == {'wearer_sim'}
+    # study-accuracy.yaml reached headset_display: the target unseen from its start (a respawn too)
+    with Probe(domain_id) as probe:
+        response = probe.call(GetParameters, '/headset_display/get_parameters',
+                              GetParameters.Request(names=['draw_active_target', 'dummies']), attempts=3)
+    assert [response.values[0].bool_value, response.values[1].integer_value] == [False, 0]
