@@ -619,5 +619,5 @@ def test_a_short_accuracy_study_on_the_launched_sim_graph_writes_its_trials_and_
     # study-accuracy.yaml reached headset_display: the target unseen from its start (a respawn too)
     with Probe(domain_id) as probe:
         response = probe.call(GetParameters, '/headset_display/get_parameters',
-                              GetParameters.Request(names=['draw_active_target', 'dummies']), attempts=3)
+                              GetParameters.Request(names=['draw_targets', 'dummies']), attempts=3)
     assert [response.values[0].bool_value, response.values[1].integer_value] == [False, 0]

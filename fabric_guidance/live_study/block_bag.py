@@ -5,7 +5,9 @@ The recorder is a process of its own, not a writer in the session's process: the
 operator thread then never spends its time serializing messages (the key press is judged on
 the gaze it keeps), the recorder keeps its own deep queues, and a session killed without
 warning (SIGKILL, a crash) leaves a complete bag: the recorder asks the kernel for SIGINT when
-its parent dies (PR_SET_PDEATHSIG) and closes the bag with its metadata as on Ctrl-C. A
+its parent dies (PR_SET_PDEATHSIG) and closes the bag with its metadata as on Ctrl-C. The
+kernel means the thread that started it: call start() from the session's main thread, not
+from a thread that ends before the block does. A
 recorder killed itself loses at most its last flush period (`fabric-guidance recover BAG`).
 
     rec = BlockRecorder(op, namespace='/')

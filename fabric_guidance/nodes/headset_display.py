@@ -5,8 +5,9 @@ UDP to headset_address:display_port, and nowhere else:
 
 - targets: target_markers (every target with its name and position; namespace live_targets for
   the micromanipulator's objects) and active_target, positions converted to Unity world; with
-  `draw_active_target` false (the paper's accuracy task: the target is never seen, the suit
-  alone guides) the active target is left out and `active` is sent empty;
+  `draw_targets` false (the paper's accuracy task: the target is never seen, the suit alone
+  guides) no target is sent and `active` is empty: an inactive target would give away where
+  the next one is (target_selector moves it before it makes it active);
 - event: `next` when a target becomes active, `found` on target_found; each sent three times,
   EVENT_REPEAT_S apart, with one event_id, since UDP may lose one;
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
@@ -78,10 +79,10 @@ class HeadsetDisplay(Node):
                                          'front', 'deg', 0.0, 180.0, read_only=True)
         self.dummy_elevation_deg = declare(self, 'dummy_elevation_deg', 30.0, 'dummies within +- this elevation',
                                            'deg', 0.0, 90.0, read_only=True)
-        # Set by a study session before each target (a parameter: set before the target is, so
-        # no refresh can draw an unseen target in between).
-        self.draw_active_target = declare(self, 'draw_active_target', True, 'draw the active target (false: the '
-                                          "paper's accuracy task, an unseen target reached by guidance alone)")
+        # Set by a study session before each target too (a parameter: set before the target
+        # is, so no refresh can draw an unseen target in between).
+        self.draw_targets = declare(self, 'draw_targets', True, "draw the targets (false: the paper's accuracy "
+                                    'task, an unseen target reached by guidance alone; nothing drawn or named)')
         self.add_post_set_parameters_callback(self.on_parameters)
         try:
             ip = ipaddress.ip_address(address)
@@ -142,9 +143,9 @@ class HeadsetDisplay(Node):
 
     def shown(self) -> tuple[str, list[dict]]:
         """The active target's id and the targets as the headset is to draw them."""
-        if self.draw_active_target or not self.active:
+        if self.draw_targets:
             return self.active, self.targets
-        return '', [t for t in self.targets if t['id'] != self.active]
+        return '', []
 
     def send_targets(self) -> None:
         active, targets = self.shown()
@@ -249,8 +250,8 @@ class HeadsetDisplay(Node):
 
     def on_parameters(self, parameters) -> None:
         for p in parameters:
-            if p.name == 'draw_active_target' and bool(p.value) != self.draw_active_target:
-                self.draw_active_target = bool(p.value)
+            if p.name == 'draw_targets' and bool(p.value) != self.draw_targets:
+                self.draw_targets = bool(p.value)
                 self.send_targets()
 
     def on_study(self, msg: String) -> None:
