@@ -7,13 +7,12 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 import pytest
 from rosbags.highlevel import AnyReader
 
 from fabric_guidance import interface
-from fabric_guidance.bag.recorder_status import hears, recorded_counts
+from fabric_guidance.bag.recorder_status import recorded_counts
 from fabric_guidance.live_study.block_bag import BlockRecorder, BlockRecorderError
 from fabric_guidance.live_study.operator import Operator
 from fabric_guidance.process_graph import fresh_domain_id, wait_until
@@ -67,13 +66,19 @@ def test_a_blocks_bag_holds_its_presses_and_gaze(tmp_path):
     try:
         rec.start(path)
         publish = _gaze_publisher(op)
-        for i in range(20):      # at the gaze rate (90 Hz): a burst could overrun the sender's history
-            publish(i)
-            time.sleep(1 / 90)
+        wait_until(lambda: op.confirm_pub.get_subscription_count() >= 2, 20.0,
+                   what='the recorder matched the confirm publisher')
         op.press_key('keyboard')
         op.press_key('headset')
-        wait_until(lambda: hears(counts, interface.GAZE, interface.CONFIRM) and counts[interface.CONFIRM] >= 2
-                   and counts[interface.GAZE] >= 20, 20.0, what='the recorder wrote 20 gaze and 2 presses')
+        sent = []
+
+        def stream():
+            # gaze is best effort (a sample may be lost under load, as on the real graph): at the
+            # gaze rate until the recorder has written 20
+            sent.append(len(sent))
+            publish(sent[-1])
+            return counts.get(interface.GAZE, 0) >= 20 and counts.get(interface.CONFIRM, 0) >= 2
+        wait_until(stream, 30.0, interval=1 / 90, what='the recorder wrote 20 gaze and 2 presses')
         with pytest.raises(BlockRecorderError, match='already recorded'):
             rec.start(tmp_path / 'other_bag')
         assert rec.stop() == path
@@ -81,8 +86,9 @@ def test_a_blocks_bag_holds_its_presses_and_gaze(tmp_path):
         rec.stop()
         op.close()
     msgs = read_bag(path)
-    assert [m.frame_id for m in msgs['/confirm']] == ['keyboard', 'headset']
-    assert [m.header.frame_id for m in msgs['/gaze']] == [f'gaze-{i}' for i in range(20)]
+    assert [m.frame_id for m in msgs['/confirm']] == ['keyboard', 'headset']      # reliable: both, in order
+    got = [int(m.header.frame_id.split('-')[1]) for m in msgs['/gaze']]
+    assert len(got) >= 20 and got == sorted(set(got)) and set(got) <= set(sent), got
     # a redone block gets run-2: the first one's bag stays as it is
     assert store.bag_path(block).name.endswith('_block-1_run-2_bag')
 
