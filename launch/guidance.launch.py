@@ -28,7 +28,8 @@ discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery ser
 start_discovery_server:=true also runs it here (docs/lab_network.md). Unset, nothing changes.
 
 Parameters come from config/params/guidance.yaml (or params_file:=...), then extra_params_file:=...
-if given (its values win); an argument given here overrides both, an argument left empty keeps
+if given (its values win), then config/params/study-<task>.yaml with study:=speed|accuracy (a
+study session's settings, docs/study.md); an argument given here overrides both, an argument left empty keeps
 the files' value. The arguments reach each node as a file keyed by the node's own name, loaded
 last: a node-scoped value loaded later always wins in rcl, whatever else the launch sets.
 """
@@ -45,7 +46,7 @@ from fabric_guidance.interface import MANAGED_NODES
 from fabric_guidance.graph.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
                                                   lab_node_kwargs, launch_namespace, lifecycle_bring_up,
                                                   namespace_argument, respawn_arguments, respawn_enabled,
-                                                  respawn_kwargs)
+                                                  respawn_kwargs, study_argument, study_params_files)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -91,6 +92,7 @@ def _nodes(context, *args, **kwargs):
     extra = LaunchConfiguration('extra_params_file').perform(context)
     if extra:
         files.append(extra)
+    files += study_params_files(context, get_package_share_directory('fabric_guidance'))
     use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
     overrides = {name: {'use_sim_time': use_sim_time} for name in NODES}
     for arg, (nodes, parameter, kind, _) in ARGUMENTS.items():
@@ -142,6 +144,7 @@ def generate_launch_description():
         DeclareLaunchArgument('extra_params_file', default_value='',
                               description='a second parameter file, loaded after params_file '
                                           '(its values win; empty: none)'),
+        study_argument(),
         DeclareLaunchArgument('use_sim_time', default_value='false',
                               description='use /clock (rosbag replay)'),
         DeclareLaunchArgument('autostart', default_value='true',

@@ -3,6 +3,8 @@ wearer, with the simulated wearer's calibration and config/params/sim.yaml over 
 for every node (as `make demo` runs it).
 
     ros2 launch fabric_guidance sim.launch.py condition:=2
+    # a study session's graph (docs/study.md): wearer_sim a participant of the paper's accuracy task
+    ros2 launch fabric_guidance sim.launch.py study:=accuracy
     # a second suit beside the first, on the same domain (docs/interfaces.md, "Names and namespaces")
     ros2 launch fabric_guidance sim.launch.py namespace:=suit_b plc_port:=1602 gaze_port:=5105 display_port:=5106
 
@@ -20,7 +22,8 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
-                                                  launch_namespace, loopback_dds_actions, namespace_argument)
+                                                  launch_namespace, loopback_dds_actions, namespace_argument,
+                                                  study_argument, study_params_files)
 
 
 def _graph(context, *args, **kwargs):
@@ -46,6 +49,7 @@ def _graph(context, *args, **kwargs):
             # their enable gate are for a wearer (guidance.launch.py).
             'respawn': 'false',
             'namespace': LaunchConfiguration('namespace'),
+            'study': LaunchConfiguration('study'),
         }.items())
     namespace = launch_namespace(context)
     ports = NodeOverrides(context)
@@ -55,7 +59,7 @@ def _graph(context, *args, **kwargs):
                     **lab_node_kwargs(context, 'mock_plc'))
     wearer = Node(package='fabric_guidance', executable='wearer_sim', name='wearer_sim', namespace=namespace,
                   output='screen',
-                  parameters=[sim_params,
+                  parameters=[sim_params, *study_params_files(context, share),
                               ports.file('wearer_sim', {'bridge_port': int(gaze_port),
                                                         'display_port': int(display_port)})],
                   **lab_node_kwargs(context, 'wearer_sim'))
@@ -80,5 +84,6 @@ def generate_launch_description():
                               description='configure and activate the lifecycle nodes (false: leave them '
                                           'to the operator)'),
         namespace_argument(),
+        study_argument(),
         OpaqueFunction(function=_graph),
     ])

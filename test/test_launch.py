@@ -545,3 +545,79 @@ def test_discovery_server_started_by_the_launch_and_every_node_its_client(lab_wi
         assert env.get('ROS_DISCOVERY_SERVER') == server, node
         assert 'ROS_SECURITY_ENABLE' not in env and 'ROS_SECURITY_ENCLAVE_OVERRIDE' not in env, node
     wait_until(lambda: plc.client_count >= 1, 30.0, what='plc_output connected')
+
+
+# ------------------------------------------------------------------- sim.launch.py study:=accuracy
+#: Seven processes' start-up, then one accuracy trial (a 3 s rest, at most the scene's 15 s timeout).
+STUDY_DEADLINE_S = 60.0
+
+
+@launch_pytest.fixture
+def study_graph(sim_ports):
+    watch, domain_id = Watch(), fresh_domain_id()
+    return _graph(watch, domain_id, _include('sim.launch.py', study='accuracy', **sim_ports)), watch, domain_id
+
+
+def _short_accuracy_study(out, domain_id):
+    """One participant, condition 1, one accuracy trial, run on the launched graph as
+    session_graph runs it on its own: the Session driven through an Operator, a bag per block."""
+    import yaml
+    from fabric_guidance.live_study.block_bag import BlockBags
+    from fabric_guidance.live_study.driver import SessionDriver
+    from fabric_guidance.live_study.operator import Operator
+    from fabric_guidance.live_study.simulated import design_of
+    from fabric_guidance.sim.scene import load_scene, scene_path
+    from fabric_guidance.study.plan import participant_blocks
+    from fabric_guidance.study.session import Session
+    from fabric_guidance.study.store import Study
+    data = yaml.safe_load(scene_path('paper-accuracy').read_text())
+    data.update(conditions=[1], repetitions=1)
+    (out.parent / 'short.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
+    design = design_of(load_scene(out.parent / 'short.yaml'))
+    study = Study.open(out)
+    study.add_participant('01')
+    store = study.session('01', 1, design)
+    session = Session(design, participant_blocks(design, '01', 0), {'gaze_source': 'wearer_sim'})
+    op = Operator(domain_id)
+    bags = BlockBags(op, store)
+    try:
+        wait_until(lambda: op.latest_gaze_error(None) is not None and op.controller_condition, STUDY_DEADLINE_S,
+                   what='gaze and the controller on the launched graph')
+        op.enable(False)
+
+        def set_condition(cond):
+            op.set_condition(cond, extra_nodes=('wearer_sim',))
+            bags.begin(session.block)
+        SessionDriver(op, session, bags, set_condition=set_condition,
+                      before_trial=lambda cond, rep: op.set_parameters('wearer_sim', condition=cond,
+                                                                       repetition=rep)).run()
+    finally:
+        bags.close()
+        op.close()
+    return store
+
+
+@pytest.mark.launch(fixture=study_graph)
+def test_a_short_accuracy_study_on_the_launched_sim_graph_writes_its_trials_and_bag(study_graph, tmp_path):
+    from rosbags.highlevel import AnyReader
+    from fabric_guidance.study.store import read_tsv
+    _, watch, domain_id = study_graph
+    store = _short_accuracy_study(tmp_path / 'study', domain_id)
+    header, rows = read_tsv(store.trials_path)
+    assert len(rows) == 1, rows
+    row = rows[0]
+    # wearer_sim (study-accuracy.yaml: press_confirm) pressed; the error at the press was recorded
+    assert row['status'] == 'ok' and row['press_source'] == 'wearer_sim' and row['condition'] == '1', row
+    assert 0.0 <= float(row['h_error_deg']) < 60.0 and 0.0 <= float(row['v_error_deg']) < 60.0
+    bags = sorted(store.folder.glob('*_bag'))
+    assert [b.name for b in bags] == ['sub-01_ses-1_task-accuracy_block-1_run-1_bag']
+    with AnyReader(bags) as reader:
+        topics = {c.topic: c for c in reader.connections}
+        presses = [reader.deserialize(raw, c.msgtype).frame_id
+                   for c, _, raw in reader.messages(connections=[topics['/confirm']])]
+    assert presses and set(presses) == {'wearer_sim'}
+    # study-accuracy.yaml reached headset_display: the target unseen from its start (a respawn too)
+    with Probe(domain_id) as probe:
+        response = probe.call(GetParameters, '/headset_display/get_parameters',
+                              GetParameters.Request(names=['draw_targets', 'dummies']), attempts=3)
+    assert [response.values[0].bool_value, response.values[1].integer_value] == [False, 0]

@@ -42,8 +42,9 @@ def test_blocks_in_the_participants_order_and_trials_of_exactly_trial_s():
         assert 0.6 <= r['mean_find_s'] <= 0.6 + 0.1 + 2 * FRAME_S
         assert r['press_source'] == 'keyboard' and r['press_age_s'] == pytest.approx(0.006)
         assert r['gaze_source'] == 'test' and r['wearer'] == 'P1' and r['subject'] == 2
-    kinds = [a.kind for st in steps for a in st.actions]
-    assert kinds.count('done') == 8 + 4                                     # per sequence, per block
+    done = [a.text for st in steps for a in st.actions if a.kind == 'done']
+    assert done.count('sequence') == 8 and done.count('block') == 4      # per sequence, per block
+    assert done.count('session') == 1 and done[-1] == 'session'           # and once when the blocks end
     assert [a.condition for st in steps for a in st.actions if a.kind == 'set_condition'] == \
         list(condition_order(s.design, 2))
     assert [b.key for st in steps for b in st.blocks] == [b.key for b in s.blocks]

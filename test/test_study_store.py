@@ -99,6 +99,30 @@ def test_bad_input_in_one_line(tmp_path):
         assert text in str(info.value) and '\n' not in str(info.value), str(info.value)
 
 
+def test_a_session_of_another_version_is_refused_in_one_line_and_left_as_it_was(tmp_path):
+    """Within a study folder of this version: a participant's sidecar or trials file written by
+    another version (format number, columns) is refused naming the file; nothing is rewritten."""
+    root = tmp_path / 's'
+    st = run_participant(root, 'P1', stop_after=1)
+    side, trials = st.sidecar_path.read_bytes(), st.trials_path.read_bytes()
+    data = json.loads(side)
+    st.sidecar_path.write_text(json.dumps({**data, 'FabricGuidanceStudyFormat': 0}))
+    with pytest.raises(StudyError) as info:
+        Study.open(root).session('P1', 1, DESIGN)
+    text = str(info.value)
+    assert str(st.sidecar_path) in text and 'study format version 0' in text and '\n' not in text, text
+    st.sidecar_path.write_bytes(side)
+    header, *rest = trials.decode().split('\n')
+    st.trials_path.write_text('\n'.join([header.replace('repetition', 'rep'), *rest]))
+    other = st.trials_path.read_bytes()
+    with pytest.raises(StudyError) as info:
+        Study.open(root).session('P1', 1, DESIGN)
+    text = str(info.value)
+    assert str(st.trials_path) in text and 'columns differ' in text and 'rep' in text and '\n' not in text, text
+    # nothing recorded was touched: the sidecar and the trials file are as they were
+    assert st.sidecar_path.read_bytes() == side and st.trials_path.read_bytes() == other
+
+
 def test_a_full_disk_loses_nothing_recorded(tmp_path, monkeypatch):
     root = tmp_path / 's'
     st = run_participant(root, 'P1', stop_after=1)

@@ -58,6 +58,26 @@ def namespace_argument() -> DeclareLaunchArgument:
                                              "/suit_a/pressure_controller/enable ...); empty: the root")
 
 
+#: The study's tasks: `study:=<task>` loads config/params/study-<task>.yaml after the other files.
+STUDY_TASKS = ('speed', 'accuracy')
+
+
+def study_argument() -> DeclareLaunchArgument:
+    return DeclareLaunchArgument('study', default_value='',
+                                 description="the paper's task of a study session (docs/study.md): speed or "
+                                             'accuracy loads config/params/study-<task>.yaml last; empty: none')
+
+
+def study_params_files(context, share: str) -> list:
+    """[config/params/study-<task>.yaml] for the launch argument study, [] when empty."""
+    task = context.launch_configurations.get('study', '')
+    if not task:
+        return []
+    if task not in STUDY_TASKS:
+        raise ValueError(f"launch argument study:={task!r}: one of {', '.join(STUDY_TASKS)} or empty")
+    return [os.path.join(share, 'config', 'params', f'study-{task}.yaml')]
+
+
 def launch_namespace(context) -> str:
     """The launch argument namespace as a node's `namespace=` ('' : the root, or whatever an
     enclosing PushRosNamespace set); ValueError naming the argument for an invalid one."""

@@ -46,6 +46,7 @@ class SessionDriver:
         self._offset_s = 0.0
         self._last_gaze_ns = 0
         self.rows: list[dict] = []
+        self._drawn = True                  # headset_display's draw_targets
 
     def steady(self, stamp_ns: int) -> float:
         return stamp_ns * 1e-9 - self._offset_s
@@ -113,10 +114,14 @@ class SessionDriver:
             op.enable(False)
             self.timing.vented_from_ns = time.monotonic_ns()
         elif kind == 'show_target':
+            visible = action.visible is not False
+            if visible != self._drawn:            # set first: an unseen target is never drawn
+                op.set_parameters('headset_display', draw_targets=visible)
+                self._drawn = visible
             op.show_target(*action.target)
         elif kind in ('show_front', 'hide'):
             op.to_front()
         elif kind == 'prompt':
             op.display(f'prompt {action.text or ""}'.rstrip())
         elif kind == 'done':
-            op.display('done')
+            op.display(f'done {action.text or ""}'.rstrip())

@@ -18,6 +18,7 @@ from ..atomic import write_text
 from ..study.plan import participant_blocks
 from ..study.session import Session
 from ..study.store import Study
+from .block_bag import BlockBags
 from .driver import SessionDriver
 from .simulated import SimulatedParticipant, Timing, design_of
 
@@ -57,14 +58,20 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
                    'scene': scene.name}
         session = Session(design, blocks, context)
 
+        bags = BlockBags(part.op, store, say=say)
+
         def set_condition(cond: int) -> None:
             if cond != part.condition:
                 part.switch(cond)
+            bags.begin(session.block)     # after a switch: the recorder hears the restarted nodes
 
         def before_trial(cond: int, repetition: int) -> None:
             part.op.set_parameters('wearer_sim', condition=cond, repetition=repetition)
-        driver = SessionDriver(part.op, session, store, say, set_condition, before_trial)
-        rows = driver.run()
+        driver = SessionDriver(part.op, session, bags, say, set_condition, before_trial)
+        try:
+            rows = driver.run()
+        finally:
+            bags.close()
         t = driver.timing
         timing['press_latency_s'] += t.press_latency_s
         timing['timer_error_s'] += t.timer_error_s

@@ -4,7 +4,10 @@ It turns the graph's task state into display messages (core.display_wire) and se
 UDP to headset_address:display_port, and nowhere else:
 
 - targets: target_markers (every target with its name and position; namespace live_targets for
-  the micromanipulator's objects) and active_target, positions converted to Unity world;
+  the micromanipulator's objects) and active_target, positions converted to Unity world; with
+  `draw_targets` false (the paper's accuracy task: the target is never seen, the suit alone
+  guides) no target is sent and `active` is empty: an inactive target would give away where
+  the next one is (target_selector moves it before it makes it active);
 - event: `next` when a target becomes active, `found` on target_found; each sent three times,
   EVENT_REPEAT_S apart, with one event_id, since UDP may lose one;
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
@@ -15,7 +18,8 @@ UDP to headset_address:display_port, and nowhere else:
 - phrase: condition 4's phrase from speech;
 - from a study session (study_display): `prompt <text>` what to do now ("Look at the front",
   "Rest: the next trial starts soon"; `prompt` alone clears it; a calibration prompt replaces
-  it), `found <target>` the accepted key press, `done` the end of a block (event `done`).
+  it), `found <target>` the accepted key press, `done <what>` the end of a sequence, a block or
+  the session (event `done`, target `sequence`, `block` or `session`).
 
 targets, dummies, prompt and phrase are sent on change and again at refresh_hz, whole, so a
 lost datagram or a restarted app is repaired within one refresh. /diagnostics counts what was
@@ -75,6 +79,11 @@ class HeadsetDisplay(Node):
                                          'front', 'deg', 0.0, 180.0, read_only=True)
         self.dummy_elevation_deg = declare(self, 'dummy_elevation_deg', 30.0, 'dummies within +- this elevation',
                                            'deg', 0.0, 90.0, read_only=True)
+        # Set by a study session before each target too (a parameter: set before the target
+        # is, so no refresh can draw an unseen target in between).
+        self.draw_targets = declare(self, 'draw_targets', True, "draw the targets (false: the paper's accuracy "
+                                    'task, an unseen target reached by guidance alone; nothing drawn or named)')
+        self.add_post_set_parameters_callback(self.on_parameters)
         try:
             ip = ipaddress.ip_address(address)
         except ValueError:
@@ -132,9 +141,19 @@ class HeadsetDisplay(Node):
         self.sent[kind] += 1
         self.bytes_sent += len(data)
 
+    def shown(self) -> tuple[str, list[dict]]:
+        """The active target's id and the targets as the headset is to draw them."""
+        if self.draw_targets:
+            return self.active, self.targets
+        return '', []
+
+    def send_targets(self) -> None:
+        active, targets = self.shown()
+        self._send('targets', active=active, targets=targets)
+
     def send_state(self) -> None:
         """The whole display state, as on every refresh."""
-        self._send('targets', active=self.active, targets=self.targets)
+        self.send_targets()
         self.send_dummies()
         text, step, steps = self.prompt
         self._send('prompt', text=text, step=step, steps=steps)
@@ -184,7 +203,7 @@ class HeadsetDisplay(Node):
         changed = targets != self.targets
         self.targets = targets
         if changed:
-            self._send('targets', active=self.active, targets=self.targets)
+            self.send_targets()
 
     def on_active(self, msg: String) -> None:
         if msg.data == self.active:
@@ -197,11 +216,12 @@ class HeadsetDisplay(Node):
         if self.active and self.dummies:
             self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
             self.dummy_positions = self.draw_dummies(self.dummy_set)
-        self._send('targets', active=self.active, targets=self.targets)
+        self.send_targets()
         if self.dummies:
             self.send_dummies()
         if self.active:
-            self.event('next', self.active)
+            # an unseen target is not named either: the wearer learns a trial began, not where
+            self.event('next', self.shown()[0])
 
     def draw_dummies(self, dummy_set: int) -> list[list[float]]:
         """The dummy positions of a set (Unity world): seeded by dummy_seed and the set number."""
@@ -228,8 +248,14 @@ class HeadsetDisplay(Node):
             self.prompt = prompt
             self._send('prompt', text=prompt[0], step=prompt[1], steps=prompt[2])
 
+    def on_parameters(self, parameters) -> None:
+        for p in parameters:
+            if p.name == 'draw_targets' and bool(p.value) != self.draw_targets:
+                self.draw_targets = bool(p.value)
+                self.send_targets()
+
     def on_study(self, msg: String) -> None:
-        """A study session's line: `prompt [text]`, `found <target>` or `done`."""
+        """A study session's line: `prompt [text]`, `found <target>` or `done [what]`."""
         word, _, rest = msg.data.partition(' ')
         if word == 'prompt' and len(rest) <= display_wire.MAX_TEXT_CHARS:
             self.prompt = (rest, 0, 0)
@@ -238,7 +264,7 @@ class HeadsetDisplay(Node):
             self.event(word, rest)
         else:
             self.get_logger().warn(f'study_display: {msg.data[:60]!r} ignored: not `prompt [text]` (text up to '
-                                   f'{display_wire.MAX_TEXT_CHARS} characters), `found <target>` or `done`',
+                                   f'{display_wire.MAX_TEXT_CHARS} characters), `found <target>` or `done [what]`',
                                    throttle_duration_sec=5.0)
 
     def on_speech(self, msg: String) -> None:

@@ -33,7 +33,7 @@ ACTION_KINDS = (
     'show_front',      # speed: the target is back at the front (0, 0)
     'hide',            # no target shown
     'prompt',          # text: what the wearer reads on the headset
-    'done',            # the display's done event: text 'sequence' or 'block'
+    'done',            # the display's done event: text 'sequence', 'block' or 'session' (the last block)
 )
 #: What Step.presses tells of each resolved press: its stamp, receipt and source [s, steady
 #: clock], the gaze sample's time, the error [deg] (full angle; h/v for accuracy), accepted,
@@ -522,6 +522,7 @@ class Session:
         if self._bi < len(self.blocks):
             self._enter_block(t, step)
         else:
+            step.actions.append(Action('done', t, text='session'))
             step.actions.append(Action('prompt', t, text='Done: thank you'))
             self._phase, self._rest_end = 'done', None
 
