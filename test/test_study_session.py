@@ -288,28 +288,29 @@ def _regular_gaze(s: Session, t0: float, n: int, frame_s: float, yaw: float, pit
     return t0 + (n - 1) * frame_s
 
 
-def test_a_press_early_in_a_regular_frame_is_judged_at_once_on_the_sample_before_it():
+def _regular_trial():
+    """An accuracy trial with 40 gaze samples at 90 Hz 2 deg left of its target."""
     s = accuracy_session()
     t = into_trial(s)
     h, v = s._trial['target']
     frame = 1.0 / 90.0
-    last = _regular_gaze(s, t + 1.0, 20, frame, h + 2.0, v)
+    return s, h, v, frame, _regular_gaze(s, t + 1.0, 40, frame, h + 2.0, v)
+
+
+def test_a_press_early_in_a_regular_frame_is_judged_at_once_on_the_sample_before_it():
+    s, h, v, frame, last = _regular_trial()
     st = s.press(last + 0.5 * frame, last + 0.5 * frame + 0.001)      # mid-frame: no sample can be between
     assert not st.pending and st.rows and st.rows[0]['h_error_deg'] == pytest.approx(2.0)
     assert st.rows[0]['gaze_at_press_s'] == last
 
 
 def test_a_press_late_in_a_frame_or_on_an_irregular_stream_waits_for_the_next_sample():
-    s = accuracy_session()
-    t = into_trial(s)
-    h, v = s._trial['target']
-    frame = 1.0 / 90.0
-    last = _regular_gaze(s, t + 1.0, 20, frame, h + 2.0, v)
+    s, h, v, frame, last = _regular_trial()
     st = s.press(last + 0.9 * frame, last + 0.9 * frame + 0.001)      # the next sample may be on its way
     assert st.pending and not st.rows
     st = s.gaze(last + 0.85 * frame, h + 4.0, v)                      # it was: captured before the press
     assert st.rows and st.rows[0]['h_error_deg'] == pytest.approx(4.0)
-    # Too few samples to know the stream's frame: the press waits (as before).
+    # Too few samples to know the stream's frame: the press waits.
     s2 = accuracy_session()
     t2 = into_trial(s2)
     s2.gaze(t2 + 1.0, 0.0, 0.0)
@@ -319,12 +320,17 @@ def test_a_press_late_in_a_frame_or_on_an_irregular_stream_waits_for_the_next_sa
 def test_a_sample_arriving_after_an_early_press_settles_it_without_a_later_frame():
     """The press overtook its frame's sample (gaze takes the longer path): the sample's arrival
     settles the press at once, no need to wait for the frame after it."""
-    s = accuracy_session()
-    t = into_trial(s)
-    h, v = s._trial['target']
-    frame = 1.0 / 90.0
-    last = _regular_gaze(s, t + 1.0, 20, frame, h + 2.0, v)
+    s, h, v, frame, last = _regular_trial()
     st = s.press(last + 1.2 * frame, last + 1.2 * frame + 0.001)
     assert st.pending
     st = s.gaze(last + frame, h + 3.0, v)                           # the press's own frame, arriving late
     assert st.rows and st.rows[0]['h_error_deg'] == pytest.approx(3.0)
+
+
+def test_a_timer_that_catches_up_now_and_then_does_not_shrink_the_frame():
+    """Two samples 1 ms apart among 90 Hz ones (a late timer catching up): the frame stays ~11 ms."""
+    s, h, v, frame, last = _regular_trial()
+    s.gaze(last + 0.001, h + 2.0, v)
+    last += 0.001
+    st = s.press(last + 0.5 * frame, last + 0.5 * frame + 0.001)
+    assert not st.pending and st.rows[0]['gaze_at_press_s'] == last

@@ -45,11 +45,12 @@ ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLU
 #: The most gaze samples kept, whatever their stamps (2 s at 1 kHz).
 MAX_GAZE_SAMPLES = 2000
 #: A press captured less than this share of a gaze frame after the newest sample is judged at
-#: once: a sample captured between the two would have to come sooner than the stream ever has
-#: (its shortest interval over the last FRAME_SAMPLES), so none can still be on its way. Later
-#: in the frame the press waits for a sample captured after it.
+#: once: a sample captured between the two would have to come sooner than the stream nearly
+#: ever does (the frame is the 10th percentile of its last FRAME_SAMPLES intervals: a timer that
+#: catches up now and then does not shrink it), so none can still be on its way. Later in the
+#: frame the press waits for a sample captured after it.
 EARLY_SHARE = 0.75
-FRAME_SAMPLES = 16
+FRAME_SAMPLES = 32
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
 
@@ -401,14 +402,15 @@ class Session:
                                    dummy_set=self._dummy_set))
         self._phase = 'target'
 
-    def _shortest_frame_s(self) -> float | None:
-        """The shortest interval between the last FRAME_SAMPLES + 1 samples (None: too few)."""
+    def _frame_s(self) -> float | None:
+        """The gaze stream's frame: the 10th percentile of its last FRAME_SAMPLES intervals
+        (None: too few samples yet)."""
         h = self._history
         if len(h) <= FRAME_SAMPLES:
             return None
         recent = [h[i].t for i in range(len(h) - FRAME_SAMPLES - 1, len(h))]
-        shortest = min(b - a for a, b in zip(recent, recent[1:]))
-        return shortest if shortest > 0.0 else None
+        frame = sorted(b - a for a, b in zip(recent, recent[1:]))[FRAME_SAMPLES // 10]
+        return frame if frame > 0.0 else None
 
     def _sample_settled(self, stamp: float) -> bool:
         """Whether the sample at or before `stamp` is known: one captured after it has come, or
@@ -418,7 +420,7 @@ class Session:
             return False
         if h[-1].t >= stamp:
             return True
-        frame = self._shortest_frame_s()
+        frame = self._frame_s()
         return frame is not None and stamp - h[-1].t < EARLY_SHARE * frame
 
     def _sample_at(self, stamp: float) -> GazeSample | None:
