@@ -11,6 +11,7 @@ tick() whenever the Session's next deadline has come; the loop sleeps at most 2 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import queue
 import time
 from typing import Callable
 
@@ -19,6 +20,10 @@ from .operator import Operator
 
 #: The loop's sleep between polls [s].
 POLL_S = 0.002
+#: The session's commands an operator may give while it runs (Session's methods of these names).
+OPERATOR_COMMANDS = ('pause', 'resume', 'repeat', 'skip', 'stop')
+#: How often on_status gets the session's status [s].
+STATUS_S = 0.25
 
 
 @dataclass
@@ -46,6 +51,27 @@ class SessionDriver:
         self._offset_s = 0.0
         self._last_gaze_ns = 0
         self.rows: list[dict] = []
+        # The operator's commands (pause, resume, repeat, skip, stop) from any thread; the loop
+        # applies them, so the Session is only ever touched by the loop.
+        self._commands: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.on_status: Callable[[dict], None] | None = None      # called about every STATUS_S
+        self._status_due = 0.0
+
+    def command(self, name: str) -> None:
+        """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
+        if name not in OPERATOR_COMMANDS:
+            raise ValueError(f'unknown session command {name!r}; one of {", ".join(OPERATOR_COMMANDS)}')
+        self._commands.put(name)
+
+    def _apply_commands(self, now: float) -> None:
+        while True:
+            try:
+                name = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            step = getattr(self.session, name)(now)
+            self.say(f'  operator: {name}' + (f' refused: {step.refused}' if step.refused else ''))
+            self.handle(step)
         self._drawn = True                  # headset_display's draw_targets
 
     def steady(self, stamp_ns: int) -> float:
@@ -58,6 +84,10 @@ class SessionDriver:
         op.drain_presses()
         self.handle(self.session.start(time.monotonic()))
         while self.session.phase not in ('done', 'stopped'):
+            self._apply_commands(time.monotonic())
+            if self.on_status is not None and time.monotonic() >= self._status_due:
+                self._status_due = time.monotonic() + STATUS_S
+                self.on_status(self.session.status(time.monotonic()))
             self.feed_gaze()
             for press in op.drain_presses():
                 self.handle(self.session.press(self.steady(press.stamp_ns), self.steady(press.received_ns),

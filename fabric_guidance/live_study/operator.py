@@ -71,7 +71,8 @@ def target_position(yaw_deg: float, pitch_deg: float, eye_height_m: float,
 class Operator:
     """The session's hands on the graph (see the module docstring)."""
 
-    def __init__(self, domain_id: int | None = None, eye_height_m: float = 1.2, name: str = 'study_operator'):
+    def __init__(self, domain_id: int | None = None, eye_height_m: float = 1.2, name: str = 'study_operator',
+                 namespace: str = ''):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -83,7 +84,9 @@ class Operator:
         self._rclpy = rclpy
         self.context = Context()
         rclpy.init(context=self.context, **({} if domain_id is None else {'domain_id': domain_id}))
-        self.node = rclpy.create_node(name, context=self.context)
+        # In the graph's namespace: the table's relative names (gaze, confirm...) resolve in it.
+        self.namespace = '/'.join(part for part in namespace.split('/') if part)
+        self.node = rclpy.create_node(name, context=self.context, namespace='/' + self.namespace)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.eye_height_m = float(eye_height_m)
@@ -94,6 +97,9 @@ class Operator:
         self.target: tuple[float, float] | None = None     # placed (yaw, pitch)
         self.commands: deque = deque(maxlen=200_000)        # (monotonic_ns, max kPa) of pressure_command
         self.controller_condition: int | None = None
+        self.controller_wearer: str | None = None            # pressure_controller's `wearer`
+        self.controller_calibration: str | None = None       # the wearer of its loaded calibration ('' none)
+        self.calibration_state = None                        # core.calibration_state.CalibrationState
         self._header_type, self._string_type = Header, String
         self.display_pub = self.node.create_publisher(String, interface.STUDY_DISPLAY, qos('event'))
         self.confirm_pub = self.node.create_publisher(Header, interface.CONFIRM, qos('event'))
@@ -103,6 +109,7 @@ class Operator:
         self.node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self._on_command,
                                       qos('command'))
         self.node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS, self._on_diagnostics, 10)
+        self.node.create_subscription(String, interface.CALIBRATION_STATE, self._on_calibration_state, qos('latched'))
         self._clients: dict[str, Any] = {}
         self._running = True
         self._thread = threading.Thread(target=self._spin, name='study-operator', daemon=True)
@@ -142,11 +149,25 @@ class Operator:
             self.commands.append((time.monotonic_ns(), max(msg.data, default=0.0)))
 
     def _on_diagnostics(self, msg) -> None:
+        # /diagnostics is global: only the controller of this operator's namespace counts.
+        mine = f'{self.namespace}/pressure_controller' if self.namespace else 'pressure_controller'
         for st in msg.status:
-            if st.name.startswith('pressure_controller'):
+            if st.name.split(':')[0].strip().lstrip('/') == mine or (
+                    not self.namespace and st.name.startswith('pressure_controller')):
                 for kv in st.values:
                     if kv.key == 'condition':
                         self.controller_condition = int(kv.value)
+                    elif kv.key == 'wearer':
+                        self.controller_wearer = kv.value
+                    elif kv.key == 'calibration':
+                        self.controller_calibration = kv.value
+
+    def _on_calibration_state(self, msg) -> None:
+        from ..core.calibration_state import CalibrationStateError, decode
+        try:
+            self.calibration_state = decode(msg.data)
+        except CalibrationStateError:
+            pass
 
     # ---- what the wearer's gaze is
     def gaze_at(self, stamp_ns: int):
@@ -187,9 +208,8 @@ class Operator:
     # ---- requests
     def _client(self, srv_type, name: str):
         # A node-private name of the table (`~/enable`) is the owner's: its full name.
-        full_name = getattr(interface, 'full_name', None)
-        if full_name is not None and name.startswith('~/'):
-            name = full_name(name)
+        if name.startswith('~/'):
+            name = interface.full_name(name, self.namespace)
         client = self._clients.get(name)
         if client is None:
             client = self._clients[name] = self.node.create_client(srv_type, name)
@@ -216,9 +236,21 @@ class Operator:
         from rclpy.parameter import Parameter
         request = SetParametersAtomically.Request(
             parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
-        result = self.call(SetParametersAtomically, f'/{node}/set_parameters_atomically', request).result
+        result = self.call(SetParametersAtomically, self.node_name(node, 'set_parameters_atomically'), request).result
         if not result.successful:
             raise OperatorError(f'{node} refused {sorted(values)}: {result.reason}')
+
+    def node_name(self, node: str, service: str) -> str:
+        """A node's service in this operator's namespace: /<ns>/<node>/<service>."""
+        return interface.full_name(f'~/{service}', self.namespace, node)
+
+    def get_parameters(self, node: str, *names: str) -> list:
+        """The values of `names` on `node` (None for one it does not have)."""
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+        response = self.call(GetParameters, self.node_name(node, 'get_parameters'),
+                             GetParameters.Request(names=list(names)))
+        return [parameter_value_to_python(v) if v.type else None for v in response.values]
 
     def enable(self, on: bool) -> None:
         from std_srvs.srv import SetBool

@@ -11,6 +11,13 @@ finished trial is in the study folder (study.store) at once, atomically; run the
 again on the same DIR after a crash and the session resumes at the first unfinished block.
 `fabric-guidance analyze DIR` analyses it.
 
+  fabric-guidance study --participant P07 --protocol speed --out DIR [--namespace NS]
+
+runs a participant's session on the graph that is running (ros2 launch ... study:=speed):
+registered in DIR, calibrated from the graph if pressure_controller has no calibration of theirs,
+then their blocks (live_session.py). The operator's keys: space/Enter confirm, p pause,
+c resume, r repeat, s skip, q stop (vents at once). Run it again after a crash: it resumes.
+
 `fabric-guidance study --keyboard` makes the operator's terminal the confirm source of a running
 graph: space or Enter publishes `confirm` (frame_id 'keyboard', stamped when the key is read);
 q ends (live_study/keyboard.py also reads p pause, r repeat, s skip, c resume for a session).
@@ -34,7 +41,12 @@ SCENES = {'speed': 'paper-speed', 'accuracy': 'paper-accuracy'}
 def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--simulated', action='store_true', help="the simulated graph, the scene's wearers as participants")
     p.add_argument('--participants', type=int, default=5, help='simulated participants (the first N wearers)')
-    p.add_argument('--participant', default=None, help='the participant id of a live session')
+    p.add_argument('--participant', default=None,
+                   help='a live session with this participant (1-64 letters or digits) on the running graph')
+    p.add_argument('--session', type=int, default=1, help='the session number of a live session (BIDS ses-<n>)')
+    p.add_argument('--namespace', default='', help="the running graph's namespace (launch's namespace:=)")
+    p.add_argument('--no-keys', action='store_true',
+                   help="a live session without the operator's keys (confirm from the headset or a ROS tool)")
     p.add_argument('--protocol', choices=sorted(SCENES), default='speed')
     p.add_argument('--scene', default=None, help='a scene file or name (default: paper-speed / paper-accuracy)')
     p.add_argument('--keyboard', action='store_true',
@@ -86,11 +98,13 @@ def run(args: argparse.Namespace) -> int:
     if args.out is None:
         subcommand.error(PROG, '--out DIR: the study folder is required')
         return 2
-    if not args.simulated:
-        subcommand.error(PROG, 'a live session (--participant on a running graph) is not in this build yet; '
-                         'run --simulated')
+    if args.simulated == (args.participant is not None):
+        subcommand.error(PROG, 'either --simulated (a scene\'s wearers) or --participant ID (a person on the '
+                         'running graph)')
         return 2
     out = args.out.expanduser().resolve()
+    if not args.simulated:
+        return run_live(args, out, say)
     from ..study.store import Study, StudyError
     try:
         Study.open(out)     # a new folder, or a study folder to resume; refused otherwise
@@ -108,6 +122,28 @@ def run(args: argparse.Namespace) -> int:
     try:
         return run_study_session(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
     except (StudyError, OSError) as exc:     # DiskFull is an OSError: what was recorded is intact
+        subcommand.error(PROG, exc)
+        return 1
+
+
+def run_live(args, out: Path, say) -> int:
+    """A live session with a person on the running graph (live_session.py)."""
+    from ..study.plan import check_participant
+    from ..study.store import Study, StudyError
+    from .live_session import LiveStudyError, run_live_session
+    try:
+        check_participant(args.participant)
+        if args.session < 1:
+            raise ValueError(f'--session: 1 or more, got {args.session}')
+        Study.open(out)
+        scene = study_scene(args, out)
+    except (StudyError, ValueError, OSError) as exc:
+        subcommand.error(PROG, exc)
+        return 2
+    try:
+        return run_live_session(scene, args.participant, args.session, out, say,
+                                'latin' if args.latin_square else 'random', args.namespace, not args.no_keys)
+    except (LiveStudyError, StudyError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 1
 

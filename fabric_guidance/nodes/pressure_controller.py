@@ -541,7 +541,10 @@ class PressureController(LiveParameters, ManagedNode):
             level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
         values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
-                  'enabled': self.enabled, **self.lifecycle_values()}
+                  'enabled': self.enabled, 'wearer': self.wearer,
+                  # whose calibration guides ('' none): a study session sees a first-time participant
+                  'calibration': self.calibration.wearer if self.calibration is not None else '',
+                  **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
 

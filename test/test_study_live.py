@@ -1,0 +1,119 @@
+"""A live session with a first-time participant on a graph that is already running, as a lab
+runs it (`fabric-guidance study --participant ID` against `ros2 launch ...`): here the simulated
+graph in a namespace, wearer_sim as the person (pressing confirm), no calibration file of the
+participant anywhere. The session registers them, calibrates them from the running graph,
+runs their block and writes what `analyze` reads."""
+import io
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from fabric_guidance.graph.process_graph import FILES, Graph, fresh_domain_id, loopback_dds_env, sim_lab, start_nodes
+from fabric_guidance.live_study.driver import OPERATOR_COMMANDS, SessionDriver
+from fabric_guidance.live_study.keyboard import KeyboardSource
+from fabric_guidance.live_study.live_session import run_live_session, status_line
+from fabric_guidance.live_study.simulated import graph_overrides
+from fabric_guidance.live_study.study_command import main as study_main
+from fabric_guidance.sim.scene import load_scene, scene_path
+from fabric_guidance.study.store import read_tsv
+
+NAMESPACE = 'suit_live'
+
+
+def short_speed_scene(tmp_path: Path) -> Path:
+    data = yaml.safe_load(scene_path('paper-speed').read_text())
+    data.update(conditions=[1], repetitions=1)
+    data['protocol']['trial_s'] = 8.0
+    path = tmp_path / 'short-speed.yaml'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.mark.graph
+def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_their_block(tmp_path, monkeypatch):
+    scene = load_scene(short_speed_scene(tmp_path))
+    cal_dir = tmp_path / 'calibrations'
+    domain_id = fresh_domain_id()
+    lab = sim_lab(1, 'suit', cal_dir)
+    # The lab's graph before the participant arrives: nobody's calibration in it.
+    graph_overrides(lab, scene, 0, 1, cal_dir / 'nobody.yaml', min(scene.sim_rate_hz, 90.0))
+    lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir))
+    graph = Graph(tmp_path / 'graph', domain_id=domain_id, namespace=NAMESPACE)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
+    for key, value in loopback_dds_env().items():
+        monkeypatch.setenv(key, value)
+    lines = []
+    try:
+        start_nodes(graph, lab, FILES)
+        out = tmp_path / 'study'
+        code = run_live_session(scene, 'P01', 1, out, lines.append, namespace=NAMESPACE, keyboard=False,
+                                again=lambda reason: False)
+    finally:
+        graph.stop_all()
+    assert code == 0, '\n'.join(lines)
+    text = '\n'.join(lines)
+    assert 'P01: no calibration yet; calibrating now' in text
+    assert (cal_dir / 'P01.yaml').is_file(), text           # written by the graph's controller, as <id>.yaml
+    header, rows = read_tsv(out / 'sub-P01' / 'ses-1' / 'sub-P01_ses-1_task-speed_trials.tsv')
+    assert [(r['condition'], r['status']) for r in rows] == [('1', 'ok')], rows
+    assert int(rows[0]['identified']) >= 1 and rows[0]['press_source'] == 'wearer_sim'
+    assert rows[0]['calibration_file'] == 'P01.yaml' and len(rows[0]['calibration_sha256']) == 64
+    assert list((out / 'sub-P01' / 'ses-1').glob('*_block-1_run-1_bag')), 'the block has its bag'
+
+
+def test_the_operators_keys_reach_the_session_as_its_commands():
+    """p c r s q become the session's pause, resume, repeat, skip and stop (in that order), and the
+    confirm keys a press; the driver takes any of its commands and refuses others."""
+    got, presses = [], []
+    src = KeyboardSource(lambda: presses.append(1), got.append, io.StringIO('p c r s x \nq'))
+    src.start().join(5)
+    assert got == ['pause', 'resume', 'repeat', 'skip', 'stop'] and len(presses) == 6   # 5 spaces, a newline; x ignored
+    assert set(got) == set(OPERATOR_COMMANDS)
+
+    class Recorder:
+        def __init__(self):
+            self.calls = []
+
+        def __getattr__(self, name):
+            return lambda t: self.calls.append(name) or type('Step', (), {
+                'refused': None, 'presses': [], 'actions': [], 'rows': [], 'amended': [], 'blocks': []})()
+    session = Recorder()
+    driver = SessionDriver(op=None, session=session, store=None)
+    for name in got:
+        driver.command(name)
+    with pytest.raises(ValueError, match='unknown session command'):
+        driver.command('explode')
+    driver._apply_commands(1.0)
+    assert session.calls == got
+
+
+def test_the_status_line_says_who_where_and_how_long():
+    line = status_line({'phase': 'target', 'participant': 'P07', 'condition': 3, 'block': '2/4', 'trial': '1/6',
+                        'time_left_s': 12.34, 'identified': 4, 'last_result': 'target 4 found (2.1 deg)'})
+    assert line == 'sub-P07 | condition 3 | block 2/4 | trial 1/6 | target | 12.3 s left | identified 4 | ' \
+                   'last: target 4 found (2.1 deg)'
+
+
+def test_a_live_session_without_a_graph_says_so_in_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(fresh_domain_id()))
+    monkeypatch.setattr('fabric_guidance.live_study.live_session.GRAPH_TIMEOUT_S', 2.0)
+    code = study_main(['--participant', 'P02', '--protocol', 'accuracy', '--out', str(tmp_path / 's'), '--no-keys'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1, err
+    assert "no pressure_controller answers in namespace '/'" in err[0] and 'launch the graph first' in err[0]
+    # registered, nothing else: the folder is a study a later run resumes
+    assert (tmp_path / 's' / 'participants.tsv').read_text().count('sub-P02') == 1
+    assert os.path.isdir(tmp_path / 's')
+
+
+@pytest.mark.parametrize('argv, why', [
+    (['--participant', 'P_01'], 'participant must be 1-64 letters or digits'),
+    (['--participant', 'P01', '--simulated'], 'either --simulated'),
+    (['--participant', 'P01', '--session', '0'], '--session: 1 or more'),
+])
+def test_bad_live_options_are_refused_in_one_line(tmp_path, capsys, argv, why):
+    assert study_main([*argv, '--out', str(tmp_path / 's')]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and why in err[0], err
