@@ -56,6 +56,7 @@ class SessionDriver:
         self._commands: queue.SimpleQueue[str] = queue.SimpleQueue()
         self.on_status: Callable[[dict], None] | None = None      # called about every STATUS_S
         self._status_due = 0.0
+        self._drawn = True                  # headset_display's draw_targets
 
     def command(self, name: str) -> None:
         """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
@@ -72,7 +73,6 @@ class SessionDriver:
             step = getattr(self.session, name)(now)
             self.say(f'  operator: {name}' + (f' refused: {step.refused}' if step.refused else ''))
             self.handle(step)
-        self._drawn = True                  # headset_display's draw_targets
 
     def steady(self, stamp_ns: int) -> float:
         return stamp_ns * 1e-9 - self._offset_s

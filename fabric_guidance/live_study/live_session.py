@@ -80,7 +80,7 @@ def calibrate(op: Operator, participant: str, say: Callable[[str], None], again:
         op.enable(True)
         response = op.call(Trigger, interface.START_CALIBRATION, Trigger.Request())
         reason = None if response.success else response.message
-        shown = ''
+        shown = None
         deadline = time.monotonic() + timeout_s
         while reason is None:
             state = op.calibration_state
@@ -91,9 +91,9 @@ def calibrate(op: Operator, participant: str, say: Callable[[str], None], again:
                     if state.phase != DONE:
                         reason = state.error or state.phase
                     break
-                if line != shown:
+                if (state.phase, state.direction, state.step) != shown:    # a line per step, not per tick
                     say(line)
-                    shown = line
+                    shown = (state.phase, state.direction, state.step)
             if time.monotonic() > deadline:
                 reason = f'no end of the calibration within {timeout_s:.0f} s'
                 break
@@ -132,9 +132,11 @@ def ask_operator(stream=None, out=None) -> Callable[[str], bool]:
 
 def run_live_session(scene, participant: str, session_no: int, out: Path, say: Callable[[str], None],
                      order: str = 'random', namespace: str = '', keyboard: bool = True, stream=None,
-                     again: Callable[[str], bool] | None = None) -> int:
+                     again: Callable[[str], bool] | None = None,
+                     before_trial: Callable[[Operator, int, int], None] | None = None) -> int:
     """The participant's session on the running graph (see the module docstring); 0 when every
-    block is done, 1 when the session was stopped."""
+    block is done, 1 when the session was stopped. before_trial(op, condition, repetition) runs
+    before each trial (a simulated person's streams; nothing for a person)."""
     design = design_of(scene, order)
     study = Study.open(out, name=f'{scene.name} live')
     p = study.add_participant(participant)
@@ -176,7 +178,8 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
         def set_condition(cond: int) -> None:
             op.set_condition(cond)
             bags.begin(session.block)
-        driver = SessionDriver(op, session, bags, say, set_condition)
+        driver = SessionDriver(op, session, bags, say, set_condition,
+                               None if before_trial is None else (lambda c, r: before_trial(op, c, r)))
         tty = hasattr(sys.stdout, 'isatty') and sys.stdout.isatty()
         if tty:
             driver.on_status = lambda st: (sys.stdout.write('\r' + status_line(st)[:150].ljust(150)),

@@ -54,7 +54,8 @@ from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, KeyPress, SceneSide, load_scene_file
 from ..sim.wearer import SimulatedWearer, gaze_from_angles
-from ..interface import ACTIVE_TARGET, CONFIRM, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
+from ..core import calibration_state
+from ..interface import ACTIVE_TARGET, CALIBRATION_STATE, CONFIRM, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
 from .parameters import declare, declare_config_file
 from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
 from .spin import run
@@ -130,6 +131,7 @@ class WearerSim(Node):
         self.pressures = np.zeros(4)
         self.pressures_received = -float('inf')
         self.active = ''
+        self.calibrating = False     # a live calibration runs: let the suit pull (Algorithm 1)
         self.target: tuple[float, float] | None = None   # active target (yaw, pitch) from the eye, degrees
         self.seq = 0
         self.last_step = self.start = time.monotonic()
@@ -156,6 +158,7 @@ class WearerSim(Node):
             self._display_thread.start()
         self.create_subscription(Float64MultiArray, MEASURED_PRESSURE, self.on_pressure, COMMAND_QOS)
         self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
+        self.create_subscription(String, CALIBRATION_STATE, self.on_calibration_state, LATCHED_QOS)
         if self.scene_side is not None:
             self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
             if self.scene_side.cond.speech:
@@ -198,6 +201,14 @@ class WearerSim(Node):
         self.pressures = self.channel_map.to_directions(np.nan_to_num(np.asarray(msg.data)), self.layout)
         self.pressures_received = time.monotonic()
 
+    def on_calibration_state(self, msg: String) -> None:
+        # During a calibration the wearer goes where the suit pulls, as a person being calibrated
+        # does; otherwise, with return_to_front, they face the front when no target is active.
+        try:
+            self.calibrating = calibration_state.decode(msg.data).phase in calibration_state.RUNNING
+        except calibration_state.CalibrationStateError:
+            self.calibrating = False
+
     def on_active_target(self, msg: String) -> None:
         if msg.data == self.active:
             return
@@ -237,7 +248,7 @@ class WearerSim(Node):
         """The simple wearer: SimulatedWearer on the measured time step."""
         now = time.monotonic()
         dt, self.last_step = now - self.last_step, now
-        if self.return_to_front and not self.active:
+        if self.return_to_front and not self.active and not self.calibrating:
             gaze = self.wearer.return_to_front(dt)
         else:
             gaze = self.wearer.step(self.felt(now), dt)
@@ -252,7 +263,7 @@ class WearerSim(Node):
         if due > MAX_CATCH_UP_STEPS:        # a stall: do not replay it
             due = MAX_CATCH_UP_STEPS
             self.start = now - (side.step_index + due) * self.dt
-        follow = bool(self.active) or not self.return_to_front
+        follow = bool(self.active) or self.calibrating or not self.return_to_front
         felt = self.felt(now)
         for _ in range(due):
             sample = side.step(felt, follow, self.target if self.active else None)
