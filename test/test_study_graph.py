@@ -50,6 +50,10 @@ def test_speed_session_wearer_presses_and_no_command_between_trials(tmp_path):
     # the controller publishes every step, vented too: commands were seen between trials, none above 0
     checked = int(timing.rsplit(' of ', 1)[1].split()[0])
     assert checked > 0 and timing.endswith(f'0 of {checked} commands between trials above 0 kPa'), timing
+    # the switch 1 -> 3 by the live parameter within the running graph, nothing restarted
+    assert 'condition switch ' in timing and '(parameter)' in timing and 'restart' not in timing, timing
+    # every found target's phases on the graph were measured
+    assert 'per found target, mean s: target_call ' in timing and 'front_return ' in timing, timing
     # what analyze reads of the folder: both trials, finished
     assert sorted(int(r['condition']) for r in study_trials(out, 'speed')) == [1, 3]
 

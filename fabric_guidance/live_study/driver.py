@@ -27,6 +27,35 @@ class DriverTiming:
     timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
     vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
+    # The phases of a speed target on the graph [s, steady clock], one tuple per event:
+    # ('target' | 'front' | 'vent', decided, carried out) and ('press', stamp, resolved, accepted).
+    events: list[tuple] = field(default_factory=list)
+
+
+def target_phases(events) -> dict[str, list[float]]:
+    """The phases of each found speed target from DriverTiming.events [s]: target_call (the
+    target's parameter call), find (target decided to the accepted press's stamp), press_wait
+    (the stamp to its judgement: the gaze sample after the press on its way), front_call (the
+    front's parameter call), front_return (the front shown to the next target decided: the
+    wearer's way back and the front dwell)."""
+    out: dict[str, list[float]] = {k: [] for k in ('target_call', 'find', 'press_wait', 'front_call', 'front_return')}
+    shown = front_done = None
+    for e in events:
+        if e[0] == 'target':
+            out['target_call'].append(e[2] - e[1])
+            if front_done is not None:
+                out['front_return'].append(e[1] - front_done)
+            shown, front_done = e[1], None
+        elif e[0] == 'press' and e[3] and shown is not None:
+            out['find'].append(e[1] - shown)
+            out['press_wait'].append(e[2] - e[1])
+            shown = None
+        elif e[0] == 'front':
+            out['front_call'].append(e[2] - e[1])
+            front_done = e[2]
+        elif e[0] == 'vent':        # a trial's end: its last target is not a phase of the next
+            shown = front_done = None
+    return out
 
 
 class SessionDriver:
@@ -84,8 +113,11 @@ class SessionDriver:
         now = time.monotonic()
         for p in step.presses:
             self.timing.press_latency_s.append(now - p['stamp'])
+            self.timing.events.append(('press', p['stamp'], now, p['accepted']))
         for action in step.actions:
             self.act(action)
+            if action.kind in ('show_target', 'show_front', 'vent'):
+                self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
         if step.rows or step.amended or step.blocks:
             self.store.record(step)
             self.rows += step.rows
