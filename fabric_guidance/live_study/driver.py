@@ -61,9 +61,11 @@ def target_phases(events) -> dict[str, list[float]]:
 class SessionDriver:
     """Run `session` on the graph through `op`, recording into `store`.
 
-    hooks: before_trial(condition, repetition) before a trial's enable (the simulated graph sets
-    wearer_sim's streams there); set_condition(condition) for a switch (default: the Operator's
-    set_condition)."""
+    hooks: before_trial(condition, repetition) for the next trial (the simulated graph sets
+    wearer_sim's streams there), called as the rest before it begins, so that the wearer side
+    starts afresh facing front while vented (the headless trial's warm-up) and the trial's start
+    does not wait for it (at the latest before the trial's enable); set_condition(condition) for
+    a switch (default: the Operator's set_condition)."""
 
     def __init__(self, op: Operator, session, store, say: Callable[[str], None] = lambda s: None,
                  set_condition: Callable[[int], None] | None = None,
@@ -74,6 +76,7 @@ class SessionDriver:
         self.timing = DriverTiming()
         self._offset_s = 0.0
         self._last_gaze_ns = 0
+        self._prepared: tuple[str, int] | None = None    # (block key, repetition) before_trial was called for
         self.rows: list[dict] = []
 
     def steady(self, stamp_ns: int) -> float:
@@ -128,15 +131,26 @@ class SessionDriver:
                     if row.get('h_error_deg') is not None else ''))
         if step.refused:
             self.say(f'  refused: {step.refused}')
+        if self.session.phase == 'rest':
+            self.prepare_trial()
+
+    def prepare_trial(self) -> None:
+        """before_trial for the session's next trial, once per trial run."""
+        block, trial = self.session.block, self.session.trial
+        if self.before_trial is None or block is None or trial is None:
+            return
+        key = (block.key, trial.repetition)
+        if key != self._prepared:
+            self.before_trial(block.condition, trial.repetition)
+            self._prepared = key
 
     def act(self, action) -> None:
         op, kind = self.op, action.kind
         if kind == 'set_condition':
             self.set_condition(action.condition)
         elif kind == 'enable':
-            trial = self.session.trial
-            if self.before_trial is not None and trial is not None:
-                self.before_trial(self.session.block.condition, trial.repetition)
+            self.prepare_trial()
+            self._prepared = None       # a repeat of this trial starts afresh too
             if self.timing.vented_from_ns is not None:
                 self.timing.vented.append((self.timing.vented_from_ns, time.monotonic_ns()))
                 self.timing.vented_from_ns = None

@@ -184,6 +184,7 @@ class WearerSim(Node):
         self.start = time.monotonic()
         if self.active:
             side.present()
+            self.key.present(side.t, self.target)   # on the new side's clock (its t starts at 0)
         if side.cond.speech and not old.cond.speech:
             self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
         self.get_logger().info(f'condition {cond.number}, repetition {repetition}: the wearer side starts afresh')
