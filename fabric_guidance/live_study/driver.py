@@ -10,6 +10,7 @@ tick() whenever the Session's next deadline has come; the loop sleeps at most 2 
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 import time
 from typing import Callable
@@ -30,6 +31,8 @@ class DriverTiming:
     # The phases of a speed target on the graph [s, steady clock], one tuple per event:
     # ('target' | 'front' | 'vent', decided, carried out) and ('press', stamp, resolved, accepted).
     events: list[tuple] = field(default_factory=list)
+    # Each gaze sample's age when the session got it (receipt - capture stamp) [s], the last ones.
+    gaze_age_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
 
 
 def target_phases(events) -> dict[str, list[float]]:
@@ -107,8 +110,10 @@ class SessionDriver:
     def feed_gaze(self) -> None:
         with self.op.lock:
             fresh = [s for s in self.op.gaze if s[0] > self._last_gaze_ns]
+        now = time.monotonic()
         for stamp_ns, _origin, direction in fresh:
             self._last_gaze_ns = stamp_ns
+            self.timing.gaze_age_s.append(now - self.steady(stamp_ns))
             self.handle(self.session.gaze(self.steady(stamp_ns), azimuth_deg(direction) or 0.0,
                                           elevation_deg(direction)))
 
