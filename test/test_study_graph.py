@@ -45,11 +45,15 @@ def test_speed_session_wearer_presses_and_no_command_between_trials(tmp_path):
     for r in rows:
         # wearer_sim pressed confirm and the session accepted presses within 5 deg
         assert int(r['presses']) >= int(r['identified']) >= 1, r
-        assert int(r['presented']) >= int(r['identified']) and r['press_source'] == 'wearer_sim'
+        assert int(r['presented']) >= int(r['identified']) and r['press_source'] == 'headset'
     timing = next(line for line in lines if line.startswith('timing:'))
     # the controller publishes every step, vented too: commands were seen between trials, none above 0
     checked = int(timing.rsplit(' of ', 1)[1].split()[0])
     assert checked > 0 and timing.endswith(f'0 of {checked} commands between trials above 0 kPa'), timing
+    # the switch 1 -> 3 by the live parameter within the running graph, nothing restarted
+    assert 'condition switch ' in timing and '(parameter)' in timing and 'restart' not in timing, timing
+    # every found target's phases on the graph were measured
+    assert 'per found target, mean s: target_call ' in timing and 'front_return ' in timing, timing
     # what analyze reads of the folder: both trials, finished
     assert sorted(int(r['condition']) for r in study_trials(out, 'speed')) == [1, 3]
 
@@ -61,7 +65,7 @@ def test_accuracy_session_records_the_error_at_the_press(tmp_path):
     rows = rows_of(out, 'accuracy')
     assert len(rows) == 2
     for r in rows:
-        assert r['status'] == 'ok' and r['press_source'] == 'wearer_sim' and r['timed_out'] == 'False', r
+        assert r['status'] == 'ok' and r['press_source'] == 'headset' and r['timed_out'] == 'False', r
         assert 0.0 <= float(r['h_error_deg']) < 60.0 and 0.0 <= float(r['v_error_deg']) < 60.0
         assert float(r['time_s']) < scene.protocol.timeout_s
 

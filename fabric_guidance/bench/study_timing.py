@@ -40,7 +40,9 @@ def line(f: dict) -> str:
     return (f"key press to recorded error p50 {p.get('p50', nan):.2f} / p99 {p.get('p99', nan):.2f} ms "
             f"({p['n']} wearer_sim presses), keyboard p50 {k.get('p50', nan):.2f} / p99 "
             f"{k.get('p99', nan):.2f} ms; {f['trial_s']:g} s trial timer error {timer:.2f} ms; "
-            f"condition switch {switch}")
+            f"condition switch {switch}" + (
+                f"; gaze sample age at the session p50 {f['gaze_age_ms'].get('p50', nan):.2f} / p99 "
+                f"{f['gaze_age_ms'].get('p99', nan):.2f} ms" if 'gaze_age_ms' in f else ''))
 
 
 def rows(f: dict, fmt, ok) -> list[tuple[str, str, str, str]]:
@@ -55,6 +57,8 @@ def rows(f: dict, fmt, ok) -> list[tuple[str, str, str, str]]:
          ok(None if 'p99' not in p else p['p99'] <= PRESS_P99_GOAL_MS)),
         ('study: key press to recorded error, keyboard: p50 / p99 [ms]',
          f"{fmt(k.get('p50'))} / {fmt(k.get('p99'))} ({k['n']})", '', ''),
+        ('study: gaze sample age at the session: p50 / p99 [ms]',
+         f"{fmt(f.get('gaze_age_ms', {}).get('p50'))} / {fmt(f.get('gaze_age_ms', {}).get('p99'))}", '', ''),
         (f"study: {f['trial_s']:g} s trial timer error [ms]", fmt(timer), f'<= {TIMER_GOAL_MS:g}',
          ok(None if timer is None else timer <= TIMER_GOAL_MS)),
         ('study: condition switch 1 -> 3 [s]', ', '.join(f"{fmt(s['s'])} ({s['how']})" for s in f['condition_switch']),

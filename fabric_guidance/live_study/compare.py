@@ -1,6 +1,7 @@
 """Live against headless: a simulated study's folder (`fabric-guidance study --simulated`) beside
 the headless experiment on the same scene, seed and participants, with the simulation's own
-seed-to-seed spread (the same study headless on other seeds) beside both.
+seed-to-seed spread (the same study headless on other seeds) beside both. Speed adds mean_find_s
+(target shown to its press), the phase a graph could lengthen.
 
 python -m fabric_guidance.live_study.compare STUDY_DIR [--seeds 5] [--out TABLE.md]
 
@@ -24,7 +25,7 @@ from ..sim.protocols import run_protocol, summarize
 from ..sim.scene import scene_from_dict
 from ..study.store import study_trials
 
-MEASURES = {'speed': ('identified', 'presented'),
+MEASURES = {'speed': ('identified', 'presented', 'mean_find_s'),
             'accuracy': ('tracked_h_error_deg', 'tracked_v_error_deg', 'time_s')}
 
 

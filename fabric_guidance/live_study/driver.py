@@ -10,6 +10,7 @@ tick() whenever the Session's next deadline has come; the loop sleeps at most 2 
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 import queue
 import time
@@ -32,14 +33,47 @@ class DriverTiming:
     timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
     vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
+    # The phases of a speed target on the graph [s, steady clock], one tuple per event:
+    # ('target' | 'front' | 'vent', decided, carried out) and ('press', stamp, resolved, accepted).
+    events: list[tuple] = field(default_factory=list)
+    # Each gaze sample's age when the session got it (receipt - capture stamp) [s], the last ones.
+    gaze_age_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
+
+
+def target_phases(events) -> dict[str, list[float]]:
+    """The phases of each found speed target from DriverTiming.events [s]: target_call (the
+    target's parameter call), find (target decided to the accepted press's stamp), press_wait
+    (the stamp to its judgement: the gaze sample after the press on its way), front_call (the
+    front's parameter call), front_return (the front shown to the next target decided: the
+    wearer's way back and the front dwell)."""
+    out: dict[str, list[float]] = {k: [] for k in ('target_call', 'find', 'press_wait', 'front_call', 'front_return')}
+    shown = front_done = None
+    for e in events:
+        if e[0] == 'target':
+            out['target_call'].append(e[2] - e[1])
+            if front_done is not None:
+                out['front_return'].append(e[1] - front_done)
+            shown, front_done = e[1], None
+        elif e[0] == 'press' and e[3] and shown is not None:
+            out['find'].append(e[1] - shown)
+            out['press_wait'].append(e[2] - e[1])
+            shown = None
+        elif e[0] == 'front':
+            out['front_call'].append(e[2] - e[1])
+            front_done = e[2]
+        elif e[0] == 'vent':        # a trial's end: its last target is not a phase of the next
+            shown = front_done = None
+    return out
 
 
 class SessionDriver:
     """Run `session` on the graph through `op`, recording into `store`.
 
-    hooks: before_trial(condition, repetition) before a trial's enable (the simulated graph sets
-    wearer_sim's streams there); set_condition(condition) for a switch (default: the Operator's
-    set_condition)."""
+    hooks: before_trial(condition, repetition) for the next trial (the simulated graph sets
+    wearer_sim's streams there), called as the rest before it begins, so that the wearer side
+    starts afresh facing front while vented (the headless trial's warm-up) and the trial's start
+    does not wait for it (at the latest before the trial's enable); set_condition(condition) for
+    a switch (default: the Operator's set_condition)."""
 
     def __init__(self, op: Operator, session, store, say: Callable[[str], None] = lambda s: None,
                  set_condition: Callable[[int], None] | None = None,
@@ -50,6 +84,7 @@ class SessionDriver:
         self.timing = DriverTiming()
         self._offset_s = 0.0
         self._last_gaze_ns = 0
+        self._prepared: tuple[str, int] | None = None    # (block key, repetition) before_trial was called for
         self.rows: list[dict] = []
         # The operator's commands (pause, resume, repeat, skip, stop) from any thread; the loop
         # applies them, so the Session is only ever touched by the loop.
@@ -106,8 +141,10 @@ class SessionDriver:
     def feed_gaze(self) -> None:
         with self.op.lock:
             fresh = [s for s in self.op.gaze if s[0] > self._last_gaze_ns]
+        now = time.monotonic()
         for stamp_ns, _origin, direction in fresh:
             self._last_gaze_ns = stamp_ns
+            self.timing.gaze_age_s.append(now - self.steady(stamp_ns))
             self.handle(self.session.gaze(self.steady(stamp_ns), azimuth_deg(direction) or 0.0,
                                           elevation_deg(direction)))
 
@@ -115,8 +152,11 @@ class SessionDriver:
         now = time.monotonic()
         for p in step.presses:
             self.timing.press_latency_s.append(now - p['stamp'])
+            self.timing.events.append(('press', p['stamp'], now, p['accepted']))
         for action in step.actions:
             self.act(action)
+            if action.kind in ('show_target', 'show_front', 'vent'):
+                self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
         if step.rows or step.amended or step.blocks:
             self.store.record(step)
             self.rows += step.rows
@@ -127,15 +167,26 @@ class SessionDriver:
                     if row.get('h_error_deg') is not None else ''))
         if step.refused:
             self.say(f'  refused: {step.refused}')
+        if self.session.phase == 'rest':
+            self.prepare_trial()
+
+    def prepare_trial(self) -> None:
+        """before_trial for the session's next trial, once per trial run."""
+        block, trial = self.session.block, self.session.trial
+        if self.before_trial is None or block is None or trial is None:
+            return
+        key = (block.key, trial.repetition)
+        if key != self._prepared:
+            self.before_trial(block.condition, trial.repetition)
+            self._prepared = key
 
     def act(self, action) -> None:
         op, kind = self.op, action.kind
         if kind == 'set_condition':
             self.set_condition(action.condition)
         elif kind == 'enable':
-            trial = self.session.trial
-            if self.before_trial is not None and trial is not None:
-                self.before_trial(self.session.block.condition, trial.repetition)
+            self.prepare_trial()
+            self._prepared = None       # a repeat of this trial starts afresh too
             if self.timing.vented_from_ns is not None:
                 self.timing.vented.append((self.timing.vented_from_ns, time.monotonic_ns()))
                 self.timing.vented_from_ns = None

@@ -283,19 +283,13 @@ class Operator:
         msg.stamp = self.node.get_clock().now().to_msg()
         self.confirm_pub.publish(msg)
 
-    def set_condition(self, condition: int, extra_nodes: tuple[str, ...] = (), timeout_s: float = 3.0) -> None:
-        """The controller's live `condition` (and that of `extra_nodes`, e.g. wearer_sim), confirmed
-        by the controller's diagnostics within timeout_s; OperatorError otherwise (the session
-        stops vented: a block under the wrong condition would be worse than none)."""
+    def set_condition(self, condition: int, extra_nodes: tuple[str, ...] = ()) -> None:
+        """The controller's live `condition` (and that of `extra_nodes`, e.g. wearer_sim): one atomic
+        call each; a node that answers has applied it (it vents and takes condition 3's arm layout
+        or condition 4's speech from its next step), one that refuses raises OperatorError."""
         self.set_parameters('pressure_controller', condition=int(condition))
         for node in extra_nodes:
             self.set_parameters(node, condition=int(condition))
-        deadline = time.monotonic() + timeout_s
-        while self.controller_condition != condition:
-            if time.monotonic() > deadline:
-                raise OperatorError(f'pressure_controller took condition {condition} but its diagnostics did '
-                                    f'not report it within {timeout_s:g} s')
-            time.sleep(0.01)
 
     def next_press(self, timeout_s: float) -> Press | None:
         try:

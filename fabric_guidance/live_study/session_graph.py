@@ -19,7 +19,7 @@ from ..study.plan import participant_blocks
 from ..study.session import Session
 from ..study.store import Study
 from .block_bag import BlockBags
-from .driver import SessionDriver
+from .driver import SessionDriver, target_phases
 from .simulated import SimulatedParticipant, Timing, design_of
 
 #: A command already on its way when the vent was acknowledged is not counted [ns].
@@ -76,6 +76,8 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
         timing['press_latency_s'] += t.press_latency_s
         timing['timer_error_s'] += t.timer_error_s
         timing['switch_s'] += part.timing.switch_s
+        for k, v in target_phases(t.events).items():
+            timing['phases_s'].setdefault(k, []).extend(v)
         for start, end in t.vented:
             values = part.op.commands_between(start + VENT_GRACE_NS, end)
             timing['vented_checked'] += len(values)
@@ -89,7 +91,8 @@ def run_study_session(scene, participants: int, out: Path, say: Callable[[str], 
                       order: str = 'random') -> int:
     design = design_of(scene, order)
     study = Study.open(out, name=f'{scene.name} simulated')
-    timing = {'press_latency_s': [], 'timer_error_s': [], 'switch_s': [], 'vented_commands': 0, 'vented_checked': 0}
+    timing = {'press_latency_s': [], 'timer_error_s': [], 'switch_s': [], 'phases_s': {}, 'vented_commands': 0,
+              'vented_checked': 0}
     say(f'study: {design.protocol} protocol on the simulated graph, scene {scene.name} (seed {scene.seed}), '
         f'{participants} participants, {design.trials} trials per condition; folder {out}')
     for subject in range(participants):
@@ -110,6 +113,9 @@ def timing_line(timing: dict) -> str:
         parts.append(f"trial timer error max {np.abs(timing['timer_error_s']).max() * 1e3:.2f} ms")
     if timing['switch_s']:
         parts.append('condition switch ' + ', '.join(f'{s:.2f} s ({how})' for _, s, how in timing['switch_s']))
+    phases = {k: v for k, v in timing.get('phases_s', {}).items() if v}
+    if phases:
+        parts.append('per found target, mean s: ' + ', '.join(f'{k} {np.mean(v):.3f}' for k, v in phases.items()))
     parts.append(f"{timing['vented_commands']} of {timing['vented_checked']} commands between trials above 0 kPa")
     return 'timing: ' + '; '.join(parts)
 

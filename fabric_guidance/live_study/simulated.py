@@ -4,14 +4,15 @@ wearers as the participants.
 Per participant (wearer i of the scene): Algorithm 1 headless with the scene's effects (as the
 paper calibrates before the trials, and as `demo --scene` does), then the seven processes of the
 simulated graph (process_graph.sim_lab) with wearer_sim as that wearer pressing confirm
-(press_confirm), the study's target in target_selector (found_by_dwell off) and, for speed, 50
-dummies on the display. The study's Session (session_graph.py) runs the blocks on it; the
-condition orders and targets are the study
-plan's (study/plan.py: the headless experiment's streams on the same seed, or a Latin square),
+(press_confirm) through the headset's uplink as the HoloLens clicker does (press_uplink: the
+press stamped on the gaze clock), the study's target in target_selector (found_by_dwell off)
+and, for speed, 50 dummies on the display. The study's Session (session_graph.py) runs the
+blocks on it; the condition orders and targets are the study plan's (study/plan.py: the
+headless experiment's streams on the same seed, or a Latin square),
 so the live and the headless study meet the same targets.
 
 A condition is switched within the graph by the live `condition` parameters of
-pressure_controller and wearer_sim (the controller's diagnostics confirm it).
+pressure_controller and wearer_sim (no restart).
 """
 from __future__ import annotations
 
@@ -54,7 +55,8 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
         ov['target_selector'].update(acceptance_deg=scene.protocol.acceptance_deg, dwell_s=scene.protocol.dwell_s)
         ov['headset_display'].update(dummies=PAPER_DUMMIES, dummy_seed=scene.seed + subject)
     ov['wearer_sim'].update(scene_file=str(Path(scene.source).resolve()), wearer_index=subject, condition=cond,
-                            gaze_rate_hz=gaze_rate_hz, press_confirm=True, repetition=0)
+                            gaze_rate_hz=gaze_rate_hz, press_confirm=True, press_uplink=True,
+                            repetition=0)
 
 
 class SimulatedParticipant:
@@ -91,7 +93,10 @@ class SimulatedParticipant:
         self.op.enable(False)     # vented until the first trial
 
     def switch(self, cond: int) -> None:
-        """The condition for the next block: the controller's and wearer_sim's live `condition`."""
+        """The condition for the next block, within the running graph: the `condition` parameter
+        of pressure_controller (live: it vents and takes the new layout or speech at once) and of
+        wearer_sim. A successful atomic call means the node has applied it, so the switch's time
+        is the two calls' (OperatorError when a node refuses: nothing is restarted)."""
         t0 = time.monotonic()
         self.op.set_condition(cond, extra_nodes=('wearer_sim',))
         self.condition = cond

@@ -83,6 +83,7 @@ def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print) -> dic
     return {
         'press_to_error_ms': percentiles_ms(t.press_latency_s),
         'keyboard_to_error_ms': percentiles_ms(keyboard),
+        'gaze_age_ms': percentiles_ms(t.gaze_age_s),
         'gaze_rate_hz': 90.0,
         'trial_s': trial_s,
         'timer_error_ms': [e * 1e3 for e in t.timer_error_s],

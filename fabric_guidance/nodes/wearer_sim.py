@@ -24,14 +24,18 @@ DisplayView): `next <target>`, `found <target>`, `dummies <n>`, `prompt <text> (
 
 With a scene and press_confirm it is also a study participant: it presses the confirm key
 (sim.scene_wearer.KeyPress: the headless protocols' rule) and publishes the press on `confirm`
-(frame_id 'wearer_sim', stamped now on the node's clock). A study session switches its
+(frame_id 'wearer_sim', stamped now on the node's clock), or with press_uplink sends it as the
+headset's clicker does: a `confirm` datagram stamped with the simulation step the key was
+pressed in, on the clock of its gaze stamps, three times 20 ms apart (docs/headset_wire_format.md);
+gaze_bridge maps it exactly as the gaze, so the session finds the gaze at the press as soon as
+the sample of that step has arrived. A study session switches its
 condition and repetition at run time (parameters `condition`, `repetition`): the scene's wearer
 side starts afresh with that trial's random streams, as the headless engine's trial does.
 
 Subscribes  measured_pressure (Float64MultiArray, kPa), active_target (String); with a scene
             also target (PointStamped: visual capture) and speech (String, condition 4)
 Publishes   headset_view (String), confirm (std_msgs/Header; with press_confirm)
-Sends       UDP gaze datagrams and clock echoes to bridge_host:bridge_port
+Sends       UDP gaze datagrams, clock echoes and (press_uplink) confirm datagrams to bridge_host:bridge_port
 """
 from __future__ import annotations
 
@@ -49,7 +53,8 @@ from std_msgs.msg import Float64MultiArray, Header, String
 from ..core import ChannelMap, PowerLaw, condition as condition_of, ray_orientation
 from ..core import display_wire
 from ..core.clock_sync import MAX_DATAGRAM_BYTES, answer_ping
-from ..core.gaze_wire import WireFormatError, encode_datagram, ros_to_unity_point, ros_to_unity_quaternion
+from ..core.gaze_wire import (WireFormatError, encode_confirm, encode_datagram, ros_to_unity_point,
+                              ros_to_unity_quaternion)
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, KeyPress, SceneSide, load_scene_file
@@ -65,6 +70,8 @@ PRESSURE_TIMEOUT_S = 0.5
 #: With a scene, simulation steps run locked to the wall clock: a late tick runs the steps it
 #: missed, up to this many; a longer stall (the process was not scheduled) is not replayed.
 MAX_CATCH_UP_STEPS = 5
+#: The headset sends each confirm datagram this many times, this far apart [s] (wire format).
+CONFIRM_REPEATS, CONFIRM_REPEAT_S = 3, 0.02
 
 
 class WearerSim(Node):
@@ -96,6 +103,11 @@ class WearerSim(Node):
                              'streams, as the headless trial)', low=0, high=9999)
         self.press_confirm = declare(self, 'press_confirm', False, 'with scene_file: press the confirm key as '
                                      "the headless protocol's wearer does (a study participant)")
+        self.press_uplink = declare(self, 'press_uplink', False, "with press_confirm: press through the headset's "
+                                    'uplink (a confirm datagram stamped on the gaze clock, as the clicker) '
+                                    'instead of publishing confirm')
+        self.press_id = 0
+        self._repeats: list[tuple[float, bytes]] = []     # (when, datagram) still to send
         display_bind = declare(self, 'display_bind_address', '127.0.0.1',
                                "where the simulated headset's display listens", read_only=True)
         display_port = declare(self, 'display_port', 0, "the simulated headset's display port (display "
@@ -187,13 +199,28 @@ class WearerSim(Node):
         self.start = time.monotonic()
         if self.active:
             side.present()
+            self.key.present(side.t, self.target)   # on the new side's clock (its t starts at 0)
         if side.cond.speech and not old.cond.speech:
             self.create_subscription(String, SPEECH, self.on_speech, EVENT_QOS)
         self.get_logger().info(f'condition {cond.number}, repetition {repetition}: the wearer side starts afresh')
         return SetParametersResult(successful=True)
 
     def press(self) -> None:
-        self.confirm_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id='wearer_sim'))
+        if not self.press_uplink:
+            self.confirm_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id='wearer_sim'))
+            return
+        # The step the key was pressed in, on the clock of the gaze stamps (send()).
+        datagram = encode_confirm(self.press_id, self.start + self.scene_side.t)
+        self.press_id = (self.press_id + 1) % 2 ** 32
+        now = time.monotonic()
+        self._repeats += [(now + k * CONFIRM_REPEAT_S, datagram) for k in range(1, CONFIRM_REPEATS)]
+        self._send_raw(datagram)
+
+    def _send_raw(self, datagram: bytes) -> None:
+        try:
+            self.sock.sendto(datagram, self.address)
+        except OSError as exc:  # the bridge not there yet is no reason to stop
+            self.get_logger().warn(f'cannot send to the bridge: {exc}', throttle_duration_sec=5.0)
 
     def on_pressure(self, msg: Float64MultiArray) -> None:
         if len(msg.data) != len(self.channel_map.channels):
@@ -258,6 +285,10 @@ class WearerSim(Node):
     def scene_step(self) -> None:
         """The scene's wearer: simulation steps of dt, as many as the wall clock says are due."""
         now = time.monotonic()
+        if self._repeats:
+            for _, datagram in [r for r in self._repeats if r[0] <= now]:
+                self._send_raw(datagram)
+            self._repeats = [r for r in self._repeats if r[0] > now]
         side = self.scene_side
         due = int(round((now - self.start) / self.dt)) - side.step_index
         if due > MAX_CATCH_UP_STEPS:        # a stall: do not replay it

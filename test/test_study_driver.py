@@ -1,0 +1,69 @@
+"""SessionDriver without a graph: a fake operator records what the driver asks of the graph, in
+order, so the order of the trial's preparation against its enable can be checked."""
+import threading
+import time
+
+from fabric_guidance.live_study.driver import SessionDriver, target_phases
+from fabric_guidance.study.plan import StudyDesign, participant_blocks
+from fabric_guidance.study.session import Session
+
+
+class FakeOperator:
+    def __init__(self, log):
+        self.log, self.lock, self.gaze = log, threading.Lock(), []
+
+    def now_ns(self):
+        return time.monotonic_ns()
+
+    def drain_presses(self):
+        return []
+
+    def enable(self, on):
+        self.log.append(('enable', on, time.monotonic()))
+
+    def show_target(self, yaw, pitch):
+        self.log.append(('show', (yaw, pitch), time.monotonic()))
+
+    def to_front(self):
+        self.log.append(('front', None, time.monotonic()))
+
+    def display(self, line):
+        pass
+
+
+class FakeStore:
+    def record(self, step):
+        pass
+
+
+def test_the_next_trial_is_prepared_in_the_rest_before_it_not_at_its_start():
+    # Before: before_trial ran inside the trial's enable, after its target was shown, so the
+    # simulated wearer started afresh after the trial's clock had started (and its key press
+    # model took the new target on the old side's clock).
+    design = StudyDesign('speed', conditions=(1, 3), trials=2, trial_s=0.2, rest_s=0.15)
+    log = []
+    driver = SessionDriver(FakeOperator(log), Session(design, participant_blocks(design, '01', 0)), FakeStore(),
+                           set_condition=lambda c: log.append(('condition', c, time.monotonic())),
+                           before_trial=lambda c, r: log.append(('prepare', (c, r), time.monotonic())))
+    driver.run()
+    kinds = [k for k, *_ in log]
+    assert kinds.count('prepare') == 4
+    for i, (kind, value, t) in enumerate(log):
+        if kind == 'show':
+            # the trial's preparation came before its target, and at least most of a rest before
+            prep = max(j for j in range(i) if log[j][0] == 'prepare')
+            assert t - log[prep][2] >= 0.1, log
+            assert not any(log[j][0] == 'enable' and log[j][1] for j in range(prep, i)), log
+    # each block's trials with its own condition, repetitions in order
+    assert [v for k, v, _ in log if k == 'prepare'] == [(c, r) for c in
+                                                        [b.condition for b in participant_blocks(design, '01', 0)]
+                                                        for r in (0, 1)]
+
+
+def test_target_phases_pair_each_found_target_with_its_return():
+    events = [('target', 0.0, 0.05), ('press', 0.8, 0.87, True), ('front', 0.87, 0.92), ('target', 1.5, 1.55),
+              ('press', 1.9, 1.95, False), ('vent', 2.0, 2.01), ('target', 5.0, 5.05), ('press', 5.5, 5.56, True)]
+    ph = target_phases(events)
+    assert ph['find'] == [0.8, 0.5] and [round(x, 3) for x in ph['press_wait']] == [0.07, 0.06]
+    assert [round(x, 3) for x in ph['front_return']] == [0.58]      # not across the trial's end
+    assert len(ph['target_call']) == 3 and len(ph['front_call']) == 1
