@@ -23,7 +23,7 @@ NAMESPACE = 'suit_live'
 
 
 def short_speed_scene(tmp_path: Path) -> Path:
-    data = yaml.safe_load(scene_path('ideal').read_text())      # no effects: a calibration the fit accepts
+    data = yaml.safe_load(scene_path('paper-speed').read_text())
     data.update(conditions=[1], repetitions=1)
     data['protocol']['trial_s'] = 8.0
     path = tmp_path / 'short-speed.yaml'
@@ -39,21 +39,24 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     lab = sim_lab(1, 'suit', cal_dir)
     # The lab's graph before the participant arrives: nobody's calibration in it.
     graph_overrides(lab, scene, 0, 1, cal_dir / 'nobody.yaml', min(scene.sim_rate_hz, 90.0))
-    # A short Algorithm 1 (5 pressures, 0.8 s dwell, 1 s rest): the procedure, not its precision, is tested here.
-    lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir), calibration_steps=5,
+    # A short Algorithm 1 (8 pressures, 0.8 s dwell, 1 s rest): the procedure, not its precision, is tested here.
+    lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir), calibration_steps=8,
                                                 calibration_dwell_s=0.8, calibration_rest_s=1.0)
     graph = Graph(tmp_path / 'graph', domain_id=domain_id, namespace=NAMESPACE)
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
     for key, value in loopback_dds_env().items():
         monkeypatch.setenv(key, value)
-    lines = []
+    lines, refused = [], []
+
+    def wearer_sim_trial(op, condition, repetition):
+        # wearer_sim is the person: its streams follow the trial, as in study --simulated
+        op.set_parameters('wearer_sim', condition=condition, repetition=repetition)
     try:
         start_nodes(graph, lab, FILES)
         out = tmp_path / 'study'
         code = run_live_session(scene, 'P01', 1, out, lines.append, namespace=NAMESPACE, keyboard=False,
-                                again=lambda reason: False,
-                                # wearer_sim is the person: its streams follow the trial, as in study --simulated
-                                before_trial=lambda op, c, r: op.set_parameters('wearer_sim', condition=c, repetition=r))
+                                again=lambda reason: refused.append(reason) or len(refused) < 2,
+                                before_trial=wearer_sim_trial)
     finally:
         graph.stop_all()
     assert code == 0, '\n'.join(lines)
@@ -62,7 +65,8 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     assert (cal_dir / 'P01.yaml').is_file(), text           # written by the graph's controller, as <id>.yaml
     header, rows = read_tsv(out / 'sub-P01' / 'ses-1' / 'sub-P01_ses-1_task-speed_trials.tsv')
     assert [(r['condition'], r['status']) for r in rows] == [('1', 'ok')], rows
-    assert int(rows[0]['identified']) >= 1 and rows[0]['press_source'] == 'wearer_sim', text
+    # wearer_sim presses as the headset's clicker does (its uplink)
+    assert int(rows[0]['identified']) >= 1 and rows[0]['press_source'] == 'headset', text
     assert rows[0]['calibration_file'] == 'P01.yaml' and len(rows[0]['calibration_sha256']) == 64
     assert list((out / 'sub-P01' / 'ses-1').glob('*_block-1_run-1_bag')), 'the block has its bag'
 
