@@ -40,8 +40,10 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     # The lab's graph before the participant arrives: nobody's calibration in it.
     graph_overrides(lab, scene, 0, 1, cal_dir / 'nobody.yaml', min(scene.sim_rate_hz, 90.0))
     # A short Algorithm 1 (8 pressures, 0.8 s dwell, 1 s rest): the procedure, not its precision, is tested here.
+    # A gaze timeout of 1 s: a loaded machine's stall of the simulated headset must not abort the
+    # calibration under test (the stale-gaze abort has tests of its own).
     lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir), calibration_steps=8,
-                                                calibration_dwell_s=0.8, calibration_rest_s=1.0)
+                                                calibration_dwell_s=0.8, calibration_rest_s=1.0, gaze_timeout_s=1.0)
     graph = Graph(tmp_path / 'graph', domain_id=domain_id, namespace=NAMESPACE)
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
     for key, value in loopback_dds_env().items():
@@ -55,7 +57,7 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
         start_nodes(graph, lab, FILES)
         out = tmp_path / 'study'
         code = run_live_session(scene, 'P01', 1, out, lines.append, namespace=NAMESPACE, keyboard=False,
-                                again=lambda reason: refused.append(reason) or len(refused) < 2,
+                                again=lambda reason: refused.append(reason) or len(refused) < 3,
                                 before_trial=wearer_sim_trial)
     finally:
         graph.stop_all()
@@ -68,6 +70,7 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     # wearer_sim presses as the headset's clicker does (its uplink)
     assert int(rows[0]['identified']) >= 1 and rows[0]['press_source'] == 'headset', text
     assert rows[0]['calibration_file'] == 'P01.yaml' and len(rows[0]['calibration_sha256']) == 64
+    assert rows[0]['clock_state'] == 'synced'      # gaze_bridge's clock estimate of wearer_sim's headset clock
     assert list((out / 'sub-P01' / 'ses-1').glob('*_block-1_run-1_bag')), 'the block has its bag'
 
 

@@ -168,7 +168,7 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
             calibrate(op, participant, say, again or ask_operator(stream))
         cal = calibration_path(op, participant)
         readable = cal is not None and cal.is_file()
-        context = {'gaze_source': 'headset', 'clock_state': 'synced', 'git_commit': _commit(),
+        context = {'gaze_source': 'headset', 'clock_state': op.clock_state(), 'git_commit': _commit(),
                    'calibration_file': cal.name if cal is not None else f'{participant}.yaml',
                    'calibration_sha256': hashlib.sha256(cal.read_bytes()).hexdigest() if readable else '-',
                    'scene': scene.name}
@@ -178,8 +178,13 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
         def set_condition(cond: int) -> None:
             op.set_condition(cond)
             bags.begin(session.block)
-        driver = SessionDriver(op, session, bags, say, set_condition,
-                               None if before_trial is None else (lambda c, r: before_trial(op, c, r)))
+
+        def prepare_trial(cond: int, repetition: int) -> None:
+            # Each trial carries the headset clock's state as it is now (gaze_bridge's diagnostics).
+            session.set_context(clock_state=op.clock_state())
+            if before_trial is not None:
+                before_trial(op, cond, repetition)
+        driver = SessionDriver(op, session, bags, say, set_condition, prepare_trial)
         tty = hasattr(sys.stdout, 'isatty') and sys.stdout.isatty()
         if tty:
             driver.on_status = lambda st: (sys.stdout.write('\r' + status_line(st)[:150].ljust(150)),

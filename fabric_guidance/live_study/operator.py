@@ -100,6 +100,7 @@ class Operator:
         self.controller_wearer: str | None = None            # pressure_controller's `wearer`
         self.controller_calibration: str | None = None       # the wearer of its loaded calibration ('' none)
         self.calibration_state = None                        # core.calibration_state.CalibrationState
+        self.headset_clock: str | None = None                # gaze_bridge's clock_state
         self._header_type, self._string_type = Header, String
         self.display_pub = self.node.create_publisher(String, interface.STUDY_DISPLAY, qos('event'))
         self.confirm_pub = self.node.create_publisher(Header, interface.CONFIRM, qos('event'))
@@ -151,7 +152,12 @@ class Operator:
     def _on_diagnostics(self, msg) -> None:
         # /diagnostics is global: only the controller of this operator's namespace counts.
         mine = f'{self.namespace}/pressure_controller' if self.namespace else 'pressure_controller'
+        bridge = f'{self.namespace}/gaze_bridge' if self.namespace else 'gaze_bridge'
         for st in msg.status:
+            if st.name.split(':')[0].strip().lstrip('/') == bridge:
+                for kv in st.values:
+                    if kv.key == 'clock_state':
+                        self.headset_clock = kv.value
             if st.name.split(':')[0].strip().lstrip('/') == mine or (
                     not self.namespace and st.name.startswith('pressure_controller')):
                 for kv in st.values:
@@ -161,6 +167,13 @@ class Operator:
                         self.controller_wearer = kv.value
                     elif kv.key == 'calibration':
                         self.controller_calibration = kv.value
+
+    def clock_state(self) -> str:
+        """The trial column's clock state: 'synced' (gaze stamped at capture on the mapped
+        headset clock), 'free' (stamped at receipt), '-' (gaze_bridge not heard yet)."""
+        if self.headset_clock is None:
+            return '-'
+        return 'synced' if self.headset_clock == 'synchronised' else 'free'
 
     def _on_calibration_state(self, msg) -> None:
         from ..core.calibration_state import CalibrationStateError, decode
