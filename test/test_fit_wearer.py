@@ -232,3 +232,25 @@ def test_the_shipped_scenes_are_the_fit_of_the_shipped_design(tmp_path):
     for name in ('paper-fitted-speed.yaml', 'paper-fitted-accuracy.yaml'):
         shipped = re.sub(r'; (95 % bootstrap:|the bootstrap kept) .*', '', config_path(f'scenes/{name}').read_text())
         assert (tmp_path / name).read_text() == shipped, name
+
+
+def test_the_fits_objective_function_gives_the_objectives_floats():
+    """The fits evaluate objective_function (phi alone, the rest computed once): on a shipped
+    design and its bootstrap resample, over random points of the bounds and points whose weights
+    fall under the effective-wearer floor, it returns objective's floats exactly, so the fits and
+    the shipped scenes do not move."""
+    from fabric_guidance.paths import config_path
+    table = fit_wearer.read_table()
+    n = table.shape[0]
+    target = pf.table_statistics(table)
+    rng = np.random.default_rng(34)
+    b = np.array(pf.bounds())
+    whole = pf.Design.load(config_path('scenes/fit') / 'design-arm_spread-0.1.npz')
+    for design in (whole, whole.subset(rng.integers(0, len(whole.y), len(whole.y)))):
+        f = pf.objective_function(design, target, n)
+        phis = rng.uniform(b[:, 0], b[:, 1], (300, len(b)))
+        phis[:50, len(pf.OWN):] = b[len(pf.OWN):, 0]       # narrow spreads: few effective wearers
+        values = [pf.objective(design, phi, target, n) for phi in phis]
+        np.testing.assert_array_equal([f(phi) for phi in phis], values)    # nan where objective is nan
+        floor = pf.MIN_ESS_SHARE * len(design.y)
+        assert any(1.0 / np.sum(pf.weights(design, phi) ** 2) < floor for phi in phis[:50])
