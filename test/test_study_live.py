@@ -13,7 +13,7 @@ import yaml
 from fabric_guidance.graph.process_graph import FILES, Graph, fresh_domain_id, loopback_dds_env, sim_lab, start_nodes
 from fabric_guidance.live_study.driver import OPERATOR_COMMANDS, SessionDriver
 from fabric_guidance.live_study.keyboard import KeyboardSource
-from fabric_guidance.live_study.live_session import run_live_session, status_line
+from fabric_guidance.live_study.live_session import operator_keys, run_live_session, status_line
 from fabric_guidance.live_study.simulated import graph_overrides
 from fabric_guidance.live_study.study_command import main as study_main
 from fabric_guidance.sim.scene import load_scene, scene_path
@@ -128,3 +128,19 @@ def test_bad_live_options_are_refused_in_one_line(tmp_path, capsys, argv, why):
     assert study_main([*argv, '--out', str(tmp_path / 's')]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and why in err[0], err
+
+
+def test_q_vents_from_the_keys_thread_before_the_stop_reaches_the_session():
+    log = []
+
+    class Op:
+        def enable(self, on):
+            log.append(('enable', on))
+
+    class Driver:
+        def command(self, name):
+            log.append(('session', name))
+    keys = operator_keys(Op(), Driver(), log.append)
+    keys('pause')
+    keys('stop')
+    assert log == [('session', 'pause'), ('enable', False), ('session', 'stop')]

@@ -62,6 +62,19 @@ def status_line(st: dict) -> str:
     return ' | '.join(p for p in parts if p)
 
 
+def operator_keys(op, driver, say: Callable[[str], None]) -> Callable[[str], None]:
+    """The keyboard's command callback: the command to the session's loop; `stop` vents first,
+    from the key's own thread, so the suit does not wait for a call the loop may be in."""
+    def command(name: str) -> None:
+        if name == 'stop':
+            try:
+                op.enable(False)
+            except OperatorError as exc:      # the loop's stop vents again
+                say(f'  stop: {exc}')
+        driver.command(name)
+    return command
+
+
 def calibration_path(op: Operator, participant: str) -> Path | None:
     """Where pressure_controller keeps the participant's calibration (None: it does not say)."""
     cal_dir, cal_file = op.get_parameters('pressure_controller', 'calibration_dir', 'calibration_file')
@@ -190,7 +203,7 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
             driver.on_status = lambda st: (sys.stdout.write('\r' + status_line(st)[:150].ljust(150)),
                                            sys.stdout.flush())
         if keyboard:
-            KeyboardSource(lambda: op.press_key('keyboard'), driver.command, stream).start()
+            KeyboardSource(lambda: op.press_key('keyboard'), operator_keys(op, driver, say), stream).start()
             say('  keys: space/Enter confirm, p pause, c resume, r repeat, s skip, q stop (vents)')
         try:
             driver.run()
@@ -215,4 +228,4 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
         op.close()
 
 
-__all__ = ['LiveStudyError', 'ask_operator', 'calibrate', 'run_live_session', 'status_line']
+__all__ = ['LiveStudyError', 'ask_operator', 'calibrate', 'operator_keys', 'run_live_session', 'status_line']
