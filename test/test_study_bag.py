@@ -139,9 +139,10 @@ def test_a_simulated_sessions_blocks_each_have_their_bag(tmp_path):
     assert len(rows) == 2 and {r['status'] for r in rows} == {'ok'}
     for bag in bags:
         msgs = read_bag(bag)
-        # the block's press (wearer_sim's), the gaze it was judged on, the display's lines
+        # the block's press (wearer_sim's, through the headset uplink as the clicker's), the gaze
+        # it was judged on, the display's lines
         presses = [m.frame_id for m in msgs['/confirm']]
-        assert presses and set(presses) == {'wearer_sim'}, bag
+        assert presses and set(presses) == {'headset'}, bag
         assert len(msgs['/gaze']) > 90
         lines = [m.data for m in msgs['/study_display']]
         assert 'done sequence' in lines and 'done block' in lines, lines

@@ -221,10 +221,11 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
     except OperatorError as exc:
         raise LiveStudyError(f'{exc} (the suit was told to vent)') from None
     finally:
-        try:
-            op.enable(False)
-        except Exception:   # noqa: BLE001 - closing anyway: the error that brought us here is reported
-            pass
+        if op.controller_condition is not None:     # a controller was there: leave it vented
+            try:
+                op.enable(False)
+            except Exception:   # noqa: BLE001 - closing anyway: the error that brought us here is reported
+                pass
         op.close()
 
 
