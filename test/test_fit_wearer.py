@@ -234,11 +234,11 @@ def test_the_shipped_scenes_are_the_fit_of_the_shipped_design(tmp_path):
         assert (tmp_path / name).read_text() == shipped, name
 
 
-def test_the_fits_objective_function_gives_the_objectives_floats():
-    """The fits evaluate objective_function (phi alone, the rest computed once): on a shipped
+def test_the_fits_objective_is_the_composition_of_weights_statistics_and_discrepancy():
+    """The fits evaluate objective_function (phi alone, the rest computed once). On a shipped
     design and its bootstrap resample, over random points of the bounds and points whose weights
-    fall under the effective-wearer floor, it returns objective's floats exactly, so the fits and
-    the shipped scenes do not move."""
+    fall under the effective-wearer floor, it agrees with the readable composition of weights,
+    weighted_statistics and discrepancy plus the floor's penalty (computed here, independently)."""
     from fabric_guidance.paths import config_path
     table = fit_wearer.read_table()
     n = table.shape[0]
@@ -246,11 +246,21 @@ def test_the_fits_objective_function_gives_the_objectives_floats():
     rng = np.random.default_rng(34)
     b = np.array(pf.bounds())
     whole = pf.Design.load(config_path('scenes/fit') / 'design-arm_spread-0.1.npz')
+
+    def reference(design, phi):
+        w = pf.weights(design, phi)
+        d = pf.discrepancy(pf.weighted_statistics(design, w, n), target, n)
+        total = sum(float(np.sum(v ** 2)) for v in d.values())
+        ess, floor = 1.0 / float(np.sum(w ** 2)), pf.MIN_ESS_SHARE * len(design.y)
+        return total + (10.0 * (floor - ess) if ess < floor else 0.0)
+
     for design in (whole, whole.subset(rng.integers(0, len(whole.y), len(whole.y)))):
         f = pf.objective_function(design, target, n)
         phis = rng.uniform(b[:, 0], b[:, 1], (300, len(b)))
         phis[:50, len(pf.OWN):] = b[len(pf.OWN):, 0]       # narrow spreads: few effective wearers
-        values = [pf.objective(design, phi, target, n) for phi in phis]
-        np.testing.assert_array_equal([f(phi) for phi in phis], values)    # nan where objective is nan
+        values = np.array([reference(design, phi) for phi in phis])
+        got = np.array([f(phi) for phi in phis])
+        np.testing.assert_allclose(got, values, rtol=1e-9, atol=1e-9)     # nan where the reference is nan
+        np.testing.assert_array_equal([pf.objective(design, phi, target, n) for phi in phis[:20]], got[:20])
         floor = pf.MIN_ESS_SHARE * len(design.y)
         assert any(1.0 / np.sum(pf.weights(design, phi) ** 2) < floor for phi in phis[:50])

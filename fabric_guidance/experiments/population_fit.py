@@ -253,21 +253,17 @@ def discrepancy(stats: dict, target: dict, n: int) -> dict[str, np.ndarray]:
 
 
 def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
-    w = weights(design, phi)
-    ess = 1.0 / float(np.sum(w ** 2))
-    d = discrepancy(weighted_statistics(design, w, n), target, n)
-    total = sum(float(np.sum(v ** 2)) for v in d.values())
-    floor = MIN_ESS_SHARE * len(design.y)
-    if ess < floor:
-        total += 10.0 * (floor - ess)
-    return total
+    """The fit's distance at phi: the squared standardized discrepancies of the statistics
+    (weights, weighted_statistics, discrepancy) plus the penalty under the effective-wearer
+    floor. One arithmetic: objective_function's (test_fit_wearer checks it against those three)."""
+    return objective_function(design, target, n)(phi)
 
 
 def objective_function(design: Design, target: dict, n: int) -> Callable[[np.ndarray], float]:
     """objective(design, phi, target, n) as a function of phi alone, with what does not depend on
-    phi computed once: the same arithmetic in the same order, so the same floats (test_fit_wearer),
-    in a third of the time (an evaluation of a small design is mostly numpy's per-call overhead,
-    and the fits and the bootstrap's refits make tens of thousands)."""
+    phi computed once (the paper's SEs and Fisher z, the design's arrays and proposal density),
+    in a third of the time of composing weights, weighted_statistics and discrepancy (an
+    evaluation is mostly numpy's per-call overhead; the fits and refits make tens of thousands)."""
     u, y, best, logq = design.u, design.y, design.best(), design.log_proposal()
     own, k, traits = list(OWN), len(OWN), len(FITTED)
     i, j = _PAIRS
