@@ -264,3 +264,39 @@ def test_the_fits_objective_is_the_composition_of_weights_statistics_and_discrep
         np.testing.assert_array_equal([pf.objective(design, phi, target, n) for phi in phis[:20]], got[:20])
         floor = pf.MIN_ESS_SHARE * len(design.y)
         assert any(1.0 / np.sum(pf.weights(design, phi) ** 2) < floor for phi in phis[:50])
+
+
+def test_the_objectives_emphasis_weighs_one_group_and_leaves_the_fit_unchanged_at_one():
+    """emphasis (1, 1, 1, 1) is the fit's objective, float for float; (1, 1, 1, k) adds (k - 1)
+    times the correlations' squared distance, as discrepancy computes it."""
+    from fabric_guidance.paths import config_path
+    table = fit_wearer.read_table()
+    n = table.shape[0]
+    target = pf.table_statistics(table)
+    design = pf.Design.load(config_path('scenes/fit') / 'design-arm_spread-0.1.npz')
+    rng = np.random.default_rng(7)
+    b = np.array(pf.bounds())
+    plain, ones = pf.objective_function(design, target, n), pf.objective_function(design, target, n, (1, 1, 1, 1))
+    heavy = pf.objective_function(design, target, n, (1, 1, 1, 8))
+    for phi in rng.uniform(b[:, 0], b[:, 1], (40, len(b))):
+        if not np.isfinite(plain(phi)):
+            continue
+        assert ones(phi) == plain(phi)
+        corr = float(np.sum(pf.discrepancy(pf.weighted_statistics(design, pf.weights(design, phi), n), target, n)['corr'] ** 2))
+        assert heavy(phi) == pytest.approx(plain(phi) + 7 * corr, rel=1e-9)
+
+
+def test_fit_tradeoff_shows_each_emphasis_and_refuses_a_bad_one(tmp_path, capsys):
+    from fabric_guidance.experiments import fit_tradeoff
+    from fabric_guidance.paths import config_path
+    design = config_path('scenes/fit') / 'design-arm_spread-0.1.npz'
+    assert fit_tradeoff.main(['--out', str(tmp_path), '--emphasis', '1,8', '--draws', '40', '--design', str(design)]) == 0
+    text = (tmp_path / 'fit_tradeoff.md').read_text()
+    rows = [line for line in text.splitlines() if line.startswith('| x')]
+    assert [r.split('|')[1].strip() for r in rows] == ['x1', 'x8']
+    corr_part = [float(r.split('|')[3].split('/')[-1]) for r in rows]
+    assert corr_part[1] <= corr_part[0]          # weighed 8 times, the correlations come closer
+    assert (tmp_path / 'fit_tradeoff.png').stat().st_size > 10_000
+    with pytest.raises(SystemExit) as e:
+        fit_tradeoff.main(['--out', str(tmp_path), '--emphasis', '1,x'])
+    assert e.value.code == 2 and '--emphasis' in capsys.readouterr().err

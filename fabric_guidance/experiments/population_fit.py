@@ -259,11 +259,19 @@ def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
     return objective_function(design, target, n)(phi)
 
 
-def objective_function(design: Design, target: dict, n: int) -> Callable[[np.ndarray], float]:
+#: The objective's statistic groups, in the order of its sum (emphasis weights follow it).
+GROUPS = ('means', 'sds', 'best', 'corr')
+
+
+def objective_function(design: Design, target: dict, n: int,
+                       emphasis: Sequence[float] | None = None) -> Callable[[np.ndarray], float]:
     """objective(design, phi, target, n) as a function of phi alone, with what does not depend on
     phi computed once (the paper's SEs and Fisher z, the design's arrays and proposal density),
     in a third of the time of composing weights, weighted_statistics and discrepancy (an
-    evaluation is mostly numpy's per-call overhead; the fits and refits make tens of thousands)."""
+    evaluation is mostly numpy's per-call overhead; the fits and refits make tens of thousands).
+    emphasis: a weight per GROUPS entry (None: 1 each, the fit's; experiments.fit_tradeoff varies
+    it to show which statistics pull against which)."""
+    g = [1.0] * len(GROUPS) if emphasis is None else [float(x) for x in emphasis]
     u, y, best, logq = design.u, design.y, design.best(), design.log_proposal()
     own, k, traits = list(OWN), len(OWN), len(FITTED)
     i, j = _PAIRS
@@ -292,9 +300,9 @@ def objective_function(design: Design, target: dict, n: int) -> Callable[[np.nda
         corr = cov[i, j] / (sds[i] * sds[j])
         z = np.arctanh(corr.clip(-0.99, 0.99)) - z_target
         total = 0.0
-        for v in ((means - t_means) / se_mean, (sds - t_sds) / se_sd, (n * (w @ best) - t_best) / se_best,
-                  z * root):
-            total += float((v ** 2).sum())
+        for gk, v in zip(g, ((means - t_means) / se_mean, (sds - t_sds) / se_sd, (n * (w @ best) - t_best) / se_best,
+                             z * root)):
+            total += gk * float((v ** 2).sum())      # 1.0 * x is x: the fit's floats unchanged
         if ess < floor:
             total += 10.0 * (floor - ess)
         return total
@@ -324,7 +332,8 @@ def _mu_ceiling(t: FittedTrait) -> float:
 
 
 def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed: int = 0,
-                   x0: np.ndarray | None = None, restarts: int = 2, maxfev: int = 3000) -> tuple[np.ndarray, float]:
+                   x0: np.ndarray | None = None, restarts: int = 2, maxfev: int = 3000,
+                   emphasis: Sequence[float] | None = None) -> tuple[np.ndarray, float]:
     """phi minimizing the objective: Nelder-Mead (bounded) from the best three of a seeded Latin
     hypercube of `starts` points and the design's own population, or from x0 alone (a warm start,
     as the bootstrap refits)."""
@@ -333,7 +342,7 @@ def fit_population(design: Design, target: dict, n: int, starts: int = 12, seed:
     b = np.array(bounds())
     k = len(OWN)
 
-    f = objective_function(design, target, n)
+    f = objective_function(design, target, n, emphasis)
     if x0 is not None:
         firsts = [np.asarray(x0, dtype=float)]
     else:
