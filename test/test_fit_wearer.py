@@ -282,7 +282,8 @@ def test_the_objectives_emphasis_weighs_one_group_and_leaves_the_fit_unchanged_a
         if not np.isfinite(plain(phi)):
             continue
         assert ones(phi) == plain(phi)
-        corr = float(np.sum(pf.discrepancy(pf.weighted_statistics(design, pf.weights(design, phi), n), target, n)['corr'] ** 2))
+        stats = pf.weighted_statistics(design, pf.weights(design, phi), n)
+        corr = float(np.sum(pf.discrepancy(stats, target, n)['corr'] ** 2))
         assert heavy(phi) == pytest.approx(plain(phi) + 7 * corr, rel=1e-9)
 
 
@@ -290,7 +291,8 @@ def test_fit_tradeoff_shows_each_emphasis_and_refuses_a_bad_one(tmp_path, capsys
     from fabric_guidance.experiments import fit_tradeoff
     from fabric_guidance.paths import config_path
     design = config_path('scenes/fit') / 'design-arm_spread-0.1.npz'
-    assert fit_tradeoff.main(['--out', str(tmp_path), '--emphasis', '1,8', '--draws', '40', '--design', str(design)]) == 0
+    args = ['--out', str(tmp_path), '--emphasis', '1,8', '--draws', '40', '--design', str(design)]
+    assert fit_tradeoff.main(args) == 0
     text = (tmp_path / 'fit_tradeoff.md').read_text()
     rows = [line for line in text.splitlines() if line.startswith('| x')]
     assert [r.split('|')[1].strip() for r in rows] == ['x1', 'x8']

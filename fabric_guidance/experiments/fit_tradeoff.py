@@ -78,8 +78,9 @@ def report(rows: list[dict], table: np.ndarray, draws: int) -> str:
              '| corr ' + ' / '.join(PAIRS) + ' | P(Friedman p < 0.05) | P(1 most frequent best) |',
              '| --- | --- | --- | --- | --- | --- | --- | --- |']
     fmt = ' / '.join
-    lines.append('| paper | | | ' + fmt(f'{v:.2f}' for v in target['means']) + ' | ' + fmt(f'{v:.2f}' for v in target['sds'])
-                 + ' | ' + fmt(f'{v:.2f}' for v in target['corr']) + ' | 1 (p 7.6e-4) | 1 (10 of 15) |')
+    lines.append('| paper | | | ' + fmt(f'{v:.2f}' for v in target['means']) + ' | '
+                 + fmt(f'{v:.2f}' for v in target['sds']) + ' | ' + fmt(f'{v:.2f}' for v in target['corr'])
+                 + ' | 1 (p 7.6e-4) | 1 (10 of 15) |')
     for r in rows:
         p, s = r['parts'], r['stats']
         lines.append(f"| x{r['emphasis']:g} | {r['arm_spread']:g} | {r['objective']:.1f}: "
