@@ -46,8 +46,12 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
     ov = lab.overrides
     lag = scene.effect('regulator_lag')
     ov['mock_plc'].update(regulator_tau_s=float(lag.build().tau_s) if lag is not None else NO_REGULATOR_LAG_S)
+    # stall_timeout_s 0 (never): the headless engine steps Eq. 5 without the no-progress vent
+    # (sim.engine.scene_controller), and these participants are the headless ones, so both play the
+    # paper's game. A person's graph keeps guidance.yaml's 10 s (docs/study.md: what it costs).
     ov['pressure_controller'].update(calibration_file=str(calibration_file), wearer=f'sub{subject + 1:02d}',
-                                     **dataclasses.asdict(scene.controller), step_on_gaze=False, condition=cond)
+                                     **dataclasses.asdict(scene.controller), step_on_gaze=False, condition=cond,
+                                     stall_timeout_s=0.0)
     speed = scene.protocol.kind == 'speed'
     ov['target_selector'].update(target_names=[STUDY_TARGET], target_positions=target_position(0.0, 0.0, 1.2),
                                  found_by_dwell=False, return_to_front=False, auto_advance=False)
