@@ -67,3 +67,49 @@ def test_target_phases_pair_each_found_target_with_its_return():
     assert ph['find'] == [0.8, 0.5] and [round(x, 3) for x in ph['press_wait']] == [0.07, 0.06]
     assert [round(x, 3) for x in ph['front_return']] == [0.58]      # not across the trial's end
     assert len(ph['target_call']) == 3 and len(ph['front_call']) == 1
+
+
+def test_press_latency_is_kept_with_each_press_source():
+    from fabric_guidance.study.session import Step
+    design = StudyDesign('speed', conditions=(1,), trials=1)
+    driver = SessionDriver(FakeOperator([]), Session(design, participant_blocks(design, '01', 0)), FakeStore())
+    now = time.monotonic()
+    presses = [dict(stamp=now - 0.004, source='keyboard', accepted=True),
+               dict(stamp=now - 0.006, source='headset', accepted=False),
+               dict(stamp=now - 0.002, source='keyboard', accepted=False)]
+    driver.handle(Step(presses=presses))
+    t = driver.timing
+    assert t.press_sources == ['keyboard', 'headset', 'keyboard'] and len(t.press_latency_s) == 3
+    by = t.press_latency_by_source()
+    assert sorted(by) == ['headset', 'keyboard'] and len(by['keyboard']) == 2
+    assert by['headset'][0] > by['keyboard'][0] > by['keyboard'][1] > 0
+
+
+class PhaseSession:
+    """A session whose phase a test sets; counts how often it is read."""
+    def __init__(self):
+        self._phase, self.reads = 'rest', 0
+
+    @property
+    def phase(self):
+        self.reads += 1
+        return self._phase
+
+
+def test_the_timing_runs_keyboard_presses_only_while_a_target_is_shown(monkeypatch):
+    from types import SimpleNamespace
+    from fabric_guidance.graph.process_graph import wait_until
+    from fabric_guidance.live_study import timing
+    monkeypatch.setattr(timing, 'KEY_INTERVAL_S', (0.002, 0.005))
+    session = PhaseSession()
+    pressed = []
+    op = SimpleNamespace(press_key=lambda source: pressed.append((source, session._phase)))
+    stop = threading.Event()
+    sent = timing.press_keys(op, SimpleNamespace(session=session), 5, 0, stop)
+    wait_until(lambda: session.reads >= 5, 5.0, what='the key thread reading the phase')
+    assert pressed == [] and sent['sent'] == 0          # the rest: no press
+    session._phase = 'target'
+    sent['thread'].join(5.0)
+    assert not sent['thread'].is_alive() and sent['sent'] == 5     # `keys` presses, then it ends
+    assert pressed == [('keyboard', 'target')] * 5
+    stop.set()

@@ -30,6 +30,7 @@ STATUS_S = 0.25
 @dataclass
 class DriverTiming:
     press_latency_s: list[float] = field(default_factory=list)   # press stamp -> its row's error resolved
+    press_sources: list[str] = field(default_factory=list)       # each of those presses' source, in step
     timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
     vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
@@ -38,6 +39,13 @@ class DriverTiming:
     events: list[tuple] = field(default_factory=list)
     # Each gaze sample's age when the session got it (receipt - capture stamp) [s], the last ones.
     gaze_age_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
+
+    def press_latency_by_source(self) -> dict[str, list[float]]:
+        """press_latency_s split by the presses' sources ('keyboard', 'headset', ...) [s]."""
+        out: dict[str, list[float]] = {}
+        for source, latency in zip(self.press_sources, self.press_latency_s):
+            out.setdefault(source, []).append(latency)
+        return out
 
 
 def target_phases(events) -> dict[str, list[float]]:
@@ -152,6 +160,7 @@ class SessionDriver:
         now = time.monotonic()
         for p in step.presses:
             self.timing.press_latency_s.append(now - p['stamp'])
+            self.timing.press_sources.append(p['source'])
             self.timing.events.append(('press', p['stamp'], now, p['accepted']))
         for action in step.actions:
             self.act(action)
