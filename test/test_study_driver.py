@@ -113,3 +113,29 @@ def test_the_timing_runs_keyboard_presses_only_while_a_target_is_shown(monkeypat
     assert not sent['thread'].is_alive() and sent['sent'] == 5     # `keys` presses, then it ends
     assert pressed == [('keyboard', 'target')] * 5
     stop.set()
+
+
+def test_presses_from_a_source_not_judged_are_reported_once_per_trial_and_counted_in_its_row():
+    from fabric_guidance.live_study.operator import Press
+    design = StudyDesign('speed', conditions=(1,), trials=2, trial_s=0.3, rest_s=0.05, press_sources=('keyboard',))
+
+    class Pressing(FakeOperator):
+        """Three headset presses in each trial, one per poll."""
+        sent: dict = {}
+
+        def drain_presses(self):
+            tr = driver.session._trial
+            if driver.session.phase != 'target' or self.sent.get(tr['start'], 0) >= 3:
+                return []
+            self.sent[tr['start']] = self.sent.get(tr['start'], 0) + 1
+            now = time.monotonic_ns()
+            return [Press('headset', now - 2_000_000, now)]
+    lines = []
+    op = Pressing([])
+    driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore(), lines.append,
+                           set_condition=lambda c: None)
+    rows = driver.run()
+    assert [r['ignored_presses'] for r in rows] == [3, 3] and [r['refused_presses'] for r in rows] == [0, 0]
+    said = [line for line in lines if 'ignored' in line]
+    assert said == ['  ignored 3 press(es) from headset (3): not a press source of this session (keyboard)'] * 2
+    assert driver.timing.press_latency_s == []       # none was judged

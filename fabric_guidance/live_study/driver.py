@@ -10,7 +10,7 @@ tick() whenever the Session's next deadline has come; the loop sleeps at most 2 
 """
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 import queue
 import time
@@ -100,6 +100,7 @@ class SessionDriver:
         self.on_status: Callable[[dict], None] | None = None      # called about every STATUS_S
         self._status_due = 0.0
         self._drawn = True                  # headset_display's draw_targets
+        self._ignored: Counter[str] = Counter()    # sources of the running trial's ignored presses
 
     def command(self, name: str) -> None:
         """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
@@ -158,6 +159,8 @@ class SessionDriver:
 
     def handle(self, step) -> None:
         now = time.monotonic()
+        if step.ignored is not None:
+            self._ignored[step.ignored] += 1
         for p in step.presses:
             self.timing.press_latency_s.append(now - p['stamp'])
             self.timing.press_sources.append(p['source'])
@@ -174,6 +177,11 @@ class SessionDriver:
                     f", identified {row['identified']} of {row['presented']}" if row.get('identified') is not None
                     else f", error h {row['h_error_deg']:.1f} v {row['v_error_deg']:.1f} deg"
                     if row.get('h_error_deg') is not None else ''))
+                if self._ignored:        # once per trial, not per press
+                    self.say(f"  ignored {sum(self._ignored.values())} press(es) from "
+                             f"{', '.join(f'{k} ({n})' for k, n in sorted(self._ignored.items()))}: not a press "
+                             f"source of this session ({', '.join(self.session.design.press_sources)})")
+                    self._ignored.clear()
         if step.refused:
             self.say(f'  refused: {step.refused}')
         if self.session.phase == 'rest':
