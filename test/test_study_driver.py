@@ -1,5 +1,6 @@
 """SessionDriver without a graph: a fake operator records what the driver asks of the graph, in
 order, so the order of the trial's preparation against its enable can be checked."""
+from collections import deque
 import threading
 import time
 
@@ -10,7 +11,7 @@ from fabric_guidance.study.session import Session
 
 class FakeOperator:
     def __init__(self, log):
-        self.log, self.lock, self.gaze = log, threading.Lock(), []
+        self.log, self.lock, self.gaze, self.gaze_total = log, threading.Lock(), [], 0
 
     def now_ns(self):
         return time.monotonic_ns()
@@ -139,3 +140,77 @@ def test_presses_from_a_source_not_judged_are_reported_once_per_trial_and_counte
     said = [line for line in lines if 'ignored' in line]
     assert said == ['  ignored 3 press(es) from headset (3): not a press source of this session (keyboard)'] * 2
     assert driver.timing.press_latency_s == []       # none was judged
+
+
+class History(deque):
+    """A gaze history that counts the samples a reader visits (iteration either way, indexing)."""
+    visited = 0
+
+    def __iter__(self):
+        for s in super().__iter__():
+            History.visited += 1
+            yield s
+
+    def __reversed__(self):
+        for s in super().__reversed__():
+            History.visited += 1
+            yield s
+
+    def __getitem__(self, i):
+        History.visited += 1
+        return super().__getitem__(i)
+
+
+class HistoryOperator(FakeOperator):
+    """Operator.gaze as _on_gaze keeps it: appended in order of receipt, counted, trimmed at the left."""
+    def __init__(self):
+        super().__init__([])
+        self.gaze = History()
+
+    def receive(self, stamp_ns, keep=None):
+        with self.lock:
+            self.gaze.append((stamp_ns, (0.0, 0.0, 1.2), (1.0, 0.0, 0.0)))
+            self.gaze_total += 1
+            while keep is not None and len(self.gaze) > keep:
+                self.gaze.popleft()
+
+
+class GazeLog:
+    def __init__(self):
+        self.fed = []
+
+    def gaze(self, t, yaw, pitch):
+        from fabric_guidance.study.session import Step
+        self.fed.append(t)
+        return Step()
+
+    phase = 'rest'
+    block = trial = None
+
+
+def test_feed_gaze_feeds_each_new_sample_once_in_order_without_visiting_the_history():
+    # Before: every 2 ms poll went through the whole history (5 s at 90 Hz or more) under the lock.
+    op = HistoryOperator()
+    driver = SessionDriver(op, GazeLog(), FakeStore())
+    driver._offset_s = 0.0
+    ms = 1_000_000
+    for k in range(20_000):                          # a long history, all of it before the start
+        op.receive(k * ms)
+    driver._last_gaze_ns, driver._gaze_seen = 20_000 * ms, op.gaze_total     # as run() starts
+    History.visited = 0
+    driver.feed_gaze()
+    assert driver.session.fed == [] and History.visited == 0
+    op.receive(20_001 * ms)
+    op.receive(20_002 * ms)
+    op.receive(20_001 * ms + 500_000)                # captured before the last: left out, as before
+    op.receive(20_003 * ms, keep=20_000)             # the history trimmed at the left meanwhile
+    driver.feed_gaze()
+    assert History.visited == 4                      # the four new samples, nothing older
+    driver.feed_gaze()                               # nothing new: nothing fed, nothing visited
+    assert History.visited == 4
+    assert [round(t, 6) for t in driver.session.fed] == [20.001, 20.002, 20.003]
+    for k in range(20_004, 20_010):                  # more than one poll's worth, fed once each
+        op.receive(k * ms, keep=100)
+    driver.feed_gaze()
+    assert [round(t * 1e3) for t in driver.session.fed] == [20_001, 20_002, 20_003, *range(20_004, 20_010)]
+    assert History.visited == 4 + 6

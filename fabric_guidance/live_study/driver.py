@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from itertools import islice
 import queue
 import time
 from typing import Callable
@@ -92,6 +93,7 @@ class SessionDriver:
         self.timing = DriverTiming()
         self._offset_s = 0.0
         self._last_gaze_ns = 0
+        self._gaze_seen = 0                 # op.gaze_total already fed (or passed over)
         self._prepared: tuple[str, int] | None = None    # (block key, repetition) before_trial was called for
         self.rows: list[dict] = []
         # The operator's commands (pause, resume, repeat, skip, stop) from any thread; the loop
@@ -125,6 +127,8 @@ class SessionDriver:
         op = self.op
         self._offset_s = op.now_ns() * 1e-9 - time.monotonic()
         self._last_gaze_ns = op.now_ns()      # gaze before the start is not the session's
+        with op.lock:
+            self._gaze_seen = op.gaze_total
         op.drain_presses()
         self.handle(self.session.start(time.monotonic()))
         while self.session.phase not in ('done', 'stopped'):
@@ -148,10 +152,19 @@ class SessionDriver:
         return self.rows
 
     def feed_gaze(self) -> None:
-        with self.op.lock:
-            fresh = [s for s in self.op.gaze if s[0] > self._last_gaze_ns]
+        """The samples appended to op.gaze since the last call, each once, in order: taken from
+        its right end (op.gaze_total counts every append), so a poll costs the new samples, not
+        the history's length; one captured before the last fed (or the start) is left out."""
+        op = self.op
+        with op.lock:
+            new = min(op.gaze_total - self._gaze_seen, len(op.gaze))
+            self._gaze_seen = op.gaze_total
+            fresh = list(islice(reversed(op.gaze), new))
+        fresh.reverse()
         now = time.monotonic()
         for stamp_ns, _origin, direction in fresh:
+            if stamp_ns <= self._last_gaze_ns:
+                continue
             self._last_gaze_ns = stamp_ns
             self.timing.gaze_age_s.append(now - self.steady(stamp_ns))
             self.handle(self.session.gaze(self.steady(stamp_ns), azimuth_deg(direction) or 0.0,
