@@ -1,5 +1,6 @@
 """SessionDriver without a graph: a fake operator records what the driver asks of the graph, in
 order, so the order of the trial's preparation against its enable can be checked."""
+from collections import deque
 import threading
 import time
 
@@ -10,7 +11,7 @@ from fabric_guidance.study.session import Session
 
 class FakeOperator:
     def __init__(self, log):
-        self.log, self.lock, self.gaze = log, threading.Lock(), []
+        self.log, self.lock, self.gaze, self.gaze_total = log, threading.Lock(), [], 0
 
     def now_ns(self):
         return time.monotonic_ns()
@@ -67,3 +68,149 @@ def test_target_phases_pair_each_found_target_with_its_return():
     assert ph['find'] == [0.8, 0.5] and [round(x, 3) for x in ph['press_wait']] == [0.07, 0.06]
     assert [round(x, 3) for x in ph['front_return']] == [0.58]      # not across the trial's end
     assert len(ph['target_call']) == 3 and len(ph['front_call']) == 1
+
+
+def test_press_latency_is_kept_with_each_press_source():
+    from fabric_guidance.study.session import Step
+    design = StudyDesign('speed', conditions=(1,), trials=1)
+    driver = SessionDriver(FakeOperator([]), Session(design, participant_blocks(design, '01', 0)), FakeStore())
+    now = time.monotonic()
+    presses = [dict(stamp=now - 0.004, source='keyboard', accepted=True),
+               dict(stamp=now - 0.006, source='headset', accepted=False),
+               dict(stamp=now - 0.002, source='keyboard', accepted=False)]
+    driver.handle(Step(presses=presses))
+    t = driver.timing
+    assert t.press_sources == ['keyboard', 'headset', 'keyboard'] and len(t.press_latency_s) == 3
+    by = t.press_latency_by_source()
+    assert sorted(by) == ['headset', 'keyboard'] and len(by['keyboard']) == 2
+    assert by['headset'][0] > by['keyboard'][0] > by['keyboard'][1] > 0
+
+
+class PhaseSession:
+    """A session whose phase a test sets; counts how often it is read."""
+    def __init__(self):
+        self._phase, self.reads = 'rest', 0
+
+    @property
+    def phase(self):
+        self.reads += 1
+        return self._phase
+
+
+def test_the_timing_runs_keyboard_presses_only_while_a_target_is_shown(monkeypatch):
+    from types import SimpleNamespace
+    from fabric_guidance.graph.process_graph import wait_until
+    from fabric_guidance.live_study import timing
+    monkeypatch.setattr(timing, 'KEY_INTERVAL_S', (0.002, 0.005))
+    session = PhaseSession()
+    pressed = []
+    op = SimpleNamespace(press_key=lambda source: pressed.append((source, session._phase)))
+    stop = threading.Event()
+    sent = timing.press_keys(op, SimpleNamespace(session=session), 5, 0, stop)
+    wait_until(lambda: session.reads >= 5, 5.0, what='the key thread reading the phase')
+    assert pressed == [] and sent['sent'] == 0          # the rest: no press
+    session._phase = 'target'
+    sent['thread'].join(5.0)
+    assert not sent['thread'].is_alive() and sent['sent'] == 5     # `keys` presses, then it ends
+    assert pressed == [('keyboard', 'target')] * 5
+    stop.set()
+
+
+def test_presses_from_a_source_not_judged_are_reported_once_per_trial_and_counted_in_its_row():
+    from fabric_guidance.live_study.operator import Press
+    design = StudyDesign('speed', conditions=(1,), trials=2, trial_s=0.3, rest_s=0.05, press_sources=('keyboard',))
+
+    class Pressing(FakeOperator):
+        """Three headset presses in each trial, one per poll."""
+        sent: dict = {}
+
+        def drain_presses(self):
+            tr = driver.session._trial
+            if driver.session.phase != 'target' or self.sent.get(tr['start'], 0) >= 3:
+                return []
+            self.sent[tr['start']] = self.sent.get(tr['start'], 0) + 1
+            now = time.monotonic_ns()
+            return [Press('headset', now - 2_000_000, now)]
+    lines = []
+    op = Pressing([])
+    driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore(), lines.append,
+                           set_condition=lambda c: None)
+    rows = driver.run()
+    assert [r['ignored_presses'] for r in rows] == [3, 3] and [r['refused_presses'] for r in rows] == [0, 0]
+    said = [line for line in lines if 'ignored' in line]
+    assert said == ['  ignored 3 press(es) from headset (3): not a press source of this session (keyboard)'] * 2
+    assert driver.timing.press_latency_s == []       # none was judged
+
+
+class History(deque):
+    """A gaze history that counts the samples a reader visits (iteration either way, indexing)."""
+    visited = 0
+
+    def __iter__(self):
+        for s in super().__iter__():
+            History.visited += 1
+            yield s
+
+    def __reversed__(self):
+        for s in super().__reversed__():
+            History.visited += 1
+            yield s
+
+    def __getitem__(self, i):
+        History.visited += 1
+        return super().__getitem__(i)
+
+
+class HistoryOperator(FakeOperator):
+    """Operator.gaze as _on_gaze keeps it: appended in order of receipt, counted, trimmed at the left."""
+    def __init__(self):
+        super().__init__([])
+        self.gaze = History()
+
+    def receive(self, stamp_ns, keep=None):
+        with self.lock:
+            self.gaze.append((stamp_ns, (0.0, 0.0, 1.2), (1.0, 0.0, 0.0)))
+            self.gaze_total += 1
+            while keep is not None and len(self.gaze) > keep:
+                self.gaze.popleft()
+
+
+class GazeLog:
+    def __init__(self):
+        self.fed = []
+
+    def gaze(self, t, yaw, pitch):
+        from fabric_guidance.study.session import Step
+        self.fed.append(t)
+        return Step()
+
+    phase = 'rest'
+    block = trial = None
+
+
+def test_feed_gaze_feeds_each_new_sample_once_in_order_without_visiting_the_history():
+    # Before: every 2 ms poll went through the whole history (5 s at 90 Hz or more) under the lock.
+    op = HistoryOperator()
+    driver = SessionDriver(op, GazeLog(), FakeStore())
+    driver._offset_s = 0.0
+    ms = 1_000_000
+    for k in range(20_000):                          # a long history, all of it before the start
+        op.receive(k * ms)
+    driver._last_gaze_ns, driver._gaze_seen = 20_000 * ms, op.gaze_total     # as run() starts
+    History.visited = 0
+    driver.feed_gaze()
+    assert driver.session.fed == [] and History.visited == 0
+    op.receive(20_001 * ms)
+    op.receive(20_002 * ms)
+    op.receive(20_001 * ms + 500_000)                # captured before the last: left out, as before
+    op.receive(20_003 * ms, keep=20_000)             # the history trimmed at the left meanwhile
+    driver.feed_gaze()
+    assert History.visited == 4                      # the four new samples, nothing older
+    driver.feed_gaze()                               # nothing new: nothing fed, nothing visited
+    assert History.visited == 4
+    assert [round(t, 6) for t in driver.session.fed] == [20.001, 20.002, 20.003]
+    for k in range(20_004, 20_010):                  # more than one poll's worth, fed once each
+        op.receive(k * ms, keep=100)
+    driver.feed_gaze()
+    assert [round(t * 1e3) for t in driver.session.fed] == [20_001, 20_002, 20_003, *range(20_004, 20_010)]
+    assert History.visited == 4 + 6

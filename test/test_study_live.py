@@ -89,7 +89,8 @@ def test_the_operators_keys_reach_the_session_as_its_commands():
 
         def __getattr__(self, name):
             return lambda t: self.calls.append(name) or type('Step', (), {
-                'refused': None, 'presses': [], 'actions': [], 'rows': [], 'amended': [], 'blocks': []})()
+                'refused': None, 'presses': [], 'actions': [], 'rows': [], 'amended': [], 'blocks': [],
+                'ignored': None})()
     session = Recorder()
     driver = SessionDriver(op=None, session=session, store=None)
     for name in got:
@@ -123,11 +124,33 @@ def test_a_live_session_without_a_graph_says_so_in_one_line(tmp_path, monkeypatc
     (['--participant', 'P_01'], 'participant must be 1-64 letters or digits'),
     (['--participant', 'P01', '--simulated'], 'either --simulated'),
     (['--participant', 'P01', '--session', '0'], '--session: 1 or more'),
+    (['--participant', 'P01', '--press-source', 'keyboard,clicker'],
+     "--press-source: unknown press source 'clicker': one of keyboard, headset, wearer_sim, ros"),
+    (['--simulated', '--press-source', 'mouse'], "--press-source: unknown press source 'mouse'"),
 ])
 def test_bad_live_options_are_refused_in_one_line(tmp_path, capsys, argv, why):
     assert study_main([*argv, '--out', str(tmp_path / 's')]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and why in err[0], err
+
+
+def test_the_press_source_option_reaches_the_session_design(tmp_path, monkeypatch):
+    got = {}
+
+    def fake_live(scene, participant, session_no, out, say, order, namespace, keyboard, press_sources=()):
+        got['live'] = press_sources
+        return 0
+
+    def fake_simulated(scene, participants, out, say, order='random', press_sources=()):
+        got['simulated'] = press_sources
+        return 0
+    monkeypatch.setattr('fabric_guidance.live_study.live_session.run_live_session', fake_live)
+    monkeypatch.setattr('fabric_guidance.live_study.session_graph.run_study_session', fake_simulated)
+    assert study_main(['--participant', 'P01', '--press-source', 'keyboard', '--out', str(tmp_path / 'a')]) == 0
+    assert study_main(['--simulated', '--participants', '1', '--out', str(tmp_path / 'b')]) == 0
+    assert got == {'live': ('keyboard',), 'simulated': ()}
+    assert study_main(['--simulated', '--press-source', 'headset,ros', '--out', str(tmp_path / 'c')]) == 0
+    assert got['simulated'] == ('headset', 'ros')
 
 
 def test_q_vents_from_the_keys_thread_before_the_stop_reaches_the_session():

@@ -110,3 +110,18 @@ def test_blocks_are_the_participants_conditions_in_order():
     assert len({b.key for b in blocks}) == 4
     with pytest.raises(ValueError, match='participant'):
         participant_blocks(d, 'P_1', 0)
+
+
+def test_press_sources_parse_and_round_trip_through_the_sidecars_dict():
+    from fabric_guidance.study.plan import PRESS_SOURCES, parse_press_sources
+    assert parse_press_sources('all') == () and parse_press_sources('') == ()
+    assert parse_press_sources('keyboard, headset,keyboard') == ('headset', 'keyboard')
+    with pytest.raises(ValueError, match="unknown press source 'clicker': one of " + ', '.join(PRESS_SOURCES)):
+        parse_press_sources('keyboard,clicker')
+    d = StudyDesign('speed', press_sources=('keyboard',))
+    assert d.as_dict()['press_sources'] == ['keyboard'] and StudyDesign.from_dict(d.as_dict()) == d
+    assert StudyDesign.from_dict({k: v for k, v in d.as_dict().items() if k != 'press_sources'}).press_sources == ()
+    assert d.judges('keyboard') and not d.judges('headset') and not d.judges('ros')
+    for bad in ('keyboard', ['clicker'], [3]):
+        with pytest.raises(ValueError, match='press'):
+            StudyDesign.from_dict({'protocol': 'speed', 'press_sources': bad}, 'side.json')

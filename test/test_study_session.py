@@ -334,3 +334,54 @@ def test_a_timer_that_catches_up_now_and_then_does_not_shrink_the_frame():
     last += 0.001
     st = s.press(last + 0.5 * frame, last + 0.5 * frame + 0.001)
     assert not st.pending and st.rows[0]['gaze_at_press_s'] == last
+
+
+class HeadsetPressing(Session):
+    """A session that also gets a press from the headset every few gaze samples, on the gaze
+    the wearer has then (on target once they look at it: a press that would be accepted), and
+    keeps what each of those presses produced."""
+    EVERY = 5
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.samples, self.extra = 0, []
+
+    def gaze(self, t, yaw, pitch):
+        step = super().gaze(t, yaw, pitch)
+        self.samples += 1
+        if self.samples % self.EVERY == 0:
+            self.extra.append(super().press(t, t + 0.003, 'headset'))
+        return step
+
+
+def test_a_press_from_a_source_not_judged_changes_no_result():
+    d = StudyDesign('speed', seed=3, trials=2, trial_s=10.0, rest_s=1.0, press_sources=('keyboard',))
+    plain = drive(Session(d, participant_blocks(d, 'P1', 2), {'gaze_source': 'test'}))
+    noisy = HeadsetPressing(d, participant_blocks(d, 'P1', 2), {'gaze_source': 'test'})
+    rows = drive(noisy)
+    counted = [st for st in noisy.extra if st.ignored]
+    assert counted and all(st.ignored == 'headset' for st in counted)
+    for st in noisy.extra:       # nothing judged, refused or done for any of them
+        assert not (st.actions or st.rows or st.presses or st.blocks or st.amended or st.pending)
+        assert st.refused is None
+    assert [r['ignored_presses'] for r in plain] == [0] * len(plain)
+    assert sum(r['ignored_presses'] for r in rows) == len(counted)         # the ones in a trial
+    assert all(r['ignored_presses'] > 0 for r in rows)
+
+    def strip(rs):
+        return [{k: v for k, v in r.items() if k != 'ignored_presses'} for r in rs]
+    assert strip(rows) == strip(plain)
+    # The same presses judged (every source) do change the results: the test above can fail.
+    judged = drive(HeadsetPressing(d.with_(press_sources=()), participant_blocks(d, 'P1', 2), {'gaze_source': 'test'}))
+    assert strip(judged) != strip(plain) and {r['press_source'] for r in judged} == {'headset'}
+
+
+def test_press_sources_by_the_confirms_frame_id():
+    s = speed_session(press_sources=('ros',))
+    t = into_trial(s)
+    h, v = s._trial['target']
+    s.gaze(t + 0.5, h, v)
+    assert s.press(t + 0.5, t + 0.505, 'keyboard').ignored == 'keyboard'
+    st = s.press(t + 0.5, t + 0.505, 'foot_pedal')          # another sender on the interface: ros
+    assert st.ignored is None and st.presses[0]['accepted'] and s.phase == 'front'
+    assert speed_session().design.judges('anything') and speed_session().press(1.0, 1.0, 'x').ignored is None

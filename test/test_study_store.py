@@ -257,3 +257,25 @@ def test_docs_study_describes_every_column_and_parameter():
         assert f'| `{name}` | {unit} |' in text, f'docs/study.md: no row for the column {name} ({unit})'
     for name in DESIGN.as_dict():
         assert f'| `{name}` |' in text, f'docs/study.md: no row for the parameter {name}'
+
+
+def test_the_press_sources_are_recorded_and_a_file_from_before_them_resumes(tmp_path):
+    root = tmp_path / 's'
+    st = run_participant(root, 'P1', DESIGN.with_(press_sources=('keyboard',)), stop_after=1)
+    assert json.loads(st.sidecar_path.read_text())['Parameters']['press_sources'] == ['keyboard']
+    with pytest.raises(StudyError, match=r"press_sources \['keyboard'\] recorded, \[\] given"):
+        Study.open(root).session('P1', 1, DESIGN)
+    # P2's files as written before the column ignored_presses and the parameter press_sources
+    st = run_participant(root, 'P2', stop_after=1)
+    header, rows = read_tsv(st.trials_path)
+    older = [c for c in COLUMNS if c != 'ignored_presses']
+    st.trials_path.write_text(store_module._tsv(older, rows))
+    side = json.loads(st.sidecar_path.read_text())
+    del side['Parameters']['press_sources'], side['Columns']['ignored_presses']
+    st.sidecar_path.write_text(json.dumps(side))
+    st = run_participant(root, 'P2')                 # resumes; nothing recorded is lost
+    header, rows = read_tsv(st.trials_path)
+    assert header == list(COLUMNS) and rows[0]['ignored_presses'] == 'n/a' and rows[0]['status'] == 'interrupted'
+    assert {r['ignored_presses'] for r in rows if r['status'] == 'ok'} == {'0'} and len(rows) == 1 + 8
+    side = json.loads(st.sidecar_path.read_text())
+    assert side['Parameters']['press_sources'] == [] and 'ignored_presses' in side['Columns']

@@ -2,7 +2,9 @@
 study sits above bench in the layers) on the simulated graph, and its rows of the table.
 
 Goals (read off, never asserted): a key press from its source to its recorded error within one
-gaze frame at 90 Hz (11 ms) at p99; a trial's timer within 10 ms of its length."""
+gaze frame at 90 Hz (11 ms) at p99, for wearer_sim's presses (the headset uplink) and the
+operator's keyboard alike, both judged by the session during the trials; a trial's timer within
+10 ms of its length."""
 from __future__ import annotations
 
 import json
@@ -39,7 +41,8 @@ def line(f: dict) -> str:
     nan = float('nan')
     return (f"key press to recorded error p50 {p.get('p50', nan):.2f} / p99 {p.get('p99', nan):.2f} ms "
             f"({p['n']} wearer_sim presses), keyboard p50 {k.get('p50', nan):.2f} / p99 "
-            f"{k.get('p99', nan):.2f} ms; {f['trial_s']:g} s trial timer error {timer:.2f} ms; "
+            f"{k.get('p99', nan):.2f} ms ({k['n']} keyboard presses judged in the trials); "
+            f"{f['trial_s']:g} s trial timer error {timer:.2f} ms; "
             f"condition switch {switch}" + (
                 f"; gaze sample age at the session p50 {f['gaze_age_ms'].get('p50', nan):.2f} / p99 "
                 f"{f['gaze_age_ms'].get('p99', nan):.2f} ms" if 'gaze_age_ms' in f else ''))
@@ -56,7 +59,8 @@ def rows(f: dict, fmt, ok) -> list[tuple[str, str, str, str]]:
          f"{fmt(p.get('p50'))} / {fmt(p.get('p99'))} ({p['n']})", f'p99 <= {PRESS_P99_GOAL_MS:.1f}',
          ok(None if 'p99' not in p else p['p99'] <= PRESS_P99_GOAL_MS)),
         ('study: key press to recorded error, keyboard: p50 / p99 [ms]',
-         f"{fmt(k.get('p50'))} / {fmt(k.get('p99'))} ({k['n']})", '', ''),
+         f"{fmt(k.get('p50'))} / {fmt(k.get('p99'))} ({k['n']})", f'p99 <= {PRESS_P99_GOAL_MS:.1f}',
+         ok(None if 'p99' not in k else k['p99'] <= PRESS_P99_GOAL_MS)),
         ('study: gaze sample age at the session: p50 / p99 [ms]',
          f"{fmt(f.get('gaze_age_ms', {}).get('p50'))} / {fmt(f.get('gaze_age_ms', {}).get('p99'))}", '', ''),
         (f"study: {f['trial_s']:g} s trial timer error [ms]", fmt(timer), f'<= {TIMER_GOAL_MS:g}',

@@ -10,8 +10,9 @@ tick() whenever the Session's next deadline has come; the loop sleeps at most 2 
 """
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
+from itertools import islice
 import queue
 import time
 from typing import Callable
@@ -30,6 +31,7 @@ STATUS_S = 0.25
 @dataclass
 class DriverTiming:
     press_latency_s: list[float] = field(default_factory=list)   # press stamp -> its row's error resolved
+    press_sources: list[str] = field(default_factory=list)       # each of those presses' source, in step
     timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
     vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
@@ -38,6 +40,13 @@ class DriverTiming:
     events: list[tuple] = field(default_factory=list)
     # Each gaze sample's age when the session got it (receipt - capture stamp) [s], the last ones.
     gaze_age_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
+
+    def press_latency_by_source(self) -> dict[str, list[float]]:
+        """press_latency_s split by the presses' sources ('keyboard', 'headset', ...) [s]."""
+        out: dict[str, list[float]] = {}
+        for source, latency in zip(self.press_sources, self.press_latency_s):
+            out.setdefault(source, []).append(latency)
+        return out
 
 
 def target_phases(events) -> dict[str, list[float]]:
@@ -84,6 +93,7 @@ class SessionDriver:
         self.timing = DriverTiming()
         self._offset_s = 0.0
         self._last_gaze_ns = 0
+        self._gaze_seen = 0                 # op.gaze_total already fed (or passed over)
         self._prepared: tuple[str, int] | None = None    # (block key, repetition) before_trial was called for
         self.rows: list[dict] = []
         # The operator's commands (pause, resume, repeat, skip, stop) from any thread; the loop
@@ -92,6 +102,7 @@ class SessionDriver:
         self.on_status: Callable[[dict], None] | None = None      # called about every STATUS_S
         self._status_due = 0.0
         self._drawn = True                  # headset_display's draw_targets
+        self._ignored: Counter[str] = Counter()    # sources of the running trial's ignored presses
 
     def command(self, name: str) -> None:
         """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
@@ -116,6 +127,8 @@ class SessionDriver:
         op = self.op
         self._offset_s = op.now_ns() * 1e-9 - time.monotonic()
         self._last_gaze_ns = op.now_ns()      # gaze before the start is not the session's
+        with op.lock:
+            self._gaze_seen = op.gaze_total
         op.drain_presses()
         self.handle(self.session.start(time.monotonic()))
         while self.session.phase not in ('done', 'stopped'):
@@ -139,10 +152,19 @@ class SessionDriver:
         return self.rows
 
     def feed_gaze(self) -> None:
-        with self.op.lock:
-            fresh = [s for s in self.op.gaze if s[0] > self._last_gaze_ns]
+        """The samples appended to op.gaze since the last call, each once, in order: taken from
+        its right end (op.gaze_total counts every append), so a poll costs the new samples, not
+        the history's length; one captured before the last fed (or the start) is left out."""
+        op = self.op
+        with op.lock:
+            new = min(op.gaze_total - self._gaze_seen, len(op.gaze))
+            self._gaze_seen = op.gaze_total
+            fresh = list(islice(reversed(op.gaze), new))
+        fresh.reverse()
         now = time.monotonic()
         for stamp_ns, _origin, direction in fresh:
+            if stamp_ns <= self._last_gaze_ns:
+                continue
             self._last_gaze_ns = stamp_ns
             self.timing.gaze_age_s.append(now - self.steady(stamp_ns))
             self.handle(self.session.gaze(self.steady(stamp_ns), azimuth_deg(direction) or 0.0,
@@ -150,8 +172,11 @@ class SessionDriver:
 
     def handle(self, step) -> None:
         now = time.monotonic()
+        if step.ignored is not None:
+            self._ignored[step.ignored] += 1
         for p in step.presses:
             self.timing.press_latency_s.append(now - p['stamp'])
+            self.timing.press_sources.append(p['source'])
             self.timing.events.append(('press', p['stamp'], now, p['accepted']))
         for action in step.actions:
             self.act(action)
@@ -165,6 +190,11 @@ class SessionDriver:
                     f", identified {row['identified']} of {row['presented']}" if row.get('identified') is not None
                     else f", error h {row['h_error_deg']:.1f} v {row['v_error_deg']:.1f} deg"
                     if row.get('h_error_deg') is not None else ''))
+                if self._ignored:        # once per trial, not per press
+                    self.say(f"  ignored {sum(self._ignored.values())} press(es) from "
+                             f"{', '.join(f'{k} ({n})' for k, n in sorted(self._ignored.items()))}: not a press "
+                             f"source of this session ({', '.join(self.session.design.press_sources)})")
+                    self._ignored.clear()
         if step.refused:
             self.say(f'  refused: {step.refused}')
         if self.session.phase == 'rest':

@@ -146,11 +146,13 @@ def ask_operator(stream=None, out=None) -> Callable[[str], bool]:
 def run_live_session(scene, participant: str, session_no: int, out: Path, say: Callable[[str], None],
                      order: str = 'random', namespace: str = '', keyboard: bool = True, stream=None,
                      again: Callable[[str], bool] | None = None,
-                     before_trial: Callable[[Operator, int, int], None] | None = None) -> int:
+                     before_trial: Callable[[Operator, int, int], None] | None = None,
+                     press_sources: tuple[str, ...] = ()) -> int:
     """The participant's session on the running graph (see the module docstring); 0 when every
     block is done, 1 when the session was stopped. before_trial(op, condition, repetition) runs
-    before each trial (a simulated person's streams; nothing for a person)."""
-    design = design_of(scene, order)
+    before each trial (a simulated person's streams; nothing for a person). press_sources: the
+    confirm sources judged (study.plan.PRESS_SOURCES; (): all)."""
+    design = design_of(scene, order, press_sources)
     study = Study.open(out, name=f'{scene.name} live')
     p = study.add_participant(participant)
     store = study.session(participant, session_no, design)
@@ -161,7 +163,8 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
         say(f'sub-{participant} session {session_no}: every block is done')
         return 0
     say(f'sub-{participant} (index {p.index}): {design.protocol}, conditions in the order '
-        f'{", ".join(str(b.condition) for b in blocks)}, {design.trials} trials each')
+        f'{", ".join(str(b.condition) for b in blocks)}, {design.trials} trials each; presses judged from '
+        f'{", ".join(design.press_sources) or "every source"}')
     op = Operator(namespace=namespace)
     try:
         try:
@@ -204,7 +207,9 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
                                            sys.stdout.flush())
         if keyboard:
             KeyboardSource(lambda: op.press_key('keyboard'), operator_keys(op, driver, say), stream).start()
-            say('  keys: space/Enter confirm, p pause, c resume, r repeat, s skip, q stop (vents)')
+            say('  keys: space/Enter confirm' + ('' if design.judges('keyboard') else
+                                                 ' (not judged: the keyboard is not a press source)') +
+                ', p pause, c resume, r repeat, s skip, q stop (vents)')
         try:
             driver.run()
         except KeyboardInterrupt:

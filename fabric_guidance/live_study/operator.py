@@ -91,7 +91,8 @@ class Operator:
         self.executor.add_node(self.node)
         self.eye_height_m = float(eye_height_m)
         self.lock = threading.Lock()
-        self.gaze: deque = deque()              # (stamp_ns, origin, direction)
+        self.gaze: deque = deque()              # (stamp_ns, origin, direction), in order of receipt
+        self.gaze_total = 0                     # samples ever appended to gaze (its right end's count)
         self.presses: queue.Queue[Press] = queue.Queue()
         self.active = ''
         self.target: tuple[float, float] | None = None     # placed (yaw, pitch)
@@ -134,6 +135,7 @@ class Operator:
             return
         with self.lock:
             self.gaze.append((stamp, (p.x, p.y, p.z), direction))
+            self.gaze_total += 1
             while self.gaze and stamp - self.gaze[0][0] > GAZE_HISTORY_S * 1e9:
                 self.gaze.popleft()
 

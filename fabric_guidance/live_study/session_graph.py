@@ -88,8 +88,8 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
 
 
 def run_study_session(scene, participants: int, out: Path, say: Callable[[str], None],
-                      order: str = 'random') -> int:
-    design = design_of(scene, order)
+                      order: str = 'random', press_sources: tuple[str, ...] = ()) -> int:
+    design = design_of(scene, order, press_sources)
     study = Study.open(out, name=f'{scene.name} simulated')
     timing = {'press_latency_s': [], 'timer_error_s': [], 'switch_s': [], 'phases_s': {}, 'vented_commands': 0,
               'vented_checked': 0}

@@ -118,16 +118,17 @@ class SimulatedParticipant:
             self.graph.stop_all()
 
 
-def design_of(scene, order: str = 'random') -> plan.StudyDesign:
+def design_of(scene, order: str = 'random', press_sources: tuple[str, ...] = ()) -> plan.StudyDesign:
     """The study design of a scene: its seed, conditions, repetitions and protocol (plan.py
-    draws the condition orders and targets as the headless experiment does on that seed)."""
+    draws the condition orders and targets as the headless experiment does on that seed), and
+    the press sources judged (plan.PRESS_SOURCES; (): all)."""
     proto = scene.protocol
     speed = proto.kind == 'speed'
     extra = dict(trial_s=proto.trial_s, acceptance_deg=proto.acceptance_deg, front_dwell_s=proto.dwell_s) if speed \
         else dict(timeout_s=proto.timeout_s)
     return plan.StudyDesign(proto.kind, seed=scene.seed, conditions=tuple(scene.conditions), order=order,
                             trials=scene.repetitions, horizontal_deg=proto.horizontal_deg,
-                            vertical_deg=proto.vertical_deg, **extra)
+                            vertical_deg=proto.vertical_deg, press_sources=tuple(press_sources), **extra)
 
 
 def participant_order(design: plan.StudyDesign, subject: int) -> tuple[int, ...]:

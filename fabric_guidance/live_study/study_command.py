@@ -18,6 +18,11 @@ registered in DIR, calibrated from the graph if pressure_controller has no calib
 then their blocks (live_session.py). The operator's keys: space/Enter confirm, p pause,
 c resume, r repeat, s skip, q stop (vents at once). Run it again after a crash: it resumes.
 
+--press-source SOURCES (a comma list of keyboard, headset, wearer_sim, ros; default all) names
+the confirm sources the session judges: a press from another source is not judged, is counted in
+its trial's ignored_presses and reported once per trial. The simulated participant presses
+through the headset's uplink: its source is headset.
+
 `fabric-guidance study --keyboard` makes the operator's terminal the confirm source of a running
 graph: space or Enter publishes `confirm` (frame_id 'keyboard', stamped when the key is read);
 q ends (live_study/keyboard.py also reads p pause, r repeat, s skip, c resume for a session).
@@ -32,6 +37,7 @@ import yaml
 
 from .. import subcommand
 from ..atomic import write_text
+from ..study.plan import PRESS_SOURCES, parse_press_sources
 
 PROG = 'fabric-guidance study'
 HELP = "run the paper's study session through the graph (--simulated: a scene's wearers as participants)"
@@ -57,6 +63,10 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--trial-s', type=float, default=None, help='seconds per speed trial (default: the scene\'s, 40)')
     p.add_argument('--seed', type=int, default=None, help="the scene's seed (default: the scene's)")
     p.add_argument('--latin-square', action='store_true', help='condition orders from a Latin square')
+    p.add_argument('--press-source', default='all', metavar='SOURCES',
+                   help='the confirm sources the session judges, a comma list of ' + ', '.join(PRESS_SOURCES) +
+                        " (a confirm's frame_id; ros: any other sender), or all (default); a press from another "
+                        'source is counted and ignored')
     return p
 
 
@@ -102,6 +112,11 @@ def run(args: argparse.Namespace) -> int:
         subcommand.error(PROG, 'either --simulated (a scene\'s wearers) or --participant ID (a person on the '
                          'running graph)')
         return 2
+    try:
+        args.press_sources = parse_press_sources(args.press_source)
+    except ValueError as exc:
+        subcommand.error(PROG, f'--press-source: {exc}')
+        return 2
     out = args.out.expanduser().resolve()
     if not args.simulated:
         return run_live(args, out, say)
@@ -119,8 +134,12 @@ def run(args: argparse.Namespace) -> int:
         subcommand.error(PROG, exc)
         return 2
     from .session_graph import run_study_session
+    if args.press_sources and 'headset' not in args.press_sources:
+        say(f"--press-source {','.join(args.press_sources)}: the simulated participants press through the headset's "
+            'uplink (source headset), so none of their presses is judged')
     try:
-        return run_study_session(scene, args.participants, out, say, 'latin' if args.latin_square else 'random')
+        return run_study_session(scene, args.participants, out, say, 'latin' if args.latin_square else 'random',
+                                 args.press_sources)
     except (StudyError, OSError) as exc:     # DiskFull is an OSError: what was recorded is intact
         subcommand.error(PROG, exc)
         return 1
@@ -142,7 +161,8 @@ def run_live(args, out: Path, say) -> int:
         return 2
     try:
         return run_live_session(scene, args.participant, args.session, out, say,
-                                'latin' if args.latin_square else 'random', args.namespace, not args.no_keys)
+                                'latin' if args.latin_square else 'random', args.namespace, not args.no_keys,
+                                press_sources=args.press_sources)
     except (LiveStudyError, StudyError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 1

@@ -1,10 +1,17 @@
 """The study's timing on the simulated graph, the figures `fabric-guidance bench` reports beside
-the loop's: a key press from its source's stamp to its recorded error (wearer_sim's presses
-during speed trials and the operator's keyboard), a trial timer's error against its length,
-and the time a condition switch takes (to or from condition 3: the arm layout), on the study
-package's Session driven on the graph.
+the loop's: a key press from its source's stamp to its recorded error as the session judges it
+(wearer_sim's presses through the headset uplink, and the operator's keyboard), a trial timer's
+error against its length, and the time a condition switch takes (to or from condition 3: the arm
+layout), on the study package's Session driven on the graph.
 
-python -m fabric_guidance.live_study.timing --out FILE.json [--trial-s 40] [--keys 50]
+The keyboard's presses are part of the timing run: during the speed trials a thread presses the
+operator's key (Operator.press_key, frame_id 'keyboard', stamped on the PC clock) at random
+intervals (KEY_INTERVAL_S, a seeded generator) while a target is shown, and the Session judges
+them like any press (accepted within acceptance, refused otherwise: either way the press's
+latency is its judgement's), beside wearer_sim's. They change what the trials identify: this run
+is a measurement, not a study.
+
+python -m fabric_guidance.live_study.timing --out FILE.json [--trial-s 40] [--keys 50] [--seed 0]
 (bench runs it as a process: live_study and bench share a layer in the layers).
 """
 from __future__ import annotations
@@ -14,7 +21,7 @@ import json
 from pathlib import Path
 import sys
 import tempfile
-import time
+import threading
 
 import numpy as np
 import yaml
@@ -27,6 +34,9 @@ from .driver import SessionDriver
 from .session_graph import VENT_GRACE_NS
 from .simulated import SimulatedParticipant, design_of
 
+#: The keyboard's presses during a trial: one every uniform(*KEY_INTERVAL_S) seconds [s].
+KEY_INTERVAL_S = (0.2, 0.6)
+
 
 def percentiles_ms(values_s) -> dict:
     v = np.asarray(values_s, dtype=float) * 1e3
@@ -36,10 +46,29 @@ def percentiles_ms(values_s) -> dict:
             'max': float(v.max())}
 
 
-def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print) -> dict:
+def press_keys(op, driver, keys: int, seed: int, stop: threading.Event) -> dict:
+    """Press the operator's key up to `keys` times, at random intervals (KEY_INTERVAL_S, from
+    `seed`) while the driver's session shows a target, until `stop`: {'sent': presses so far,
+    'thread': the pressing thread}. Reads the session's phase only (the driver's loop alone
+    changes the Session)."""
+    rng = np.random.default_rng(seed)
+    sent: dict = {'sent': 0}
+
+    def run():
+        while sent['sent'] < keys and not stop.wait(float(rng.uniform(*KEY_INTERVAL_S))):
+            if driver.session.phase == 'target':
+                op.press_key('keyboard')
+                sent['sent'] += 1
+    sent['thread'] = threading.Thread(target=run, name='timing-keyboard', daemon=True)
+    sent['thread'].start()
+    return sent
+
+
+def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print, seed: int = 0) -> dict:
     """A session of one participant (conditions 1 then 3, one speed trial each) on the simulated
     graph without the scene's modelled tracker latency (datagram_latency: the figure is the
-    graph's) at 90 Hz gaze, and `keys` keyboard presses before it."""
+    graph's) at 90 Hz gaze, wearer_sim pressing through the headset uplink and up to `keys`
+    presses of the operator's keyboard among them (press_keys)."""
     from ..study.store import Study
     data = yaml.safe_load(scene_path('paper-speed').read_text())
     data.update(conditions=[1, 3], repetitions=1, sim_rate_hz=90.0)
@@ -54,35 +83,35 @@ def measure(work: Path, trial_s: float = 40.0, keys: int = 50, say=print) -> dic
     study.add_participant('01')
     store = study.session('01', 1, design)
     part = SimulatedParticipant(scene, 0, blocks[0].condition, work / 'graph', say, design)
-    keyboard = []
+    stop = threading.Event()
     try:
         part.start()
         op = part.op
-        say(f'  {keys} key presses at the operator\'s keyboard ...')
-        op.drain_presses()
-        for _ in range(keys):
-            op.press_key('keyboard')
-            press = op.next_press(2.0)
-            if press is None:
-                continue
-            op.settled_error_at(press.stamp_ns, None)
-            keyboard.append((op.now_ns() - press.stamp_ns) * 1e-9)
-            time.sleep(0.02)
-        say(f'  conditions {[b.condition for b in blocks]}, a {trial_s:g} s speed trial each (wearer_sim pressing) ...')
+        say(f'  conditions {[b.condition for b in blocks]}, a {trial_s:g} s speed trial each (wearer_sim pressing, '
+            f'and up to {keys} presses of the keyboard) ...')
 
         def set_condition(cond):
             if cond != part.condition:
                 part.switch(cond)
         driver = SessionDriver(op, Session(design, blocks, {'gaze_source': 'wearer_sim'}), store, say, set_condition,
                                lambda c, r: op.set_parameters('wearer_sim', condition=c, repetition=r))
+        sent = press_keys(op, driver, keys, seed, stop)
         driver.run()
+        stop.set()
         vented = [part.op.commands_between(a + VENT_GRACE_NS, b) for a, b in driver.timing.vented]
     finally:
+        stop.set()
         part.close()
     t = driver.timing
+    by_source = t.press_latency_by_source()
+    keyboard = by_source.pop('keyboard', [])
+    judged = [e for e in t.events if e[0] == 'press']
     return {
-        'press_to_error_ms': percentiles_ms(t.press_latency_s),
+        'press_to_error_ms': percentiles_ms([x for v in by_source.values() for x in v]),
+        'press_sources': sorted(by_source),
         'keyboard_to_error_ms': percentiles_ms(keyboard),
+        'keyboard_presses': {'sent': sent['sent'], 'judged': len(keyboard),
+                             'accepted': sum(1 for e, s in zip(judged, t.press_sources) if s == 'keyboard' and e[3])},
         'gaze_age_ms': percentiles_ms(t.gaze_age_s),
         'gaze_rate_hz': 90.0,
         'trial_s': trial_s,
@@ -97,10 +126,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog='python -m fabric_guidance.live_study.timing', description=__doc__.split('\n')[0])
     p.add_argument('--out', type=Path, required=True)
     p.add_argument('--trial-s', type=float, default=40.0)
-    p.add_argument('--keys', type=int, default=50)
+    p.add_argument('--keys', type=int, default=50, help="the most presses of the operator's keyboard in the trials")
+    p.add_argument('--seed', type=int, default=0, help="the keyboard's intervals")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix='study-timing-') as work:
-        figures = measure(Path(work), args.trial_s, args.keys, lambda s: print(s, flush=True))
+        figures = measure(Path(work), args.trial_s, args.keys, lambda s: print(s, flush=True), args.seed)
     write_text(args.out, json.dumps(figures, indent=1))
     print(json.dumps(figures))
     return 0

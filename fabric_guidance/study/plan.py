@@ -25,6 +25,28 @@ ORDERS = ('random', 'latin')
 #: A participant id is a file name (<id>.yaml, its calibration) and a BIDS label (sub-<id>):
 #: letters and digits only, since "_" and "-" separate a BIDS file name's entities.
 PARTICIPANT_PATTERN = re.compile(r'[A-Za-z0-9]{1,64}')
+#: The confirm press's sources, by the frame_id of its `confirm`: the operator's key, the
+#: headset's clicker or air tap (gaze_bridge), wearer_sim publishing itself; 'ros' is any other
+#: sender on the interface (another tool, a script: whatever frame_id it gives, or none).
+PRESS_SOURCES = ('keyboard', 'headset', 'wearer_sim', 'ros')
+
+
+def press_source_kind(frame_id: str) -> str:
+    """The PRESS_SOURCES name of a confirm with this frame_id."""
+    return frame_id if frame_id in PRESS_SOURCES else 'ros'
+
+
+def parse_press_sources(text: str) -> tuple[str, ...]:
+    """'all' (or '') -> () (every source); else a comma list of PRESS_SOURCES, sorted, each
+    once; ValueError naming an unknown one."""
+    names = [n.strip() for n in str(text).split(',') if n.strip()]
+    if not names or names == ['all']:
+        return ()
+    unknown = [n for n in names if n not in PRESS_SOURCES]
+    if unknown:
+        raise ValueError(f'unknown press source {excerpt(unknown[0])}: one of {", ".join(PRESS_SOURCES)}, '
+                         'a comma list of them, or all')
+    return tuple(sorted(set(names)))
 
 
 def check_participant(pid, source: str = 'participant') -> str:
@@ -61,6 +83,7 @@ class StudyDesign:
     debounce_s: float = 0.15                 # a second press within this of the last is a duplicate [s]
     gaze_gap_s: float = 0.1                  # the gaze sample at a press must be at most this old [s]
     gaze_history_s: float = 2.0              # gaze samples kept (bounded) [s]
+    press_sources: tuple[str, ...] = ()      # the confirm sources judged (PRESS_SOURCES); (): all
 
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
@@ -75,6 +98,10 @@ class StudyDesign:
         if len(set(conds)) != len(conds) or not conds:
             raise ValueError(f'conditions must be distinct and at least one, got {excerpt(self.conditions)}')
         object.__setattr__(self, 'conditions', conds)
+        if isinstance(self.press_sources, str) or not all(isinstance(n, str) for n in self.press_sources):
+            raise ValueError(f'press_sources must be a list of {", ".join(PRESS_SOURCES)}, '
+                             f'got {excerpt(self.press_sources)}')
+        object.__setattr__(self, 'press_sources', parse_press_sources(','.join(self.press_sources)))
         if self.order == 'latin' and len(conds) % 2:
             raise ValueError(f'a balanced Latin square needs an even number of conditions, got {len(conds)}')
         trials = self.trials if self.trials is not None else (6 if self.protocol == 'speed' else 10)
@@ -95,6 +122,7 @@ class StudyDesign:
     def as_dict(self) -> dict:
         d = asdict(self)
         d['conditions'] = list(self.conditions)
+        d['press_sources'] = list(self.press_sources)
         return d
 
     @classmethod
@@ -105,9 +133,14 @@ class StudyDesign:
         if unknown:
             raise ValueError(f'{source}: unknown parameter(s) {", ".join(unknown)}')
         try:
-            return cls(**{k: tuple(v) if k == 'conditions' else v for k, v in data.items()})
+            return cls(**{k: tuple(v) if k in ('conditions', 'press_sources') and isinstance(v, list) else v
+                          for k, v in data.items()})
         except (TypeError, ValueError) as exc:
             raise ValueError(f'{source}: {exc}') from None
+
+    def judges(self, source: str) -> bool:
+        """Whether a press from this source (a confirm's frame_id) is judged."""
+        return not self.press_sources or press_source_kind(source) in self.press_sources
 
     def with_(self, **changes) -> 'StudyDesign':
         return replace(self, **changes)

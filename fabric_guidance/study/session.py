@@ -78,6 +78,7 @@ class Step:
     amended: list[tuple[str, int, str]] = field(default_factory=list)  # (block key, repetition, new status)
     presses: list[dict] = field(default_factory=list)       # presses resolved now (PRESS_KEYS)
     pending: bool = False                                   # a press waits for its gaze sample
+    ignored: str | None = None                              # the source of a press not judged (counted)
 
 
 @dataclass(frozen=True)
@@ -215,13 +216,20 @@ class Session:
         return step
 
     def press(self, stamp: float, received: float, source: str = 'keyboard') -> Step:
-        """A confirm press captured at `stamp` at its source, received at `received` [s]. Refused
+        """A confirm press captured at `stamp` at its source, received at `received` [s]. A press
+        from a source the design does not judge (design.press_sources) changes nothing: it is
+        counted in the running trial's ignored_presses (Step.ignored names it). Refused
         (Step.refused) when stale (received - stamp > max_press_age_s), a duplicate (the same
         stamp again, or within debounce_s of the last press), outside a trial, or (speed) with
         an error above acceptance_deg. The error is that of the last gaze sample at or before
         `stamp`; when that sample has not arrived yet the press waits for it (until
         max_press_age_s after the stamp; Step.pending)."""
         step = Step()
+        if not self.design.judges(source):
+            if self._trial is not None:
+                self._trial['ignored'] += 1
+                step.ignored = source
+            return step
         if not (math.isfinite(stamp) and math.isfinite(received)):
             step.refused = f'press from {source}: its time is not a number'
             return step
@@ -373,8 +381,8 @@ class Session:
         spec, b = self.trial, self.block
         d = self.design
         self._rest_end = None
-        tr = dict(spec=spec, start=t, appeared=t, identified=0, presented=1, finds=[], refused=0, presses=0,
-                  last_press=None, inside_since=None,
+        tr = dict(spec=spec, start=t, appeared=t, identified=0, presented=1, finds=[], refused=0, ignored=0,
+                  presses=0, last_press=None, inside_since=None,
                   end=t + (d.trial_s if d.protocol == 'speed' else d.timeout_s))
         if d.protocol == 'speed':
             tr['targets'] = target_stream(d, b.index, spec.repetition)
@@ -537,7 +545,7 @@ class Session:
         if b.protocol == 'accuracy' and spec.target is not None:
             row.update(target_h_deg=spec.target[0], target_v_deg=spec.target[1])
         if tr is not None:
-            row.update(presses=tr['presses'], refused_presses=tr['refused'])
+            row.update(presses=tr['presses'], refused_presses=tr['refused'], ignored_presses=tr['ignored'])
             p = tr['last_press']
             if p is not None:
                 row.update(press_s=p['stamp'], press_source=p['source'], press_age_s=p['received'] - p['stamp'],

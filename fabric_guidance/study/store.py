@@ -46,6 +46,9 @@ PARTICIPANT_COLUMNS = {
     'registered_utc': ('-', 'when the participant was registered, ISO 8601 UTC'),
 }
 MISSING = 'n/a'                  # BIDS's empty cell
+#: Columns added to format 1 since its first trials files: a file without them is read with
+#: MISSING there (and written with them from its next row on).
+ADDED_COLUMNS = ('ignored_presses',)
 
 
 class StudyError(ValueError):
@@ -265,10 +268,15 @@ class SessionStore:
             mine, theirs = self.design.as_dict(), recorded.as_dict()
             diff = [f'{k} {theirs[k]!r} recorded, {mine[k]!r} given' for k in mine if mine[k] != theirs[k]]
             raise StudyError(f'{self.sidecar_path}: parameters differ from those recorded: {"; ".join(diff)}')
+        # Every parameter listed, those added since it was written too (their defaults: equal).
+        side['Parameters'] = self.design.as_dict()
+        side['Columns'] = _sidecar_columns(COLUMNS)
         self._sidecar = side
         if self.trials_path.exists():
             header, rows = read_tsv(self.trials_path)
-            if header != list(COLUMNS):
+            if header == [c for c in COLUMNS if c not in ADDED_COLUMNS]:
+                rows = [{c: r.get(c, MISSING) for c in COLUMNS} for r in rows]
+            elif header != list(COLUMNS):
                 raise StudyError(f'{self.trials_path}: columns differ from this version\'s '
                                  f'(first difference: {next((a for a, b in zip(header, COLUMNS) if a != b), "count")})')
             self._rows = rows

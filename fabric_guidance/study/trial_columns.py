@@ -42,11 +42,14 @@ SESSION_COLUMNS: dict[str, tuple[str, str]] = {
     'trial_end_s': ('s', 'steady clock when the trial ended (speed: trial_start_s + trial_s exactly)'),
     'press_s': ('s', 'steady clock capture time of the press that ended an accuracy trial, or of the '
                      'last accepted press of a speed trial; empty if none'),
-    'press_source': ('-', "where that press came from: 'keyboard', 'ros', 'headset'"),
+    'press_source': ('-', "where that press came from: its confirm's frame_id ('keyboard', 'headset', "
+                          "'wearer_sim'; another tool's own)"),
     'press_age_s': ('s', 'that press: received minus captured (its delivery latency)'),
     'gaze_at_press_s': ('s', 'steady clock capture time of the gaze sample its error was taken from'),
     'presses': ('-', 'presses accepted in the trial'),
     'refused_presses': ('-', 'presses refused in the trial (stale, duplicate, or speed: outside acceptance)'),
+    'ignored_presses': ('-', 'presses in the trial from a source the session does not judge (press_sources): '
+                             'not judged, each kept in the block\'s bag on confirm'),
 }
 
 #: What the operator layer passes once (Session's context), copied into every row.
