@@ -22,10 +22,10 @@ class FakeOperator:
     def enable(self, on):
         self.log.append(('enable', on, time.monotonic()))
 
-    def show_target(self, yaw, pitch):
+    def show_target(self, yaw, pitch, wait=True):
         self.log.append(('show', (yaw, pitch), time.monotonic()))
 
-    def to_front(self):
+    def to_front(self, wait=True):
         self.log.append(('front', None, time.monotonic()))
 
     def display(self, line):
@@ -214,3 +214,69 @@ def test_feed_gaze_feeds_each_new_sample_once_in_order_without_visiting_the_hist
     driver.feed_gaze()
     assert [round(t * 1e3) for t in driver.session.fed] == [20_001, 20_002, 20_003, *range(20_004, 20_010)]
     assert History.visited == 4 + 6
+
+
+class SlowCall:
+    """A PendingCall whose answer comes `delay_s` after it was sent, or a refusal."""
+
+    def __init__(self, delay_s, refuse=''):
+        self.sent, self.delay_s, self.refuse, self.done_at = time.monotonic(), delay_s, refuse, None
+
+    def done(self):
+        from fabric_guidance.live_study.operator import OperatorError
+        if time.monotonic() - self.sent < self.delay_s:
+            return False
+        if self.refuse:
+            raise OperatorError(self.refuse)
+        self.done_at = self.done_at or time.monotonic()
+        return True
+
+    def wait(self):
+        while not self.done():
+            time.sleep(0.001)
+
+
+class SlowTargetSelector(FakeOperator):
+    def __init__(self, log, delay_s, refuse=''):
+        super().__init__(log)
+        self.delay_s, self.refuse, self.polls = delay_s, refuse, []
+
+    def show_target(self, yaw, pitch, wait=True):
+        super().show_target(yaw, pitch)
+        assert not wait              # the driver never blocks its loop on the target's call
+        return SlowCall(self.delay_s, self.refuse)
+
+    def to_front(self, wait=True):
+        super().to_front()
+        assert not wait
+        return SlowCall(self.delay_s, self.refuse)
+
+    def drain_presses(self):
+        self.polls.append(time.monotonic())
+        return []
+
+    def set_condition(self, condition):
+        pass
+
+
+def test_the_loop_goes_on_while_target_selector_answers_and_the_phase_ends_at_the_answer():
+    # Before, the target's parameter call blocked the loop: no gaze sample and no press was
+    # judged until target_selector answered (tens of ms under load).
+    design = StudyDesign('speed', conditions=(1,), trials=1, trial_s=0.5, rest_s=0.05)
+    op = SlowTargetSelector([], delay_s=0.1)
+    driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore())
+    driver.run()
+    shown = next(t for k, _, t in op.log if k == 'show')
+    assert sum(1 for t in op.polls if shown < t < shown + 0.09) >= 10     # polled every ~2 ms meanwhile
+    target = next(e for e in driver.timing.events if e[0] == 'target')
+    assert target[2] - target[1] >= 0.1                                   # carried out at the answer
+
+
+def test_a_refused_target_call_stops_the_driver_with_the_reason():
+    import pytest
+    from fabric_guidance.live_study.operator import OperatorError
+    design = StudyDesign('speed', conditions=(1,), trials=1, trial_s=0.5, rest_s=0.05)
+    op = SlowTargetSelector([], delay_s=0.01, refuse='target_selector refused [active_target]: no such target')
+    driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore())
+    with pytest.raises(OperatorError, match='no such target'):
+        driver.run()

@@ -103,6 +103,8 @@ class SessionDriver:
         self._status_due = 0.0
         self._drawn = True                  # headset_display's draw_targets
         self._ignored: Counter[str] = Counter()    # sources of the running trial's ignored presses
+        # target_selector's calls sent without waiting: (index of their event, PendingCall), in order
+        self._calls: deque = deque()
 
     def command(self, name: str) -> None:
         """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
@@ -132,6 +134,7 @@ class SessionDriver:
         op.drain_presses()
         self.handle(self.session.start(time.monotonic()))
         while self.session.phase not in ('done', 'stopped'):
+            self._check_calls()
             self._apply_commands(time.monotonic())
             if self.on_status is not None and time.monotonic() >= self._status_due:
                 self._status_due = time.monotonic() + STATUS_S
@@ -149,7 +152,22 @@ class SessionDriver:
                     self.timing.timer_error_s.append(now - deadline)
             else:
                 time.sleep(POLL_S)
+        self._check_calls(wait=True)
         return self.rows
+
+    def _check_calls(self, wait: bool = False) -> None:
+        """The target's and the front's calls on target_selector that were sent without waiting
+        (the loop goes on judging gaze and presses meanwhile): their answers, in order; a refusal
+        or a silence past its timeout raises OperatorError here, as a waited call would."""
+        while self._calls:
+            index, pending = self._calls[0]
+            if wait:
+                pending.wait()
+            elif not pending.done():
+                return
+            self._calls.popleft()
+            kind, decided, _sent = self.timing.events[index]
+            self.timing.events[index] = (kind, decided, pending.done_at)
 
     def feed_gaze(self) -> None:
         """The samples appended to op.gaze since the last call, each once, in order: taken from
@@ -179,9 +197,11 @@ class SessionDriver:
             self.timing.press_sources.append(p['source'])
             self.timing.events.append(('press', p['stamp'], now, p['accepted']))
         for action in step.actions:
-            self.act(action)
+            pending = self.act(action)
             if action.kind in ('show_target', 'show_front', 'vent'):
                 self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
+                if pending is not None:        # carried out when its answer comes (_check_calls)
+                    self._calls.append((len(self.timing.events) - 1, pending))
         if step.rows or step.amended or step.blocks:
             self.store.record(step)
             self.rows += step.rows
@@ -210,7 +230,8 @@ class SessionDriver:
             self.before_trial(block.condition, trial.repetition)
             self._prepared = key
 
-    def act(self, action) -> None:
+    def act(self, action):
+        """Carry out one of the Session's actions; a PendingCall for a call sent without waiting."""
         op, kind = self.op, action.kind
         if kind == 'set_condition':
             self.set_condition(action.condition)
@@ -229,9 +250,9 @@ class SessionDriver:
             if visible != self._drawn:            # set first: an unseen target is never drawn
                 op.set_parameters('headset_display', draw_targets=visible)
                 self._drawn = visible
-            op.show_target(*action.target)
+            return op.show_target(*action.target, wait=False)
         elif kind in ('show_front', 'hide'):
-            op.to_front()
+            return op.to_front(wait=False)
         elif kind == 'prompt':
             op.display(f'prompt {action.text or ""}'.rstrip())
         elif kind == 'done':

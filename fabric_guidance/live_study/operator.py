@@ -20,7 +20,7 @@ import math
 import queue
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 from .. import interface
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg, ray_direction, target_direction, wrap_deg
@@ -66,6 +66,32 @@ def target_position(yaw_deg: float, pitch_deg: float, eye_height_m: float,
     y, p = math.radians(yaw_deg), math.radians(pitch_deg)
     return [distance_m * math.cos(p) * math.cos(y), distance_m * math.cos(p) * math.sin(y),
             eye_height_m + distance_m * math.sin(p)]
+
+
+class PendingCall:
+    """A request on its way: done() is False until the answer came, then True (or OperatorError:
+    no answer within the timeout, or `check` refused the answer); wait() blocks until then."""
+
+    def __init__(self, name: str, future, deadline: float, timeout_s: float):
+        self.name, self.future, self.deadline, self.timeout_s = name, future, deadline, timeout_s
+        self.check: Callable[[Any], None] = lambda response: None
+        self.done_at: float | None = None          # monotonic time the answer was seen [s]
+
+    def done(self) -> bool:
+        if self.done_at is not None:
+            return True
+        if not self.future.done():
+            if time.monotonic() > self.deadline:
+                raise OperatorError(f'service {self.name} did not answer within {self.timeout_s:.0f} s')
+            return False
+        self.done_at = time.monotonic()
+        self.check(self.future.result())
+        return True
+
+    def wait(self):
+        while not self.done():
+            time.sleep(0.002)
+        return self.future.result()
 
 
 class Operator:
@@ -231,29 +257,34 @@ class Operator:
         return client
 
     def call(self, srv_type, name: str, request, timeout_s: float = CALL_TIMEOUT_S):
+        return self.call_begin(srv_type, name, request, timeout_s).wait()
+
+    def call_begin(self, srv_type, name: str, request, timeout_s: float = CALL_TIMEOUT_S) -> 'PendingCall':
+        """Send a request and return at once (its service waited for, when not yet discovered)."""
         client = self._client(srv_type, name)
         deadline = time.monotonic() + max(timeout_s, 15.0)   # discovery may take seconds under load
         while not client.service_is_ready():
             if time.monotonic() > deadline:
                 raise OperatorError(f'service {name} is not on the graph')
             time.sleep(0.02)
-        future = client.call_async(request)
-        deadline = time.monotonic() + timeout_s
-        while not future.done():
-            if time.monotonic() > deadline:
-                raise OperatorError(f'service {name} did not answer within {timeout_s:.0f} s')
-            time.sleep(0.002)
-        return future.result()
+        return PendingCall(name, client.call_async(request), time.monotonic() + timeout_s, timeout_s)
 
-    def set_parameters(self, node: str, **values) -> None:
-        """Set `values` on `node` in one atomic call (all or none); OperatorError with the reason."""
+    def set_parameters(self, node: str, wait: bool = True, **values) -> 'PendingCall':
+        """Set `values` on `node` in one atomic call (all or none); OperatorError with the reason.
+        wait False: return once sent; the PendingCall's done() raises the refusal when it comes."""
         from rcl_interfaces.srv import SetParametersAtomically
         from rclpy.parameter import Parameter
         request = SetParametersAtomically.Request(
             parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
-        result = self.call(SetParametersAtomically, self.node_name(node, 'set_parameters_atomically'), request).result
-        if not result.successful:
-            raise OperatorError(f'{node} refused {sorted(values)}: {result.reason}')
+
+        def refused(response):
+            if not response.result.successful:
+                raise OperatorError(f'{node} refused {sorted(values)}: {response.result.reason}')
+        pending = self.call_begin(SetParametersAtomically, self.node_name(node, 'set_parameters_atomically'), request)
+        pending.check = refused
+        if wait:
+            pending.wait()
+        return pending
 
     def node_name(self, node: str, service: str) -> str:
         """A node's service in this operator's namespace: /<ns>/<node>/<service>."""
@@ -277,16 +308,20 @@ class Operator:
         from std_srvs.srv import Trigger
         self.call(Trigger, interface.VENT, Trigger.Request())
 
-    def show_target(self, yaw_deg: float, pitch_deg: float) -> None:
-        """The session's target at (yaw, pitch) from the eye, active (the display draws new dummies)."""
-        self.set_parameters('target_selector', target_positions=target_position(yaw_deg, pitch_deg, self.eye_height_m),
-                            active_target=STUDY_TARGET)
+    def show_target(self, yaw_deg: float, pitch_deg: float, wait: bool = True) -> PendingCall:
+        """The session's target at (yaw, pitch) from the eye, active (the display draws new dummies).
+        wait False: return once the request is sent (target_selector answers its requests in order)."""
+        pending = self.set_parameters('target_selector', wait=wait,
+                                      target_positions=target_position(yaw_deg, pitch_deg, self.eye_height_m),
+                                      active_target=STUDY_TARGET)
         self.target = (float(yaw_deg), float(pitch_deg))
+        return pending
 
-    def to_front(self) -> None:
+    def to_front(self, wait: bool = True) -> PendingCall:
         """No active target: the controller vents, the wearer looks back at the front."""
-        self.set_parameters('target_selector', active_target='')
+        pending = self.set_parameters('target_selector', wait=wait, active_target='')
         self.target = None
+        return pending
 
     def display(self, line: str) -> None:
         """A line to the headset (headset_display's study_display: `prompt ...`, `found ...`, `done`)."""

@@ -70,6 +70,8 @@ PRESSURE_TIMEOUT_S = 0.5
 #: With a scene, simulation steps run locked to the wall clock: a late tick runs the steps it
 #: missed, up to this many; a longer stall (the process was not scheduled) is not replayed.
 MAX_CATCH_UP_STEPS = 5
+#: How far before a timer tick its simulation step is put [s] (ticks come a little late, never early).
+TICK_MARGIN_S = 0.0005
 #: The headset sends each confirm datagram this many times, this far apart [s] (wire format).
 CONFIRM_REPEATS, CONFIRM_REPEAT_S = 3, 0.02
 
@@ -290,7 +292,14 @@ class WearerSim(Node):
                 self._send_raw(datagram)
             self._repeats = [r for r in self._repeats if r[0] > now]
         side = self.scene_side
-        due = int(round((now - self.start) / self.dt)) - side.step_index
+        # Whole steps only (floor): a step whose time has not come yet would go out stamped in the
+        # future, which gaze_bridge clips to its arrival, and the stream's frames would look uneven.
+        # A tick that comes before its step moves the steps onto the ticks (less than a frame, and
+        # the stamps stay increasing), so each sample leaves at its capture time, not a frame late.
+        lead = self.start + (side.step_index + 1) * self.dt - now
+        if 0.0 < lead < self.dt:
+            self.start -= lead + TICK_MARGIN_S
+        due = int((now - self.start) // self.dt) - side.step_index
         if due > MAX_CATCH_UP_STEPS:        # a stall: do not replay it
             due = MAX_CATCH_UP_STEPS
             self.start = now - (side.step_index + due) * self.dt
