@@ -108,6 +108,7 @@ def test_a_growing_figure_drifts_and_a_noisy_flat_one_does_not():
 
 # ------------------------------------------------------------------ a short run on the graph
 @pytest.mark.graph
+@pytest.mark.serial   # a quiet run loses nothing: a test of the other worker beside it is no quiet run
 def test_a_short_soak_run_writes_every_row_figure_verdict_and_plot(tmp_path):
     out = tmp_path / 'soak'
     lines = []
