@@ -58,10 +58,15 @@ demo: $(STAMP)
 # launch files under the real launch system of Kilted and of Jazzy (where the ros-tooling wheels
 # are beside the clone). As root, first the distribution's packages the tests need (system-deps);
 # otherwise, at the end, one block naming the groups of tests skipped and the command that runs them.
+# pytest runs on PYTEST_WORKERS pytest-xdist workers, each taking whole files (module fixtures
+# and module-end reports stay in one process); graph tests mostly wait on DDS and the clock, so
+# two workers use two cores. Tests marked serial run alone (test/conftest.py). PYTEST_WORKERS=0:
+# one process, as before.
+PYTEST_WORKERS ?= 2
 test: $(STAMP)
 	@$(MAKE) --no-print-directory system-deps-if-root
 	@$(MAKE) --no-print-directory test-hololens
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
 	$(MAKE) --no-print-directory test-pymodbus
 	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch-all; else \
 	  echo "SKIPPED launch_pytest tests and colcon build check:" \

@@ -9,10 +9,16 @@
 - "deep": many more random examples, for people to run (`make test-deep`) to search for
   defects that the fixed CI examples do not reach.
 HYPOTHESIS_PROFILE selects one explicitly when CI is not set.
+
+`make test` runs pytest on two pytest-xdist workers (whole files to a worker). A test marked
+`serial` claims something of a quiet machine (a soak run that loses nothing): while it runs, the
+other worker runs no test (the `serial_lock` fixture below).
 """
+import fcntl
 import os
 
 from hypothesis import HealthCheck, settings
+import pytest
 
 settings.register_profile('ci', derandomize=True, database=None, print_blob=True)
 settings.register_profile('dev')
@@ -30,3 +36,26 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if getattr(getattr(item, 'obj', None), 'is_hypothesis_test', False):
             item.add_marker('property')
+
+
+@pytest.fixture(autouse=True)
+def serial_lock(request, tmp_path_factory):
+    """Under pytest-xdist: every test holds a shared lock on a file of this run's workers, a
+    `serial` test an exclusive one, so a serial test runs alone. Both are taken through a
+    turnstile held while waiting, so a waiting serial test is not starved by the other worker's
+    tests taking turns on the shared lock. Outside xdist there is nothing to wait for."""
+    if not os.environ.get('PYTEST_XDIST_WORKER'):
+        yield
+        return
+    folder = tmp_path_factory.getbasetemp().parent      # one per run, shared by its workers
+    exclusive = request.node.get_closest_marker('serial') is not None
+    with open(folder / 'serial.turnstile', 'a') as turnstile, open(folder / 'serial.lock', 'a') as lock:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        finally:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

@@ -17,6 +17,7 @@ import time
 
 import pytest
 
+from build_lock import locked_run
 from rosgraph import ROOT
 
 HOLOLENS = ROOT / 'hololens'
@@ -30,8 +31,7 @@ def build_harness() -> Path:
     missing = [tool for tool in ('mcs', 'mono', 'make') if shutil.which(tool) is None]
     if missing:
         pytest.skip(f'{", ".join(missing)} not installed (Debian mono-mcs, mono-runtime: make system-deps)')
-    done = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], capture_output=True,
-                          text=True, timeout=300)
+    done = locked_run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], EXE.parent, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
     return EXE
 

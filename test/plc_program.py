@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from build_lock import locked_run
 from fabric_guidance.plc import RegisterMap
 
 FIRMWARE = Path(__file__).resolve().parents[1] / 'firmware'
@@ -32,8 +33,7 @@ def need_tools(*tools: str) -> None:
 
 @functools.lru_cache(maxsize=None)
 def _make(target: str) -> tuple[int, str]:
-    out = subprocess.run(['make', '-C', str(FIRMWARE), target], capture_output=True, text=True,
-                         timeout=600)
+    out = locked_run(['make', '-C', str(FIRMWARE), target], FIRMWARE / 'build', timeout=600)
     return out.returncode, out.stdout + out.stderr
 
 

@@ -23,10 +23,11 @@ from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.bag.recorder_status import recorded_counts
-from fabric_guidance.interface import PRESSURE_COMMAND
+from fabric_guidance.interface import CLOCK, CLOCK_KIND, PRESSURE_COMMAND, qos_profile
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from rosgraph import Probe, wait_until
 from test_node_plc import COMMAND_DEADLINE_S, LAYOUT, N, OUTPUT_STATUS, POLL_S, TOLERANCE_KPA, Rig, record_vent
@@ -202,12 +203,16 @@ def test_a_recorded_bag_played_back_moves_no_register(rig, tmp_path):
                what='every played-back command refused on /diagnostics')
     assert '/rosbag2_player' in refusals(r)[2]['refused by publisher']
 
-    # The package's own player (`fabric-guidance replay BAG --topics pressure_command`).
+    # The package's own player (`fabric-guidance replay BAG --topics pressure_command`). It waits for
+    # every publisher of its own to be matched, /clock too: a subscriber of /clock here lets it start
+    # as soon as plc_output has matched, not at the end of --wait.
+    clock = r.probe.subscribe(Clock, CLOCK, qos_profile(CLOCK_KIND))
     replay = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'replay', str(bag), '--topics',
                              PRESSURE_COMMAND, '--wait', str(MATCH_DEADLINE_S)],
                             env={**r.graph.env}, capture_output=True, text=True, timeout=120)
     assert replay.returncode == 0, replay.stdout + replay.stderr
     assert f'replaying {played} messages' in replay.stdout, replay.stdout
+    wait_until(lambda: clock, REFUSAL_REPORTED_S, what="the replay's /clock")
     reads += hold_registers(r, np.zeros(N), HOLD_S, 'the bag replayed by fabric-guidance replay')
     wait_until(lambda: '/bag_player' in refusals(r)[2]['refused by publisher'], REFUSAL_REPORTED_S,
                what='the replay refused on /diagnostics')

@@ -2,6 +2,7 @@
 launch/guidance.launch.py starts, against mock_plc): UDP gaze datagrams in, the mock PLC's
 holding registers read back over Modbus out. Also `fabric-guidance demo` as the user runs it.
 """
+import os
 import signal
 import socket
 import subprocess
@@ -13,6 +14,7 @@ from std_msgs.msg import Float64MultiArray
 
 from fabric_guidance.core import Calibration, ChannelMap
 from fabric_guidance.core.gaze_wire import encode_datagram
+from fabric_guidance.graph.process_graph import processes_with
 from fabric_guidance.nodes import qos
 from fabric_guidance.plc import PlcClient, RegisterMap
 from rosgraph import CONFIG, ROOT, Graph, Probe, free_port, wait_until
@@ -32,6 +34,8 @@ RESOLUTION_KPA = 1.0 / REGMAP.counts_per_kpa
 GAZE_STALE_VENT_S = 0.3 + 1 / 30 + 1 / 50 + 0.6
 #   plc_output killed -> the mock PLC's watchdog (watchdog_s 0.5) vents at its next scan (1/100 s).
 WATCHDOG_VENT_S = 0.5 + 1 / 100 + 0.5
+#: The environment variable that marks the processes of one `fabric-guidance demo` run.
+DEMO_MARK = 'FABRIC_GUIDANCE_TEST_DEMO'
 
 
 class HoloLensStub(PeriodicSender):
@@ -143,12 +147,15 @@ def test_demo_runs_the_whole_simulated_graph(tmp_path):
     """`fabric-guidance demo` (= make demo): every target found, nothing over P_MAX, vented at
     the end, no process left behind."""
     t0 = time.monotonic()
+    # Every process the demo starts inherits this mark: the check below finds its processes and
+    # no other graph's (tests of other pytest-xdist workers run theirs from the same files).
+    mark = f'{os.getpid()}-{time.monotonic_ns()}'
     out = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'demo', '--out', str(tmp_path)],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+                         capture_output=True, text=True, timeout=120, cwd=ROOT, env={**os.environ, DEMO_MARK: mark})
     elapsed = time.monotonic() - t0
     assert out.returncode == 0, out.stdout + out.stderr
     assert '4 of 4 targets found' in out.stdout
     assert 'after shutdown the PLC registers read 0.0 kPa at most' in out.stdout
     print(f'demo took {elapsed:.1f} s')   # its own --timeout bounds it; speed belongs to make bench
-    leftovers = subprocess.run(['pgrep', '-f', f'--params-file {CONFIG}'], capture_output=True, text=True).stdout
-    assert not leftovers.strip(), f'processes left behind: {leftovers}'
+    leftovers = processes_with(DEMO_MARK, mark)
+    assert not leftovers, f'processes left behind: {leftovers}'

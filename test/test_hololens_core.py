@@ -3,14 +3,14 @@ under mono. Its build output stays out of git."""
 import re
 import subprocess
 
+from build_lock import locked_run
 from headset_harness import EXE, HOLOLENS, build_harness
 from rosgraph import ROOT
 
 
 def test_the_csharp_core_builds_and_its_tests_pass():
     build_harness()
-    done = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'test'], capture_output=True,
-                          text=True, timeout=300)
+    done = locked_run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'test'], EXE.parent, timeout=300)
     summary = re.search(r'^(\d+) passed, (\d+) failed$', done.stdout, re.M)
     assert done.returncode == 0 and summary, done.stdout + done.stderr
     assert int(summary.group(1)) >= 10 and summary.group(2) == '0', summary.group(0)

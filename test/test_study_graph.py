@@ -77,7 +77,8 @@ def _study(scene: Path, out: Path, **kw):
 
 
 def test_sigkill_mid_block_resumes_at_that_block(tmp_path):
-    scene = short_scene(tmp_path, conditions=(1, 2), trials=2, trial_s=5.0)
+    # 2 s trials: what is tested is where the kill falls (between trials, mid-block), not what a trial finds
+    scene = short_scene(tmp_path, conditions=(1, 2), trials=2, trial_s=2.0)
     out = tmp_path / 'study'
     tsv = out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.tsv'
     # its own session: SIGKILL to the group takes the seven nodes down with it, as a power loss would

@@ -25,7 +25,7 @@ NAMESPACE = 'suit_live'
 def short_speed_scene(tmp_path: Path) -> Path:
     data = yaml.safe_load(scene_path('paper-speed').read_text())
     data.update(conditions=[1], repetitions=1)
-    data['protocol']['trial_s'] = 8.0
+    data['protocol']['trial_s'] = 6.0      # a target or more found in it (the check is >= 1)
     path = tmp_path / 'short-speed.yaml'
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
@@ -39,11 +39,13 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     lab = sim_lab(1, 'suit', cal_dir)
     # The lab's graph before the participant arrives: nobody's calibration in it.
     graph_overrides(lab, scene, 0, 1, cal_dir / 'nobody.yaml', min(scene.sim_rate_hz, 90.0))
-    # A short Algorithm 1 (8 pressures, 0.8 s dwell, 1 s rest): the procedure, not its precision, is tested here.
+    # A short Algorithm 1 (5 pressures, 0.6 s dwell of which the last 0.3 s are recorded, 0.5 s rest):
+    # the procedure, not its precision, is tested here.
     # A gaze timeout of 1 s: a loaded machine's stall of the simulated headset must not abort the
     # calibration under test (the stale-gaze abort has tests of its own).
-    lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir), calibration_steps=8,
-                                                calibration_dwell_s=0.8, calibration_rest_s=1.0, gaze_timeout_s=1.0)
+    lab.overrides['pressure_controller'].update(calibration_dir=str(cal_dir), calibration_steps=5,
+                                                calibration_dwell_s=0.6, calibration_rest_s=0.5,
+                                                calibration_window_s=0.3, gaze_timeout_s=1.0)
     graph = Graph(tmp_path / 'graph', domain_id=domain_id, namespace=NAMESPACE)
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
     for key, value in loopback_dds_env().items():

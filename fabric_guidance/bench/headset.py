@@ -9,6 +9,7 @@ estimate, which the figure carries (the bound is printed beside it).
 """
 from __future__ import annotations
 
+import fcntl
 import json
 from pathlib import Path
 import shutil
@@ -34,8 +35,12 @@ def unavailable() -> str | None:
         return f'{", ".join(missing)} not installed (make system-deps)'
     if not (HOLOLENS / 'Makefile').is_file():
         return f'{HOLOLENS} is not here (run from a source checkout)'
-    built = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], capture_output=True,
-                           text=True, timeout=300)
+    # One make of hololens/ at a time (test/build_lock.py): a test beside the bench may build it too.
+    (HOLOLENS / 'build~').mkdir(exist_ok=True)
+    with open(HOLOLENS / 'build~' / '.make.lock', 'a') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        built = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], capture_output=True,
+                               text=True, timeout=300)
     return None if built.returncode == 0 else f'hololens/ did not build: {built.stderr.strip()[-300:]}'
 
 

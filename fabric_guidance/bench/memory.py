@@ -3,7 +3,8 @@ same ROS domain: what each node costs on top of rclpy itself.
 
 Every node is started idle (no gaze, no PLC answering: plc_output keeps retrying its link),
 as it sits at the start of a session; its RSS is read from /proc once it has been steady for a
-second. The bare node is `rclpy.create_node` spun by a SingleThreadedExecutor, nothing else.
+second (all of them on the same ticks). The bare node is `rclpy.create_node` spun by a
+SingleThreadedExecutor, nothing else.
 """
 from __future__ import annotations
 
@@ -42,17 +43,23 @@ rclpy.shutdown()
 '''
 
 
-def _steady_rss(pid: int, timeout_s: float = 30.0) -> float | None:
-    """RSS once two readings a second apart differ by less than 0.5 MB (start-up done)."""
+def _steady_rss(pids: dict[str, int], timeout_s: float = 30.0) -> dict[str, float | None]:
+    """{name: RSS} of each process once two of its readings a second apart differ by less than
+    0.5 MB (start-up done). All are read on the same one-second ticks: the processes run side by
+    side, so waiting for one after the other would only add seconds."""
     deadline = time.monotonic() + timeout_s
-    last = rss_mb(pid)
-    while time.monotonic() < deadline:
+    last = {name: rss_mb(pid) for name, pid in pids.items()}
+    steady: dict[str, float | None] = {}
+    while len(steady) < len(pids) and time.monotonic() < deadline:
         time.sleep(1.0)
-        now = rss_mb(pid)
-        if now is None or (last is not None and abs(now - last) < 0.5):
-            return now
-        last = now
-    return last
+        for name, pid in pids.items():
+            if name in steady:
+                continue
+            now = rss_mb(pid)
+            if now is None or (last[name] is not None and abs(now - last[name]) < 0.5):
+                steady[name] = now
+            last[name] = now
+    return {name: steady.get(name, last[name]) for name in pids}
 
 
 def node_rss(work: Path, say: Callable[[str], None], nodes: tuple[str, ...] = LAB_NODES) -> dict[str, float | None]:
@@ -74,11 +81,9 @@ def node_rss(work: Path, say: Callable[[str], None], nodes: tuple[str, ...] = LA
         for name in nodes:
             graph.start(name, FILES, **overrides[name]())
         say(f'  resident memory of {len(nodes)} idle lab nodes and a bare rclpy node ...')
-        out = {BARE: _steady_rss(bare.pid)}
-        for name in nodes:
-            proc = graph.processes[name]
-            out[name] = _steady_rss(proc.pid) if proc.poll() is None else None
-        return out
+        alive = {name: graph.processes[name].pid for name in nodes if graph.processes[name].poll() is None}
+        steady = _steady_rss({BARE: bare.pid, **alive})
+        return {BARE: steady[BARE], **{name: steady.get(name) for name in nodes}}
     finally:
         if bare is not None:
             bare.terminate()

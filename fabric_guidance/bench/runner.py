@@ -54,7 +54,7 @@ FULL = Plan()
 QUICK = Plan(e2e_90=60, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
              fits=30, allocations=300, log_calls=1000, diagnostics=200,
              modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=2, csharp_90=60,
-             study_trial_s=8.0, study_keys=10)
+             study_trial_s=4.0, study_keys=10)
 
 #: Goals, read off the figures (never asserted): the package's p99 within RATIO_GOAL of its
 #: transports' floor at both rates, 1 kHz p99 within P99_1000_GOAL_MS, and the nodes that run

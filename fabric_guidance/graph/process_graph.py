@@ -54,8 +54,21 @@ _counter = itertools.count()
 
 def fresh_domain_id() -> int:
     """A domain id (1..100) distinct for every graph of this process and unlikely to be shared
-    with another test process: the pid spreads processes, the counter graphs within one."""
-    return 1 + (os.getpid() * 13 + next(_counter)) % 100
+    with another test process: the pid spreads processes, the counter graphs within one. Under
+    pytest-xdist each of the N workers (and what it starts) draws from its own ids, those equal
+    to its index modulo N: the workers' graphs run side by side and never share a domain."""
+    worker, workers = _xdist_worker()
+    spread = (os.getpid() * 13 + next(_counter)) % (100 // workers)
+    return 1 + spread * workers + worker
+
+
+def _xdist_worker() -> tuple[int, int]:
+    """(index, count) of this pytest-xdist worker, from the variables xdist sets in each worker
+    (inherited by the processes a test starts); (0, 1) outside xdist."""
+    name, count = os.environ.get('PYTEST_XDIST_WORKER', ''), os.environ.get('PYTEST_XDIST_WORKER_COUNT', '')
+    if name.startswith('gw') and name[2:].isdigit() and count.isdigit() and 0 <= int(name[2:]) < int(count) <= 50:
+        return int(name[2:]), int(count)
+    return 0, 1
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -104,6 +117,26 @@ class _Policy:
     due: float | None = None      # time.monotonic() of the pending restart
     died: float = 0.0
     returncode: int = 0
+
+
+def processes_with(variable: str, value: str) -> list[str]:
+    """Live processes (not this one) whose environment has variable=value, one line each: pid and
+    command. Children inherit the environment, so a value set for one run finds all it started."""
+    found = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            environ = (entry / 'environ').read_bytes()
+            if f'{variable}={value}'.encode() not in environ.split(b'\0'):
+                continue
+            state = (entry / 'stat').read_text().rsplit(')', 1)[1].split()[0]
+            cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+        except OSError:   # gone meanwhile, or not ours to read
+            continue
+        if state != 'Z':  # a zombie has ended; only its parent's wait is missing
+            found.append(f'pid {entry.name}: {cmdline.strip()[:120]}')
+    return found
 
 
 class Graph:
@@ -255,21 +288,7 @@ class Graph:
     def leftovers(self) -> list[str]:
         """Processes still alive that this graph started (restarts and their children included:
         they inherit the graph's token), one line each: pid and command."""
-        found = []
-        for entry in Path('/proc').iterdir():
-            if not entry.name.isdigit() or int(entry.name) == os.getpid():
-                continue
-            try:
-                environ = (entry / 'environ').read_bytes()
-                if f'{GRAPH_TOKEN}={self.token}'.encode() not in environ.split(b'\0'):
-                    continue
-                state = (entry / 'stat').read_text().rsplit(')', 1)[1].split()[0]
-                cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
-            except OSError:   # gone meanwhile, or not ours to read
-                continue
-            if state != 'Z':  # a zombie has ended; only its parent's wait is missing
-                found.append(f'pid {entry.name}: {cmdline.strip()[:120]}')
-        return found
+        return processes_with(GRAPH_TOKEN, self.token)
 
     def plc_violations(self) -> list[str]:
         """Broken invariants in the records of every mock_plc started so far (a mock that never

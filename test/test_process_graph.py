@@ -1,0 +1,48 @@
+"""The process graph's helpers that keep concurrent graphs apart: the domain ids of pytest-xdist
+workers never meet, and a run's processes are found by a variable in their environment (not by
+their command line, which other graphs started from the same files share)."""
+import os
+import subprocess
+import sys
+
+from fabric_guidance.graph.process_graph import fresh_domain_id, processes_with
+from rosgraph import wait_until
+
+
+def ids_of(monkeypatch, worker, workers, n=300):
+    monkeypatch.setenv('PYTEST_XDIST_WORKER', f'gw{worker}')
+    monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', str(workers))
+    return {fresh_domain_id() for _ in range(n)}
+
+
+def test_the_domain_ids_of_xdist_workers_never_meet(monkeypatch):
+    for workers in (2, 3):
+        drawn = [ids_of(monkeypatch, w, workers) for w in range(workers)]
+        for w, ids in enumerate(drawn):
+            assert ids <= set(range(1, 101)) and len(ids) == 100 // workers, (workers, w, sorted(ids))
+            assert all(i % workers == (w + 1) % workers for i in ids), (workers, w, sorted(ids))
+        assert not set.intersection(*drawn)
+    # Outside xdist (or with variables it does not set that way) every id 1..100 is drawn.
+    monkeypatch.delenv('PYTEST_XDIST_WORKER')
+    assert {fresh_domain_id() for _ in range(300)} == set(range(1, 101))
+    monkeypatch.setenv('PYTEST_XDIST_WORKER', 'gw7')
+    monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', '2')
+    assert {fresh_domain_id() for _ in range(300)} == set(range(1, 101))
+
+
+def test_processes_with_finds_a_marked_process_and_its_child_until_they_end():
+    mark = f'{os.getpid()}-marked'
+    # A parent that starts a child (which inherits the environment), both sleeping.
+    code = 'import subprocess, sys, time; subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]); ' \
+           'time.sleep(60)'
+    proc = subprocess.Popen([sys.executable, '-c', code], env={**os.environ, 'FABRIC_GUIDANCE_TEST_MARK': mark},
+                            start_new_session=True)
+    try:
+        found = wait_until(lambda: len(processes_with('FABRIC_GUIDANCE_TEST_MARK', mark)) == 2 and
+                           processes_with('FABRIC_GUIDANCE_TEST_MARK', mark), 20.0, what='both marked processes')
+        assert any(line.startswith(f'pid {proc.pid}:') for line in found), found
+        assert processes_with('FABRIC_GUIDANCE_TEST_MARK', mark + 'x') == []
+    finally:
+        os.killpg(proc.pid, 9)
+        proc.wait(10)
+    wait_until(lambda: processes_with('FABRIC_GUIDANCE_TEST_MARK', mark) == [], 10.0, what='the marked processes gone')
