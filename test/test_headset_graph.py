@@ -380,8 +380,10 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
     assert 'Face front and rest' in texts
     steps = [m for m in prompts if m['text'].startswith('Hold still: left')]
     assert {(m['step'], m['steps']) for m in steps} >= {(1, 3), (2, 3), (3, 3)}
-    # Every prompt shown is the prompt of a calibration_state the controller published.
-    expected = {calibration_state.prompt(calibration_state.decode(m.data)) for m in states}
+    # Every prompt shown is the prompt of a calibration_state the controller published, or the
+    # empty one headset_display refreshes with before the latched state has reached it (a loaded
+    # machine: seen under two test workers).
+    expected = {calibration_state.prompt(calibration_state.decode(m.data)) for m in states} | {('', 0, 0)}
     assert {(m['text'], m['step'], m['steps']) for m in prompts} <= expected, expected
     decoded = [calibration_state.decode(m.data) for m in states]
     assert decoded[0].phase == 'idle' and decoded[0].wearer == 'still'

@@ -280,3 +280,31 @@ def test_a_refused_target_call_stops_the_driver_with_the_reason():
     driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore())
     with pytest.raises(OperatorError, match='no such target'):
         driver.run()
+
+
+def test_the_timer_error_is_kept_when_a_gaze_sample_ends_the_trial():
+    # Before, the timer error was read only when the loop's tick ended the trial; a gaze sample
+    # captured after the deadline, fed first, ended it without a figure (the bench's quick study
+    # then had one timer error for two trials).
+    design = StudyDesign('speed', conditions=(1,), trials=2, trial_s=0.3, rest_s=0.05)
+    op = FakeOperator([])
+    op.set_condition = lambda c: None
+    running = threading.Event()
+    running.set()
+
+    def stream():
+        while running.is_set():
+            with op.lock:
+                op.gaze.append((time.monotonic_ns(), (0.0, 0.0, 1.2), (1.0, 0.0, 0.0)))
+                op.gaze_total += 1
+            time.sleep(0.004)
+    feeder = threading.Thread(target=stream, daemon=True)
+    feeder.start()
+    try:
+        driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0)), FakeStore())
+        driver.run()
+    finally:
+        running.clear()
+        feeder.join(1.0)
+    errors = driver.timing.timer_error_s
+    assert len(errors) == 2 and all(0.0 <= e < 0.1 for e in errors), errors

@@ -32,7 +32,7 @@ STATUS_S = 0.25
 class DriverTiming:
     press_latency_s: list[float] = field(default_factory=list)   # press stamp -> its row's error resolved
     press_sources: list[str] = field(default_factory=list)       # each of those presses' source, in step
-    timer_error_s: list[float] = field(default_factory=list)     # speed trial end: tick time - deadline
+    timer_error_s: list[float] = field(default_factory=list)     # speed trial end: acted on - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
     vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
     # The phases of a speed target on the graph [s, steady clock], one tuple per event:
@@ -146,10 +146,7 @@ class SessionDriver:
             deadline = self.session.next_deadline()
             now = time.monotonic()
             if deadline is not None and now >= deadline:
-                phase = self.session.phase
                 self.handle(self.session.tick(now))
-                if phase in ('target', 'front') and self.session.phase not in ('target', 'front'):
-                    self.timing.timer_error_s.append(now - deadline)
             else:
                 time.sleep(POLL_S)
         self._check_calls(wait=True)
@@ -202,6 +199,11 @@ class SessionDriver:
                 self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
                 if pending is not None:        # carried out when its answer comes (_check_calls)
                     self._calls.append((len(self.timing.events) - 1, pending))
+        for row in step.rows:
+            # A speed trial ends at its deadline, whether the tick or a gaze sample captured after
+            # it told the session: its timer error is when the driver acted on the end (the vent).
+            if row.get('protocol') == 'speed' and row.get('status') == 'ok' and row.get('trial_end_s') is not None:
+                self.timing.timer_error_s.append(now - row['trial_end_s'])
         if step.rows or step.amended or step.blocks:
             self.store.record(step)
             self.rows += step.rows
