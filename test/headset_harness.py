@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from build_lock import locked_run
+from fabric_guidance.bench.build_lock import locked_run
 from rosgraph import ROOT
 
 HOLOLENS = ROOT / 'hololens'

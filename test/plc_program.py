@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from build_lock import locked_run
+from fabric_guidance.bench.build_lock import locked_run
 from fabric_guidance.plc import RegisterMap
 
 FIRMWARE = Path(__file__).resolve().parents[1] / 'firmware'

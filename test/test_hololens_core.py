@@ -3,7 +3,7 @@ under mono. Its build output stays out of git."""
 import re
 import subprocess
 
-from build_lock import locked_run
+from fabric_guidance.bench.build_lock import locked_run
 from headset_harness import EXE, HOLOLENS, build_harness
 from rosgraph import ROOT
 

@@ -581,7 +581,7 @@ def _short_accuracy_study(out, domain_id):
     op = Operator(domain_id)
     bags = BlockBags(op, store)
     try:
-        wait_until(lambda: op.latest_gaze_error(None) is not None and op.controller_condition, STUDY_DEADLINE_S,
+        wait_until(lambda: op.has_gaze() and op.controller_condition, STUDY_DEADLINE_S,
                    what='gaze and the controller on the launched graph')
         op.enable(False)
 

@@ -9,7 +9,6 @@ estimate, which the figure carries (the bound is printed beside it).
 """
 from __future__ import annotations
 
-import fcntl
 import json
 from pathlib import Path
 import shutil
@@ -20,6 +19,7 @@ import time
 import numpy as np
 
 from ..graph.process_graph import free_port, wait_until
+from .build_lock import locked_run
 from .latency import landings, percentiles_ms
 
 HOLOLENS = Path(__file__).resolve().parents[2] / 'hololens'
@@ -35,12 +35,8 @@ def unavailable() -> str | None:
         return f'{", ".join(missing)} not installed (make system-deps)'
     if not (HOLOLENS / 'Makefile').is_file():
         return f'{HOLOLENS} is not here (run from a source checkout)'
-    # One make of hololens/ at a time (test/build_lock.py): a test beside the bench may build it too.
-    (HOLOLENS / 'build~').mkdir(exist_ok=True)
-    with open(HOLOLENS / 'build~' / '.make.lock', 'a') as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        built = subprocess.run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], capture_output=True,
-                               text=True, timeout=300)
+    # One make of hololens/ at a time: a test beside the bench may build it too.
+    built = locked_run(['make', '--no-print-directory', '-C', str(HOLOLENS), 'all'], HOLOLENS / 'build~', 300)
     return None if built.returncode == 0 else f'hololens/ did not build: {built.stderr.strip()[-300:]}'
 
 

@@ -2,9 +2,9 @@
 services and listens, and the guidance loop never waits on it.
 
 Operator(domain_id) is an rclpy node in its own context, spun on a background thread. It keeps
-the last GAZE_HISTORY_S of gaze (stamped at capture by gaze_bridge) so that a key press is
-judged on the gaze at the press's stamp, not on a later sample; it queues the presses of every
-`confirm` source; it places the session's target (target_selector's target_positions and
+the last GAZE_HISTORY_S of gaze (stamped at capture by gaze_bridge) for the session's driver,
+which judges a key press on the gaze at the press's stamp (study.session); it queues the
+presses of every `confirm` source; it places the session's target (target_selector's target_positions and
 active_target in one atomic call), brings it back to the front, enables or vents guidance,
 switches the condition, and sends prompts and the `done` event to the headset (study_display).
 
@@ -23,17 +23,14 @@ import time
 from typing import Any, Callable
 
 from .. import interface
-from ..core.geometry import GeometryError, azimuth_deg, elevation_deg, ray_direction, target_direction, wrap_deg
-from ..core.task import angular_error_deg
+from ..core.geometry import GeometryError, ray_direction
 
-#: Gaze kept for looking up the sample at a press's stamp [s].
+#: Gaze kept until the driver has taken it (it takes the new samples every few ms) [s].
 GAZE_HISTORY_S = 5.0
 #: The session's one target in target_selector (its target_names in a study graph).
 STUDY_TARGET = 'study'
 #: Distance of the placed target from the eye [m] (the demo's scene targets are at 2 m).
 TARGET_DISTANCE_M = 2.0
-#: A press waits at most this long for the gaze sample captured after it [s].
-PRESS_GAZE_WAIT_S = 0.2
 #: How long a service or parameter call may take before the operator says so [s].
 CALL_TIMEOUT_S = 5.0
 
@@ -48,16 +45,6 @@ class Press:
     source: str
     stamp_ns: int
     received_ns: int
-
-
-@dataclass(frozen=True)
-class PressError:
-    """The gaze at a press against the target (or the front): full, horizontal, vertical angle."""
-    error_deg: float
-    h_error_deg: float
-    v_error_deg: float
-    gaze_stamp_ns: int        # the sample used: the newest captured at or before the press
-    gaze_age_s: float         # press stamp minus that sample's stamp
 
 
 def target_position(yaw_deg: float, pitch_deg: float, eye_height_m: float,
@@ -182,12 +169,12 @@ class Operator:
         mine = f'{self.namespace}/pressure_controller' if self.namespace else 'pressure_controller'
         bridge = f'{self.namespace}/gaze_bridge' if self.namespace else 'gaze_bridge'
         for st in msg.status:
-            if st.name.split(':')[0].strip().lstrip('/') == bridge:
+            node = st.name.split(':')[0].strip().lstrip('/')
+            if node == bridge:
                 for kv in st.values:
                     if kv.key == 'clock_state':
                         self.headset_clock = kv.value
-            if st.name.split(':')[0].strip().lstrip('/') == mine or (
-                    not self.namespace and st.name.startswith('pressure_controller')):
+            if node == mine or (not self.namespace and st.name.startswith('pressure_controller')):
                 for kv in st.values:
                     if kv.key == 'condition':
                         self.controller_condition = int(kv.value)
@@ -211,40 +198,10 @@ class Operator:
             pass
 
     # ---- what the wearer's gaze is
-    def gaze_at(self, stamp_ns: int):
-        """The newest gaze sample captured at or before stamp_ns (else the oldest kept), or None."""
+    def has_gaze(self) -> bool:
+        """Whether a gaze sample has come from gaze_bridge (and is still in the history)."""
         with self.lock:
-            samples = list(self.gaze)
-        before = [s for s in samples if s[0] <= stamp_ns]
-        return before[-1] if before else (samples[0] if samples else None)
-
-    def error_at(self, stamp_ns: int, target: tuple[float, float] | None) -> PressError | None:
-        """The gaze at stamp_ns against target (yaw, pitch from the eye; None: the front)."""
-        sample = self.gaze_at(stamp_ns)
-        if sample is None:
-            return None
-        gstamp, origin, direction = sample
-        yaw, pitch = target or (0.0, 0.0)
-        goal = target_direction(origin, target_position(yaw, pitch, self.eye_height_m))
-        g_yaw, t_yaw = azimuth_deg(direction) or 0.0, azimuth_deg(goal) or 0.0
-        return PressError(angular_error_deg(direction, goal), abs(wrap_deg(g_yaw - t_yaw)),
-                          abs(elevation_deg(direction) - elevation_deg(goal)), gstamp, (stamp_ns - gstamp) * 1e-9)
-
-    def settled_error_at(self, stamp_ns: int, target: tuple[float, float] | None,
-                         wait_s: float = PRESS_GAZE_WAIT_S) -> PressError | None:
-        """error_at once a sample captured after stamp_ns has arrived (the one captured at the
-        press may still be on its way: UDP, the bridge, DDS), or after wait_s."""
-        deadline = time.monotonic() + wait_s
-        while time.monotonic() < deadline:
-            with self.lock:
-                newest = self.gaze[-1][0] if self.gaze else None
-            if newest is not None and newest > stamp_ns:
-                break
-            time.sleep(0.0005)
-        return self.error_at(stamp_ns, target)
-
-    def latest_gaze_error(self, target: tuple[float, float] | None) -> PressError | None:
-        return self.error_at(self.now_ns() + 10 ** 12, target)
+            return bool(self.gaze)
 
     # ---- requests
     def _client(self, srv_type, name: str):
@@ -340,12 +297,6 @@ class Operator:
         self.set_parameters('pressure_controller', condition=int(condition))
         for node in extra_nodes:
             self.set_parameters(node, condition=int(condition))
-
-    def next_press(self, timeout_s: float) -> Press | None:
-        try:
-            return self.presses.get(timeout=max(0.0, timeout_s))
-        except queue.Empty:
-            return None
 
     def drain_presses(self) -> list[Press]:
         """Presses nobody asked for (between trials): taken off the queue, returned."""

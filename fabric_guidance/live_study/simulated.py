@@ -92,7 +92,7 @@ class SimulatedParticipant:
         start_nodes(self.graph, self.lab, FILES)
         os.environ.update(loopback_dds_env())
         self.op = Operator(self.graph.domain_id)
-        wait_until(lambda: self.op.latest_gaze_error(None) is not None and self.op.controller_condition,
+        wait_until(lambda: self.op.has_gaze() and self.op.controller_condition,
                    STARTUP_S, what='gaze and the controller on the study graph')
         self.op.enable(False)     # vented until the first trial
 

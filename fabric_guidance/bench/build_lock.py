@@ -1,7 +1,7 @@
-"""`make -C FOLDER` for the tests, one at a time per folder: pytest-xdist workers (and a bench run
-beside them) that build the same outputs at once would write them together, and one of them
-could run a binary the other is still linking. The lock file sits in the folder's build output,
-which git ignores."""
+"""`make -C FOLDER` one at a time per folder, for the bench and the tests: pytest-xdist workers
+and a bench run beside them that build the same outputs at once would write them together, and
+one of them could run a binary the other is still linking. The lock file sits in the folder's
+build output, which git ignores."""
 from __future__ import annotations
 
 import fcntl
