@@ -46,7 +46,23 @@ def test_a_vent_that_does_not_hold_until_the_fault_ends_is_not_a_vent():
     assert vent_time(log, 10.0) == pytest.approx(0.2)          # the first zero after the fault
     assert vent_time(log, 10.0, fault.held_until) is None     # not vented when it ended
     found = late_vents(log, [fault], drained=13.0)
-    assert len(found) == 1 and 'not vented' in found[0]
+    assert len(found) == 1 and 'pressure again 0.500 s after it, before the fault ended at 2.000 s' in found[0]
+
+
+def test_a_vent_in_time_then_guidance_after_a_quick_respawn_passes():
+    """Seed 19's shape: gaze_bridge killed at 321.609 s, the respawned process started 0.6 s
+    later, the vent at 0.295 s, guidance back at 0.944 s, all inside the 0.953 s deadline. The
+    vent held while the fault lasted; the resume came after it ended."""
+    t = 321.609
+    log = entries((300.0, ON), (t + 0.295, OFF), (t + 0.944, ON))
+    healed = Fault('SIGKILL of gaze_bridge + headset_display', t, 0.953, t_end=t + 0.6)
+    assert late_vents(log, [healed], drained=t + 2.0) == []
+    # The same log fails when the fault was still on at the resume, or when no vent came in time.
+    lasting = Fault(healed.kind, t, 0.953, t_end=t + 1.5)
+    assert 'pressure again 0.944 s after it' in late_vents(log, [lasting], drained=t + 2.0)[0]
+    never = entries((300.0, ON), (t + 1.2, OFF), (t + 1.3, ON))
+    assert 'vented after 1.200 s (deadline 0.953 s)' in late_vents(never, [healed], drained=t + 2.0)[0]
+    assert late_vents(entries((300.0, ON)), [healed], drained=t + 2.0) != []
 
 
 def test_a_fault_is_judged_only_once_the_log_covers_its_end():

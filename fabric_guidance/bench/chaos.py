@@ -49,7 +49,7 @@ import time
 from .. import interface, subcommand
 from ..atomic import write_text
 from ..core.gaze_wire import encode_datagram
-from ..plc.register_log import Fault, RegisterLog, gate_breaches, late_vents, over_p_max, vent_time
+from ..plc.register_log import Fault, RegisterLog, fault_vent, gate_breaches, late_vents, over_p_max, vent_time
 from ..graph.process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
 from . import second_writer
 from .faultproxy import FaultProxy
@@ -430,7 +430,7 @@ class ChaosLab:
         out.recovery_s = time.monotonic() - t_heal
         fault = as_fault(out)
         wait_until(lambda: self.register_log.poll().drained >= fault.held_until, 10.0, what='the register log drained')
-        out.vent_s = vent_time(self.register_log.entries, out.t, fault.held_until)
+        out.vent_s, _ = fault_vent(self.register_log.entries, fault)
         return out
 
     def two_writers(self, index: int, p: Planned) -> Outcome:

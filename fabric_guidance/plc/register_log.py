@@ -135,8 +135,48 @@ class Fault:
 
     @property
     def held_until(self) -> float:
-        """Until when the vent must hold."""
+        """Until when the log must reach before the fault is judged: its end, and its deadline."""
         return max(self.t_end if self.t_end is not None else self.t, self.t + (self.deadline_s or 0.0))
+
+
+def vent_intervals(entries: list[Entry], t_from: float) -> list[tuple[float, float]]:
+    """The spans [start, end) in which every command register read 0, of those still in force
+    at or after t_from (end inf: still vented at the log's end). Before the first entry the
+    registers read 0 (power-up)."""
+    spans, start = [], -float('inf')
+    for e in entries:
+        if e.vented and start is None:
+            start = e.t
+        elif not e.vented and start is not None:
+            spans.append((start, e.t))
+            start = None
+    if start is not None:
+        spans.append((start, float('inf')))
+    return [(s, end) for s, end in spans if end > t_from]
+
+
+def fault_vent(entries: list[Entry], f: Fault) -> tuple[float | None, str]:
+    """(seconds from the fault to the start of the vent it owes, '') or (None, why not).
+
+    The vent it owes starts within the deadline and lasts until the fault ended: pressure before
+    the vent (inside the deadline) is allowed, and so is guidance resumed after the fault ended,
+    even when that is sooner than the deadline (a respawned node back quickly). Without an end
+    the vent must hold until the deadline."""
+    due = f.t + (f.deadline_s or 0.0)
+    until = f.t_end if f.t_end is not None else due
+    spans = vent_intervals(entries, f.t)
+    in_time = [(s, end) for s, end in spans if s <= due]
+    for s, end in in_time:
+        if end >= until:
+            return max(0.0, s - f.t), ''
+    if in_time:
+        s, end = in_time[-1]
+        return None, (f'vented after {max(0.0, s - f.t):.3f} s but pressure again {end - f.t:.3f} s after it, '
+                      f'before the fault ended at {until - f.t:.3f} s')
+    late = [s for s, end in spans if end >= until]
+    if late:
+        return None, f'vented after {late[0] - f.t:.3f} s (deadline {f.deadline_s:.3f} s)'
+    return None, f'not vented {until - f.t:.3f} s later, when the fault ended (deadline {f.deadline_s:.3f} s)'
 
 
 def late_vents(entries: list[Entry], faults: list[Fault], drained: float) -> list[str]:
@@ -146,12 +186,9 @@ def late_vents(entries: list[Entry], faults: list[Fault], drained: float) -> lis
     for f in faults:
         if f.deadline_s is None or drained < f.held_until:
             continue
-        seconds = vent_time(entries, f.t, f.held_until)
+        seconds, why = fault_vent(entries, f)
         if seconds is None:
-            found.append(f'{f.kind} at t={f.t:.3f} s: not vented {f.held_until - f.t:.3f} s later, when the fault '
-                         f'ended (deadline {f.deadline_s:.3f} s)')
-        elif seconds > f.deadline_s:
-            found.append(f'{f.kind} at t={f.t:.3f} s: vented after {seconds:.3f} s (deadline {f.deadline_s:.3f} s)')
+            found.append(f'{f.kind} at t={f.t:.3f} s: {why}')
     return found
 
 
@@ -162,7 +199,7 @@ def gate_breaches(entries: list[Entry], faults: list[Fault]) -> list[str]:
     for f in faults:
         if f.t_enable is None:
             continue
-        seconds = vent_time(entries, f.t, f.held_until)
+        seconds, _ = fault_vent(entries, f)
         if seconds is None:
             continue   # not vented: late_vents reports it
         t_vented = f.t + seconds
@@ -174,4 +211,5 @@ def gate_breaches(entries: list[Entry], faults: list[Fault]) -> list[str]:
     return found
 
 
-__all__ = ['Entry', 'Fault', 'RegisterLog', 'gate_breaches', 'late_vents', 'over_p_max', 'parse_line', 'vent_time']
+__all__ = ['Entry', 'Fault', 'RegisterLog', 'fault_vent', 'gate_breaches', 'late_vents', 'over_p_max', 'parse_line',
+           'vent_intervals', 'vent_time']
