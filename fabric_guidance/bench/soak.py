@@ -125,6 +125,11 @@ class Soak:
         # End to end: a gaze sample's command applied at the PLC's registers.
         wait_until(lambda: self.check_alive() or self.poll() or self.matcher.latencies,
                    startup_timeout_s, what="a gaze sample's command at the PLC registers")
+        # A row reports each counter as the difference from the row before: the first row needs
+        # every counter's first value (mock_plc's /diagnostics come at their own, slower rate).
+        wait_until(lambda: self.check_alive() or None not in self.counters().values(), startup_timeout_s,
+                   what='a first value of every counter on /diagnostics: ' + ', '.join(
+                       f'{prefix} {key}' for prefix, key in COUNTERS.values()))
 
     def check_alive(self) -> bool:
         dead = {n: p.returncode for n, p in self.graph.processes.items() if p.poll() is not None}

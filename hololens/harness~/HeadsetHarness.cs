@@ -35,6 +35,14 @@ static class HeadsetHarness
 
     static int Main(string[] args)
     {
+        // Console's type initializer (and TextWriter's and TextReader's under it) runs here, on the
+        // main thread, before any other thread exists. Mono lets a thread that waits on a type
+        // initializer another thread is running see it unfinished when the two wait on each other:
+        // with the stdin reader thread first to touch Console while this thread built the log's
+        // StreamWriter, 1 start in about 40 under load died in Console.WriteLine with a
+        // NullReferenceException in StreamWriter.WriteSpan (a newline array still null).
+        TextWriter stdout = Console.Out, stderr = Console.Error;
+        TextReader stdin = Console.In;
         var o = new Dictionary<string, string>
         {
             {"--uplink", "127.0.0.1:5005"}, {"--listen", "127.0.0.1:0"}, {"--pc", "127.0.0.1"}, {"--poses", ""},
@@ -44,7 +52,7 @@ static class HeadsetHarness
         };
         for (int i = 0; i < args.Length; i++)
         {
-            if (args[i] == "--help" || args[i] == "-h") { Console.WriteLine(Usage); return 0; }
+            if (args[i] == "--help" || args[i] == "-h") { stdout.WriteLine(Usage); return 0; }
             if (!o.ContainsKey(args[i]) || i + 1 >= args.Length) return Fail(args[i], o.ContainsKey(args[i]) ? "needs a value" : "unknown option");
             o[args[i]] = args[++i];
         }
@@ -86,7 +94,7 @@ static class HeadsetHarness
         if (o["--commands"] != "" && o["--commands"] != "stdin") return Fail("--commands", "takes only 'stdin'");
         var commands = new System.Collections.Concurrent.ConcurrentQueue<string>();
         if (o["--commands"] == "stdin")
-            new Thread(() => { string c; while ((c = Console.In.ReadLine()) != null) commands.Enqueue(c.Trim()); }) { IsBackground = true }.Start();
+            new Thread(() => { string c; while ((c = stdin.ReadLine()) != null) commands.Enqueue(c.Trim()); }) { IsBackground = true }.Start();
         List<GazeFrame> poses;
         try { poses = o["--poses"] == "" ? new List<GazeFrame> { Still() } : ReadPoses(o["--poses"]); }
         catch (Exception e) { return Fail("--poses", e.Message); }
@@ -101,8 +109,8 @@ static class HeadsetHarness
         link.Received = m => write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"msg\":" + Describe(m) + "}");
         link.Rejected = r => write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"dropped\":\"" + r + "\"}");
         link.Start();
-        Console.WriteLine("listening " + link.ListenEndPoint.Address + ":" + link.ListenEndPoint.Port);
-        Console.Out.Flush();
+        stdout.WriteLine("listening " + link.ListenEndPoint.Address + ":" + link.ListenEndPoint.Port);
+        stdout.Flush();
 
         var watch = System.Diagnostics.Stopwatch.StartNew();
         long frame = 0;
@@ -128,7 +136,7 @@ static class HeadsetHarness
             while (commands.TryDequeue(out command))
             {
                 if (command == "confirm") presses++;
-                else if (command != "") Console.Error.WriteLine("HeadsetHarness: unknown command '" + command + "' (commands: confirm)");
+                else if (command != "") stderr.WriteLine("HeadsetHarness: unknown command '" + command + "' (commands: confirm)");
             }
             for (int i = 0; i < presses; i++)
             {
@@ -142,7 +150,7 @@ static class HeadsetHarness
             if (next > 0) Thread.Sleep(TimeSpan.FromSeconds(Math.Min(next, 0.005)));
         }
         link.Dispose();
-        Console.WriteLine(string.Format(inv, "harness: sent {0}, skipped {1}, echoes {2}, display {3}, dropped {4}, confirms {5}",
+        stdout.WriteLine(string.Format(inv, "harness: sent {0}, skipped {1}, echoes {2}, display {3}, dropped {4}, confirms {5}",
             link.Sent, link.Skipped, link.Echoes, link.DisplayReceived, link.Dropped, link.Confirms));
         if (log != null) log.Dispose();
         return 0;
