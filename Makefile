@@ -40,7 +40,7 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
   test/test_shutdown.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
-.PHONY: test-hololens demo test test-deep test-launch test-launch-jazzy test-launch-all test-py312 bench chaos soak \
+.PHONY: flakes test-hololens demo test test-deep test-launch test-launch-jazzy test-launch-all test-py312 bench chaos soak \
   venv clean system-deps system-deps-if-root test-pymodbus
 
 venv: $(STAMP)
@@ -63,15 +63,21 @@ demo: $(STAMP)
 # two workers use two cores. Tests marked serial run alone (test/conftest.py). PYTEST_WORKERS=0:
 # one process, as before.
 PYTEST_WORKERS ?= 2
+# Each stage's time is printed as it ends and all of them at the end (test/stage.sh).
+STAGES := .test-stages
+STAGE = test/stage.sh $(STAGES)
 test: $(STAMP)
-	@$(MAKE) --no-print-directory system-deps-if-root
-	@$(MAKE) --no-print-directory test-hololens
-	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
-	$(MAKE) --no-print-directory test-pymodbus
-	@if [ -d "$(ROS_TOOLING)" ]; then $(MAKE) --no-print-directory test-launch-all; else \
+	@rm -f $(STAGES)
+	@$(STAGE) system-deps $(MAKE) --no-print-directory system-deps-if-root
+	@$(STAGE) hololens $(MAKE) --no-print-directory test-hololens
+	@$(STAGE) pytest $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
+	@$(STAGE) pymodbus $(MAKE) --no-print-directory test-pymodbus
+	@if [ -d "$(ROS_TOOLING)" ]; then $(STAGE) launch-kilted $(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=kilted && \
+	  $(STAGE) launch-jazzy $(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=jazzy; else \
 	  echo "SKIPPED launch_pytest tests and colcon build check:" \
 	    "$(ROS_TOOLING) is absent (docs/launch.md)"; fi
 	@$(PY) test/skipped_groups.py "$(ROS_TOOLING)"
+	@echo "make test stages:"; cat $(STAGES)
 
 # Both distributions' launch stages, Kilted's then Jazzy's.
 test-launch-all:
@@ -207,3 +213,14 @@ clean:
 	rm -rf $(VENV) .venv-launch .venv-launch-jazzy $(VENV312) build-launch build-launch-jazzy .venv-pymodbus-* \
 	  .pytest_cache .hypothesis \
 	  *.egg-info
+
+# The flake finder: the graph and timing-sensitive tests RUNS times under LOAD busy processes
+# (default one per core), each test's pass rate, the logs of a failed run kept in flakes/run-N/
+# (test/flake_finder.py). Run it before submitting a change to graph or timing code; fix every
+# test it shows failing at its cause.
+RUNS ?= 3
+LOAD ?= $(shell nproc)
+flakes: $(STAMP)
+	@$(MAKE) --no-print-directory system-deps-if-root
+	@$(MAKE) --no-print-directory -C hololens all >/dev/null 2>&1 || true
+	$(PY) test/flake_finder.py --runs $(RUNS) --load $(LOAD) $(if $(FLAKE_ARGS),-- $(FLAKE_ARGS))

@@ -3,6 +3,8 @@ under mono. Its build output stays out of git."""
 import re
 import subprocess
 
+import pytest
+
 from fabric_guidance.bench.build_lock import locked_run
 from headset_harness import EXE, HOLOLENS, build_harness
 from rosgraph import ROOT
@@ -29,6 +31,7 @@ def test_the_build_output_is_not_tracked_and_unity_does_not_import_it():
     assert EXE.parent.name.endswith('~') and EXE.is_relative_to(HOLOLENS)
 
 
+@pytest.mark.timing
 def test_the_harness_starts_every_time_with_its_stdin_reader_and_log(tmp_path):
     """Many starts at once, as two test workers and a loaded machine start it: each says it is
     listening and exits 0. Before its console was set up on the main thread first, about 1 start
