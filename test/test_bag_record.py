@@ -1,9 +1,11 @@
 """Recording a guided session: `fabric-guidance demo --record DIR` (run_demo(record_dir=...))
 writes a rosbag2 bag in MCAP that an independent reader (mcap + mcap_ros2) decodes completely,
 with the QoS profiles in its metadata; the offline replay reproduces its commands exactly."""
+import atexit
 import dataclasses
 import functools
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -41,6 +43,7 @@ def recorded_demo_bag() -> Path:
     """One demo session recorded (shared with test_replay.py: run once per test process)."""
     from fabric_guidance.commands.demo import run_demo
     out = Path(tempfile.mkdtemp(prefix='fabric-guidance-test-record-'))
+    atexit.register(shutil.rmtree, out, True)   # kept for the test process's life, then removed
     with open(out / 'demo.out', 'w') as stream:
         code = run_demo(1, timeout_s=45.0, out_dir=out / 'logs', stream=stream, record_dir=out / 'bags')
     assert code == 0, (out / 'demo.out').read_text()

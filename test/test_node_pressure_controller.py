@@ -95,6 +95,9 @@ def controller(tmp_path, request):
     settings = dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
                     calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S)
     settings.update(params)
+    if settings['calibration_file'] == ZERO_GAIN_FILE:
+        settings['calibration_file'] = str(tmp_path / ZERO_GAIN_FILE)
+        SIM_CAL.with_gain(0.0).save(settings['calibration_file'])
     graph.start('pressure_controller', ('params/guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
     commands = probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS)
@@ -333,12 +336,10 @@ def test_calibration_is_refused_without_gaze(controller):
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')
 
 
-ZERO_GAIN_FILE = '/tmp/fabric-guidance-test-zero-gain.yaml'
-
-
-@pytest.fixture(scope='module', autouse=True)
-def zero_gain_calibration():
-    SIM_CAL.with_gain(0.0).save(ZERO_GAIN_FILE)
+#: The calibration_file parameter that stands for sim-wearer's calibration with G = 0, written by
+#: the controller fixture into the test's own folder (a fixed path in /tmp would be shared by
+#: every test process of the machine, and left behind).
+ZERO_GAIN_FILE = 'zero-gain.yaml'
 
 
 @pytest.mark.parametrize('controller', [{'use_wearer_gain': True, 'calibration_file': ZERO_GAIN_FILE}],
