@@ -8,10 +8,12 @@ import time
 class PeriodicSender:
     period_s = 0.02
 
-    def start(self) -> None:
-        """Call at the end of the subclass's __init__, once tick() has what it needs."""
+    def start(self, sending: bool = True) -> None:
+        """Call at the end of the subclass's __init__, once tick() has what it needs; sending
+        False: silent from the first tick until `sending` is set."""
         self.sending = threading.Event()
-        self.sending.set()
+        if sending:
+            self.sending.set()
         self._stop = False
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
