@@ -327,8 +327,10 @@ def test_a_command_is_as_old_as_its_source_timestamp():
     now_ns = 10_000_000_000
     sent_1_2_s_ago = {'source_timestamp': now_ns - 1_200_000_000, 'received_timestamp': now_ns}
     assert sent_age_s(sent_1_2_s_ago, now_ns) == pytest.approx(1.2)
-    # A publisher's clock ahead of this host's: age 0, never negative (fresh for command_timeout_s).
-    assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == 0.0
+    # Stamped after now (a clock stepped back): negative, not 0, so plc_output cannot take it for
+    # fresh (it vents, counting it invalid).
+    assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == \
+        pytest.approx(-0.005)
     # No source time (a middleware that gives 0): unknown age, refused by plc_output.
     assert sent_age_s({'source_timestamp': 0, 'received_timestamp': now_ns}, now_ns) is None
     assert sent_age_s(None, now_ns) is None
