@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 from std_srvs.srv import Trigger
 
+from fabric_guidance.nodes.plc_stop import KEPT_OUT_WATCHDOGS
 from fabric_guidance.plc import PlcClient, PlcLinkError
 from fabric_guidance.plc.records import load_records
 from rosgraph import wait_until
@@ -39,8 +40,9 @@ FOREIGN_KPA = 200.0
 GUIDED_KPA = 120.0
 PLC_WATCHDOG_S = OUTPUT['plc_watchdog_s']
 #: plc_output's first refusal (the mock's busy count, its records file lagging 0.1 s) -> the
-#: registers read 0: the PLC watchdog's time, a write cycle, the records' lag and slack.
-KEPT_OUT_VENT_S = PLC_WATCHDOG_S + 0.1 + VENT_MARGIN_S
+#: registers read 0: two PLC watchdog times (plc_stop.KEPT_OUT_WATCHDOGS), the records' lag and
+#: slack for a write cycle on a loaded machine.
+KEPT_OUT_VENT_S = KEPT_OUT_WATCHDOGS * PLC_WATCHDOG_S + 0.1 + VENT_MARGIN_S
 #: A vent request -> registers 0 (the request zeroes them; a read round trip and slack).
 VENT_REQUEST_S = 0.3
 #: The registers are watched this long for a pressure that must not come.

@@ -8,7 +8,7 @@ with an exponential backoff, and the latest fresh command is written again once 
 On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
 
 A stop from any connection (plc_stop.py): kept out of a PLC by another client's write claim for
-longer than plc_watchdog_s, the node writes the PLC's vent request and reports ERROR with the
+two plc_watchdog_s, the node writes the PLC's vent request and reports ERROR with the
 other client's address; a PLC's vent latch seen set (by anyone) calls the controller's vent; the
 latch is released only for a command with pressure that the controller sent after that vent was
 answered (so after the operator's enable).
@@ -58,7 +58,7 @@ from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.log_throttle import LogThrottle
 from fabric_guidance.nodes.managed import ManagedNode
 from fabric_guidance.nodes.parameters import declare, declare_config_file
-from fabric_guidance.nodes.plc_stop import KeptOut, StopRelay, VentLatch
+from fabric_guidance.nodes.plc_stop import KEPT_OUT_WATCHDOGS, KeptOut, StopRelay, VentLatch
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.nodes.spin import run
 from fabric_guidance.paths import resolve
@@ -135,7 +135,7 @@ class PlcOutput(ManagedNode, VentLatch):
             raise ValueError('parameter "command_publisher" must name a node, got an empty string')
         self.plc_watchdog_s = declare(self, 'plc_watchdog_s', 0.5,
                                       "the PLC's watchdog time: refused as busy (another client's "
-                                      'write claim) for longer, the node writes the vent request',
+                                      'write claim) for twice as long, the node writes the vent request',
                                       's', 0.05, 60.0, read_only=True)
         diagnostics_period_s = declare(self, 'diagnostics_period_s', 1.0, '/diagnostics publication period',
                                        's', 0.05, 60.0, read_only=True)
@@ -422,7 +422,7 @@ class PlcOutput(ManagedNode, VentLatch):
         since = link.kept_out.since
         if since is not None and not link.kept_out.requested:
             # Kept out: try again when the watchdog's time is up, not a backoff later.
-            link.next_attempt_s = min(link.next_attempt_s, since + self.plc_watchdog_s)
+            link.next_attempt_s = min(link.next_attempt_s, since + KEPT_OUT_WATCHDOGS * self.plc_watchdog_s)
 
     # ------------------------------------------------------------- diagnostics
     def _on_diagnostics_timer(self) -> None:

@@ -3,7 +3,7 @@ request"; docs/safety.md, "A stop from any connection").
 
 - **Kept out.** Another Modbus client holds the PLC's write claim: plc_output's writes are
   refused with exception 06. Within the PLC watchdog's time that can be plc_output's own earlier
-  connection, not yet seen closed; longer, it is a live client of its own (a tool left running,
+  connection, not yet seen closed; for two watchdog times, it is a live client of its own (a tool left running,
   a second suit's plc_output on the same address). plc_output then writes the vent request
   (taken from any client, claim or not), reads the holder's address from the PLC and reports
   ERROR naming it.
@@ -32,6 +32,11 @@ from fabric_guidance.plc import PlcLinkError
 
 #: The errors and warnings below are logged at most this often [s].
 LOG_THROTTLE_S = 1.0
+#: Kept out (06) this many PLC watchdog times, another client holds the PLC. The PLC frees a
+#: claim of this node's own dead connection one watchdog time after its last heartbeat, and the
+#: node is refused only after it has given that connection up (a request timeout later); the
+#: second watchdog time is margin for a loaded PLC host's scan.
+KEPT_OUT_WATCHDOGS = 2
 
 
 class KeptOut:
@@ -55,8 +60,8 @@ class KeptOut:
         self.since, self.holder, self.requested = None, '', False
 
     def overdue(self, now_s: float, watchdog_s: float) -> bool:
-        """Kept out for longer than the PLC watchdog: not an old connection of this node's."""
-        return self.since is not None and now_s - self.since >= watchdog_s
+        """Kept out for KEPT_OUT_WATCHDOGS PLC watchdog times: not an old connection of this node's."""
+        return self.since is not None and now_s - self.since >= KEPT_OUT_WATCHDOGS * watchdog_s
 
     def describe(self, now_s: float) -> str:
         who = f'another client at {self.holder}' if self.holder else 'another client'
