@@ -10,7 +10,8 @@ with its `vent` service too), the registers read over Modbus by the rig's read-o
   holds the PLC, still vented, until the controller commands pressure again after that vent
   (the operator's enable).
 - A vent request from a tool (mbpoll when installed, else a pymodbus client) while plc_output
-  guides: registers 0 at once, the controller vented, held until its next command with pressure.
+  guides: registers 0 at once, the controller vented, held until its next command with pressure;
+  with no answer to that vent, held whatever the controller commands.
 - A command stamped in the future (its publisher under faketime: a clock stepped back looks the
   same to plc_output) is not taken for fresh: vented, counted invalid with the reason.
 """
@@ -198,6 +199,20 @@ def test_a_vent_request_from_a_tool_stops_the_controller_until_it_guides_again(r
     hold_zero(r, 'plc_output writing on, the controller vented')
     r.command(np.full(N, GUIDED_KPA))
     r.wait_registers(np.full(N, GUIDED_KPA), COMMAND_DEADLINE_S, "guidance again after the operator's enable")
+
+
+def test_without_the_controller_s_vent_answered_pressure_never_re_arms(rig):
+    """The controller never answers plc_output's vent (none is offered here): its commands with
+    pressure go on, and plc_output's ordinary writes of them never lift the PLC's latch."""
+    r = rig()
+    r.command(np.full(N, GUIDED_KPA))
+    r.wait_registers(np.full(N, GUIDED_KPA), COMMAND_DEADLINE_S, 'the controller guiding')
+    tool = vent_request_by_a_tool(r.port)
+    r.time_to_vent(time.monotonic(), VENT_REQUEST_S + 1.0, f'a vent request by {tool}')
+    wait_until(lambda: status_with(r, 'vent latch set'), DIAGNOSTICS_PERIOD_S + 3.0,
+               what='plc_output reporting the latch')
+    hold_zero(r, 'pressure commanded on, no vent answered')
+    assert r.client.read_vent_latched()
 
 
 @pytest.mark.skipif(shutil.which('faketime') is None, reason='faketime not installed (Debian package faketime)')
