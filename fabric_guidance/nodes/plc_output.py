@@ -319,7 +319,7 @@ class PlcOutput(ManagedNode, VentLatch):
         if not self.active:
             return self._zeros, f'{self.state_label} (lifecycle)'
         if self._invalid:
-            return self._zeros, f'invalid command ({self._invalid_why})'
+            return self._zeros, 'invalid command'
         if self._command_s is None:
             return self._zeros, 'no command received yet'
         if now_s - self._command_s > self.command_timeout_s:
@@ -427,6 +427,8 @@ class PlcOutput(ManagedNode, VentLatch):
     # ------------------------------------------------------------- diagnostics
     def _on_diagnostics_timer(self) -> None:
         _, reason = self._target(time.monotonic())
+        if reason == 'invalid command':   # with its reason here (the cycle's log line stays one per change)
+            reason = f'invalid command ({self._invalid_why})'
         faulty = [link for link in self._links if not link.up]
         if faulty:
             level = DiagnosticStatus.ERROR
