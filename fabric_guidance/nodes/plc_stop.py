@@ -37,6 +37,9 @@ LOG_THROTTLE_S = 1.0
 #: node is refused only after it has given that connection up (a request timeout later); the
 #: second watchdog time is margin for a loaded PLC host's scan.
 KEPT_OUT_WATCHDOGS = 2
+#: The PLC's vent latch is read at most this often [s]: the PLC vents at the request by itself;
+#: the read only tells the controller and the diagnostics, so it need not cost a request a cycle.
+LATCH_READ_S = 0.1
 
 
 class KeptOut:
@@ -48,6 +51,7 @@ class KeptOut:
         self.vent_requests = 0            #: vent requests written (all streaks)
         self.latched = False              #: the PLC's vent latch at the last read
         self.requested = False            #: a vent request written in this streak
+        self.next_latch_read = 0.0        #: monotonic time of the next read of the latch
 
     def refused(self, busy: bool, now_s: float) -> None:
         """A failed request: `busy` when it was exception 06 (another client's claim)."""
@@ -146,8 +150,10 @@ class VentLatch:
 
     def _read_latch(self, link) -> None:
         """The PLC's vent latch; newly set (by anyone), it stops the controller too."""
-        if link.client.map.vent_register is None:
+        now = time.monotonic()
+        if link.client.map.vent_register is None or now < link.kept_out.next_latch_read:
             return
+        link.kept_out.next_latch_read = now + LATCH_READ_S
         latched = link.client.read_vent_latched()
         if latched and not link.kept_out.latched:
             self._relay.stop(f'the vent latch of PLC {link.name} is set')
