@@ -21,7 +21,9 @@ restarts, and the controller guides as soon as it is active (docs/lifecycle.md, 
 
 namespace:=suit_a starts every node in that namespace: topics resolve there and the services
 are the nodes' own (`/suit_a/pressure_controller/enable`), so that a second suit runs on the
-same domain (docs/interfaces.md, "Names and namespaces").
+same domain (docs/interfaces.md, "Names and namespaces"). It needs that suit's own PLC address
+(plc_host:= and/or plc_port:=): without one the launch refuses to start, naming them, as the
+parameter file's address is the root suit's PLC.
 
 keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
 discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
@@ -45,8 +47,9 @@ import yaml
 from fabric_guidance.interface import MANAGED_NODES
 from fabric_guidance.graph.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
                                                   lab_node_kwargs, launch_namespace, lifecycle_bring_up,
-                                                  namespace_argument, respawn_arguments, respawn_enabled,
-                                                  respawn_kwargs, study_argument, study_params_files)
+                                                  namespace_argument, require_own_plc, respawn_arguments,
+                                                  respawn_enabled, respawn_kwargs, study_argument,
+                                                  study_params_files)
 
 ARGUMENTS = {
     # name: (node, parameter, type, description)
@@ -112,6 +115,7 @@ def _nodes(context, *args, **kwargs):
         overrides['pressure_controller']['start_enabled'] = False
     generated = NodeOverrides(context)
     namespace = launch_namespace(context)
+    require_own_plc(namespace, {arg: LaunchConfiguration(arg).perform(context) for arg in ('plc_host', 'plc_port')})
     actions = []
     for name in NODES:
         lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset

@@ -29,7 +29,8 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node, SetRemap
 
 from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
-                                                  launch_namespace, loopback_dds_actions, namespace_argument)
+                                                  launch_namespace, loopback_dds_actions, namespace_argument,
+                                                  require_own_plc)
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
@@ -50,6 +51,9 @@ def _graph(context, *args, **kwargs):
     if namespace:
         arguments['namespace'] = namespace
     simulated_wearer = LaunchConfiguration('wearer_sim').perform(context).lower() == 'true'
+    # Its own mock PLC (simulated) or the lab's PLC: with a namespace, named here.
+    require_own_plc(namespace, {name: arguments.get(name, '')
+                                for name in (('plc_port',) if simulated_wearer else ('plc_host', 'plc_port'))})
     if simulated_wearer:
         arguments.setdefault('plc_host', '127.0.0.1')
         arguments.setdefault('calibration_file', os.path.join(share, 'config', 'calibrations', 'sim-wearer.yaml'))

@@ -8,6 +8,9 @@ for every node (as `make demo` runs it).
     # a second suit beside the first, on the same domain (docs/interfaces.md, "Names and namespaces")
     ros2 launch fabric_guidance sim.launch.py namespace:=suit_b plc_port:=1602 gaze_port:=5105 display_port:=5106
 
+With a namespace, plc_port:= is required (the launch refuses to start without it): a second
+suit on the default port would reach the first suit's mock PLC.
+
 The lab graph starts once the mock PLC listens (plc_output's first connection then succeeds).
 On Ctrl-C the mock PLC stays up until plc_output has vented and closed its connection
 (mock_plc's shutdown_grace_s), whichever process the signal reaches first.
@@ -23,13 +26,19 @@ from launch_ros.actions import Node
 
 from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_listens, lab_node_kwargs,
                                                   launch_namespace, loopback_dds_actions, namespace_argument,
-                                                  study_argument, study_params_files)
+                                                  require_own_plc, study_argument, study_params_files)
+
+#: The mock PLC's port without a namespace (config/params/guidance.yaml's plc_port).
+DEFAULT_PLC_PORT = '1502'
 
 
 def _graph(context, *args, **kwargs):
     share = get_package_share_directory('fabric_guidance')
     sim_params = os.path.join(share, 'config', 'params', 'sim.yaml')
     plc_port = LaunchConfiguration('plc_port').perform(context)
+    # A second simulated suit with the default port would find the first suit's mock PLC there.
+    require_own_plc(launch_namespace(context), {'plc_port': plc_port})
+    plc_port = plc_port or DEFAULT_PLC_PORT
     gaze_port = LaunchConfiguration('gaze_port').perform(context)
     display_port = LaunchConfiguration('display_port').perform(context)
     lab = IncludeLaunchDescription(
@@ -74,8 +83,9 @@ def generate_launch_description():
         DeclareLaunchArgument('condition', default_value='1',
                               description='1 surface adjusted, 2 surface fixed, 3 arm adjusted, '
                                           '4 speech'),
-        DeclareLaunchArgument('plc_port', default_value='1502',
-                              description="the mock PLC's Modbus TCP port"),
+        DeclareLaunchArgument('plc_port', default_value='',
+                              description=f"the mock PLC's Modbus TCP port (empty: {DEFAULT_PLC_PORT}; "
+                                          'required with a namespace)'),
         DeclareLaunchArgument('gaze_port', default_value='5005',
                               description='UDP port of the gaze bridge'),
         DeclareLaunchArgument('display_port', default_value='5006',

@@ -6,8 +6,8 @@ controller as a node named pressure_controller, the PLC read back with a Modbus 
 - a second publisher of pressure_command (another node): refused, counted, registers untouched;
 - a bag recorded by the package's bag_recorder, its pressure_command played back into the live
   graph as `ros2 bag play` does (a node named rosbag2_player publishing the recorded CDR on the
-  recorded topic with the recorded QoS, read with rosbags), and by `fabric-guidance replay`'s
-  player: registers stay at 0;
+  recorded topic with the recorded QoS, read with rosbags): refused, registers stay at 0; and by
+  `fabric-guidance replay`'s player: it refuses to publish into a namespace with a plc_output;
 - plc_output frozen (SIGSTOP) while the controller publishes, the controller dead during the
   freeze, then SIGCONT: the commands that waited in the frozen process are aged from when they
   were sent, so none is written (the PLC watchdog is set long here, so only plc_output can vent).
@@ -203,19 +203,21 @@ def test_a_recorded_bag_played_back_moves_no_register(rig, tmp_path):
                what='every played-back command refused on /diagnostics')
     assert '/rosbag2_player' in refusals(r)[2]['refused by publisher']
 
-    # The package's own player (`fabric-guidance replay BAG --topics pressure_command`). It waits for
-    # every publisher of its own to be matched, /clock too: a subscriber of /clock here lets it start
-    # as soon as plc_output has matched, not at the end of --wait.
-    clock = r.probe.subscribe(Clock, CLOCK, qos_profile(CLOCK_KIND))
+    # The package's own player (`fabric-guidance replay BAG --topics pressure_command`) does not
+    # even publish: plc_output drives a suit in that namespace (bag/player.py's LiveGuard). It waits
+    # for every publisher of its own to be matched, /clock too: a subscriber of /clock here lets it
+    # look at the graph as soon as plc_output has matched, not at the end of --wait.
+    r.probe.subscribe(Clock, CLOCK, qos_profile(CLOCK_KIND))
     replay = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'replay', str(bag), '--topics',
                              PRESSURE_COMMAND, '--wait', str(MATCH_DEADLINE_S)],
                             env={**r.graph.env}, capture_output=True, text=True, timeout=120)
-    assert replay.returncode == 0, replay.stdout + replay.stderr
-    assert f'replaying {played} messages' in replay.stdout, replay.stdout
-    wait_until(lambda: clock, REFUSAL_REPORTED_S, what="the replay's /clock")
+    assert replay.returncode == 2, replay.stdout + replay.stderr
+    assert replay.stdout.strip() == ('fabric-guidance replay: refusing to publish /pressure_command: /plc_output '
+                                     'drives a suit there. A replay drives only a controller of its own (started '
+                                     'with use_sim_time:=true): replay into another ROS_DOMAIN_ID, or under a '
+                                     'namespace of its own with --namespace replay'), replay.stdout
     reads += hold_registers(r, np.zeros(N), HOLD_S, 'the bag replayed by fabric-guidance replay')
-    wait_until(lambda: '/bag_player' in refusals(r)[2]['refused by publisher'], REFUSAL_REPORTED_S,
-               what='the replay refused on /diagnostics')
+    assert '/bag_player' not in refusals(r)[2]['refused by publisher']   # nothing sent to refuse
     print(f'\n[provenance] bag of {played} commands at {peak:g} kPa played back twice: '
           f'{reads} register reads all 0')
 
@@ -327,8 +329,10 @@ def test_a_command_is_as_old_as_its_source_timestamp():
     now_ns = 10_000_000_000
     sent_1_2_s_ago = {'source_timestamp': now_ns - 1_200_000_000, 'received_timestamp': now_ns}
     assert sent_age_s(sent_1_2_s_ago, now_ns) == pytest.approx(1.2)
-    # A publisher's clock ahead of this host's: age 0, never negative (fresh for command_timeout_s).
-    assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == 0.0
+    # Stamped after now (a clock stepped back): negative, not 0, so plc_output cannot take it for
+    # fresh (it vents, counting it invalid).
+    assert sent_age_s({'source_timestamp': now_ns + 5_000_000, 'received_timestamp': 0}, now_ns) == \
+        pytest.approx(-0.005)
     # No source time (a middleware that gives 0): unknown age, refused by plc_output.
     assert sent_age_s({'source_timestamp': 0, 'received_timestamp': now_ns}, now_ns) is None
     assert sent_age_s(None, now_ns) is None

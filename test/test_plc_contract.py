@@ -22,7 +22,10 @@ from rosgraph import CONFIG, wait_until
 
 REGMAP = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
 N = len(REGMAP)
-SEQ, HEARTBEAT = N, N + 1
+SEQ, HEARTBEAT, VENT = N, N + 1, N + 2
+#: Holding and input registers: commands, sequence, heartbeat, vent register; measured, the
+#: claim holder's address (3).
+HOLDING, INPUT = N + 3, N + 3
 UNIT = REGMAP.unit_id
 P_MAX = REGMAP.p_max_counts
 WATCHDOG_S = 0.5
@@ -211,18 +214,18 @@ def armed(server, raw):
 def test_in_map_reads_and_writes_answer_normally(server, raw, armed):
     assert raw.command([100, 200, 300], seq=armed + 1) == echo16(0, N + 1)
     assert raw.registers(0, N + 1) == [100, 200, 300] + [0] * (N - 3) + [armed + 1]
-    assert len(raw.registers(0, N + 2)) == N + 2   # the whole map in one read
-    assert len(raw.registers(0, N, fc=4)) == N   # measured pressures: input registers 0..N-1
+    assert len(raw.registers(0, HOLDING)) == HOLDING   # the whole map in one read
+    assert len(raw.registers(0, INPUT, fc=4)) == INPUT   # measured pressures, the claim holder
 
 
 OUT_OF_MAP = {
-    'FC3 one past the heartbeat': (struct.pack('>BHH', 3, N + 2, 1), 3),
-    'FC3 block running past the map': (struct.pack('>BHH', 3, 0, N + 3), 3),
+    'FC3 one past the vent register': (struct.pack('>BHH', 3, HOLDING, 1), 3),
+    'FC3 block running past the map': (struct.pack('>BHH', 3, 0, HOLDING + 1), 3),
     'FC3 old heartbeat address 100': (struct.pack('>BHH', 3, 100, 1), 3),
-    'FC4 past the channels': (struct.pack('>BHH', 4, N, 1), 4),
-    'FC6 past the heartbeat': (struct.pack('>BHH', 6, N + 2, 1), 6),
+    'FC4 past the claim holder': (struct.pack('>BHH', 4, INPUT, 1), 4),
+    'FC6 past the vent register': (struct.pack('>BHH', 6, HOLDING, 1), 6),
     'FC6 old heartbeat address 100': (struct.pack('>BHH', 6, 100, 1), 6),
-    'FC16 running past the map': (struct.pack('>BHHB3H', 16, N, 3, 6, 1, 2, 3), 16),
+    'FC16 running past the map': (struct.pack('>BHHB3H', 16, N + 1, 3, 6, 1, 2, 1), 16),
     'FC3 at 65535': (struct.pack('>BHH', 3, 0xFFFF, 2), 3),
 }
 
@@ -231,7 +234,7 @@ OUT_OF_MAP = {
 def test_out_of_map_answers_exception_02(server, raw, case):
     pdu, fc = OUT_OF_MAP[case]
     assert raw.ask(pdu) == exception(fc, 2)
-    assert raw.registers(0, N + 2) == [0] * (N + 2)   # nothing written
+    assert raw.registers(0, HOLDING) == [0] * HOLDING   # nothing written
 
 
 @pytest.mark.parametrize('fc', [1, 2, 5, 15, 23, 43, 100])
@@ -364,7 +367,7 @@ def test_a_second_client_s_writes_are_refused_with_exception_06(server, raw, arm
         assert other.write16(0, [3000]) == exception(16, 6)
         # Reads are anyone's; the map's addresses are checked first (02 before 06).
         assert other.registers(0, 1) + other.registers(SEQ, 2)[:1] == [500, armed + 1]
-        assert other.write6(N + 2, 1) == exception(6, 2)
+        assert other.write6(HOLDING, 1) == exception(6, 2)
     finally:
         other.close()
     assert raw.registers(0, 1) + raw.registers(SEQ, 1) == [500, armed + 1]
@@ -451,6 +454,103 @@ def test_a_half_sent_request_of_the_claim_holder_closes_its_connection(server):
         other.close()
 
 
+# --------------------------------------------------------------------- the vent latch
+#: A vent request -> registers read 0: at once (the request zeroes them), a read round trip and slack.
+VENT_REQUEST_S = 0.01 + 0.3
+
+
+def hold_commands(raw: Raw, seq: int, counts: list[int], duration_s: float, check) -> int:
+    """The holder's ordinary writes (commands numbered on, its heartbeat running) for
+    duration_s, `check()` after each; returns the last sequence number used."""
+    end = time.monotonic() + duration_s
+    while time.monotonic() < end:
+        seq += 1
+        raw.command(counts, seq=seq)
+        check()
+        time.sleep(0.02)
+    return seq
+
+
+def test_a_vent_request_from_any_client_vents_until_the_holder_re_arms(server, raw, armed):
+    raw.command([2000] * N, seq=armed + 1)
+    assert raw.registers(0, 2) == [2000, 2000]
+    other = Raw(server.port)
+    try:
+        t0 = time.monotonic()
+        assert other.write6(VENT, 1) == struct.pack('>BHH', 6, VENT, 1)   # no claim needed
+        wait_until(lambda: other.registers(0, N) == [0] * N, VENT_REQUEST_S,
+                   what=f'registers 0 after another client\'s vent request ({server.kind})')
+        LOG.record(f'vent request from a second client -> registers 0 ({server.kind})',
+                   time.monotonic() - t0, VENT_REQUEST_S)
+        assert other.registers(VENT, 1) == [1]
+
+        def still_vented():
+            assert other.registers(0, N) == [0] * N and raw.registers(VENT, 1) == [1]
+        # The holder's commands and heartbeat go on: they do not lift it.
+        seq = hold_commands(raw, armed + 1, [2000] * N, 1.0, still_vented)
+        # Only the holder re-arms; 0 or any other value is no re-arm.
+        assert other.write6(VENT, 2) == exception(6, 6)
+        assert other.write6(VENT, 0) == exception(6, 3)
+        assert raw.write6(VENT, 0) == exception(6, 3)
+        assert raw.write16(SEQ, [seq + 1, 77, 1234]) == exception(16, 3)
+        still_vented()
+        # The re-arm starts nothing: the commands stay 0 until the holder's next command.
+        assert raw.write6(VENT, 2) == struct.pack('>BHH', 6, VENT, 2)
+        assert raw.registers(VENT, 1) == [0]
+        assert other.registers(0, N) == [0] * N
+        raw.command([700], seq=seq + 1)
+        assert raw.registers(0, 1) == [700]
+    finally:
+        other.close()
+
+
+def test_a_vent_request_takes_no_claim_and_outlives_the_holder(server):
+    requester, holder = Raw(server.port), Raw(server.port)
+    try:
+        assert requester.write6(VENT, 1) == struct.pack('>BHH', 6, VENT, 1)
+        heartbeat = Heartbeat(holder)   # the claim was free: the holder takes it
+        try:
+            seq = hold_commands(holder, 100, [2000], 0.8,
+                                lambda: holder.registers(0, 1) == [0] or pytest.fail('not vented'))
+            assert requester.write6(HEARTBEAT, 5) == exception(6, 6)   # holder's claim
+        finally:
+            heartbeat.stop()
+        holder.close()
+        assert requester.registers(VENT, 1) == [1]   # a new holder must re-arm explicitly
+        assert seq > 100
+    finally:
+        requester.close()
+        holder.close()
+
+
+def test_any_client_reads_the_claim_holder_s_address(server, raw, armed):
+    other = Raw(server.port)
+    try:
+        port = raw.sock.getsockname()[1]
+        assert other.registers(N, 3, fc=4) == [0x7F00, 0x0001, port]
+        raw.heartbeat.stop()
+        raw.close()
+        wait_until(lambda: other.registers(N, 3, fc=4) == [0, 0, 0], CLOSE_VENT_S,
+                   what='the claim holder\'s address cleared after its close')
+    finally:
+        other.close()
+
+
+def test_mbpoll_vents_a_foreign_writer_that_holds_the_claim(server, raw, armed):
+    """A tool (mbpoll, a foot switch on Modbus) stops the suit although another client holds
+    the PLC at 200 kPa with a live heartbeat."""
+    need_tools('mbpoll')
+    raw.command([2000] * N, seq=armed + 1)
+    t0 = time.monotonic()
+    out = mbpoll(server.port, '-a', str(UNIT), '-t', '4', '-r', str(VENT), values=('1',))
+    assert out.startswith('exit 0'), out
+    wait_until(lambda: raw.registers(0, N) == [0] * N, VENT_REQUEST_S, what='vented by mbpoll')
+    LOG.record(f'mbpoll vent request -> registers 0 ({server.kind})', time.monotonic() - t0,
+               VENT_REQUEST_S + 1.0)
+    hold_commands(raw, armed + 1, [2000] * N, 0.5,
+                  lambda: raw.registers(0, N) == [0] * N or pytest.fail('the writer lifted it'))
+
+
 # ------------------------------------------------------------------------------- clamp
 def test_over_limit_values_are_stored_clamped(server, raw, armed):
     assert raw.command([P_MAX + 1, 0xFFFF, P_MAX], seq=armed + 1) == echo16(0, N + 1)
@@ -510,7 +610,7 @@ def mbpoll_session(port: int) -> dict[str, str]:
         unit = ('-a', str(UNIT))
         return {
             'in-map read': mbpoll(port, *unit, '-t', '4', '-r', '0', '-c', str(N + 1)),
-            'out-of-map read': mbpoll(port, *unit, '-t', '4', '-r', str(N + 2), '-c', '1'),
+            'out-of-map read': mbpoll(port, *unit, '-t', '4', '-r', str(HOLDING), '-c', '1'),
             'out-of-map write': mbpoll(port, *unit, '-t', '4', '-r', '100', values=('5',)),
             'unknown function (coils)': mbpoll(port, *unit, '-t', '0', '-r', '0', '-c', '1'),
             # raw holds the write claim: a second client's write is refused, whatever its number.

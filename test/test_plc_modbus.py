@@ -256,8 +256,8 @@ def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_ma
         refused = compat.request(raw, 'write_register', 200, 1234, unit_id=reg_map.unit_id)
         assert compat.exception_code(refused) == 2
         # Starts on the last command register and runs past the end of the map (19 is the
-        # heartbeat, 20 is outside): refused whole.
-        refused = compat.request(raw, 'write_registers', 17, [1, 2, 3, 4], unit_id=reg_map.unit_id)
+        # heartbeat, 20 the vent register, 21 is outside): refused whole.
+        refused = compat.request(raw, 'write_registers', 17, [1, 2, 3, 4, 5], unit_id=reg_map.unit_id)
         assert compat.exception_code(refused) == 2
         seq = compat.request(raw, 'read_holding_registers', N, unit_id=reg_map.unit_id,
                              count=1).registers[0] + 1
@@ -267,11 +267,11 @@ def test_raw_writes_outside_map_are_refused_and_over_limit_stored_clamped(reg_ma
         stored = compat.request(raw, 'read_holding_registers', 0, unit_id=reg_map.unit_id,
                                 count=N + 2)
         assert stored.registers[0] == reg_map.p_max_counts and stored.registers[N] == seq
-        assert compat.exception_code(compat.request(raw, 'read_input_registers', N,
+        assert compat.exception_code(compat.request(raw, 'read_input_registers', N + 3,
                                                     unit_id=reg_map.unit_id, count=1)) == 2
     finally:
         raw.close()
-    assert steady_plc.out_of_map_writes == [(200, 1234), (20, 4)]
+    assert steady_plc.out_of_map_writes == [(200, 1234), (21, 5)]
     assert steady_plc.over_limit_writes == [(0, 5000)]
     assert steady_plc.max_written_kpa()['F1'] == 500.0
 

@@ -10,7 +10,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fabric_guidance.paths import config_path
-from fabric_guidance.plc.register_map import RegisterMap, RegisterMapError
+from fabric_guidance.plc.register_map import PlcLayout, RegisterMap, RegisterMapError
 
 CHANNELS = ['F1', 'F2', 'F3', 'F4', 'B1', 'B2', 'B3', 'B4', 'L1', 'L2', 'R1', 'R2',
             'arm_i', 'arm_ii', 'arm_iii', 'arm_iv', 'arm_v', 'arm_vi']
@@ -218,3 +218,26 @@ def test_sequence_register_is_optional_and_must_follow_the_command_block():
     on_heartbeat = dict(valid_dict(), sequence_register=18, heartbeat_register=18)
     with pytest.raises(RegisterMapError, match='"sequence_register".*heartbeat'):
         RegisterMap.from_dict(on_heartbeat)
+
+
+def test_the_vent_and_claim_holder_registers_are_optional_and_must_not_overlap():
+    assert RegisterMap.from_dict(valid_dict()).vent_register is None
+    shipped = RegisterMap.load(config_path('hardware/plc_register_map.yaml'))
+    assert (shipped.vent_register, shipped.claim_holder_register) == (20, 18)
+    assert shipped.is_mapped_holding(20) and not shipped.is_mapped_holding(21)
+    for field, value, reason in [('vent_register', 100, 'heartbeat_register'),
+                                 ('vent_register', 3, 'command register of channel'),
+                                 ('vent_register', 18.0, 'integer'),
+                                 ('claim_holder_register', 16, 'overlaps the measured registers'),
+                                 ('claim_holder_register', 65534, '0..65533')]:
+        with pytest.raises(RegisterMapError) as err:
+            RegisterMap.from_dict(dict(valid_dict(), **{field: value}), source='m.yaml')
+        assert f'"{field}"' in str(err.value) and reason in str(err.value), str(err.value)
+    # Several PLCs: each endpoint has the contract's layout, the vent register n + 2 included.
+    layout = PlcLayout.from_dict({'p_max_kpa': 375.0, 'counts_per_kpa': 10, 'endpoints': [
+        {'name': 'front', 'host': '10.0.0.1', 'unit_id': 1,
+         'channels': [{'name': n, 'command_register': i, 'measured_register': i}
+                      for i, n in enumerate(CHANNELS[:8])]}]})
+    front = layout.endpoint('front').map
+    assert (front.sequence_register, front.heartbeat_register, front.vent_register,
+            front.claim_holder_register) == (8, 9, 10, 8)

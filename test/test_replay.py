@@ -207,3 +207,64 @@ def test_pairing_offset_holds_when_the_recorder_stores_a_command_before_its_inpu
     command_ts[50:60] = [command_ts[59] + 1] * 10   # a stall: ten commands taken at once
     assert offline.pairing_offset(inputs, input_ts, command_ts) == 5
     assert offline.pairing_offset(inputs[1:], input_ts[1:], command_ts) == 5   # an input lost
+
+
+def replay_onto(graph, bag, *extra, timeout=60):
+    return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.replay', str(bag), '--wait', '10', *extra],
+                          capture_output=True, text=True, timeout=timeout, env=graph.env)
+
+
+def test_a_graph_replay_never_moves_a_live_suit(turning_session, tmp_path):
+    """A live graph (mock PLC, plc_output, an enabled pressure_controller on the wall clock, no
+    active target): the replay of a guided session refuses in one line before its first message;
+    under its own namespace it plays, unheard. The registers, read over Modbus all along, stay 0
+    and the controller never takes the recorded target."""
+    from fabric_guidance.plc import PlcClient, RegisterMap
+    from rosgraph import free_port
+    port = free_port()
+    files = ('params/guidance.yaml', 'params/sim.yaml')
+    graph = Graph(tmp_path / 'logs')
+    graph.start('mock_plc', files, port=port)
+    graph.start('plc_output', files, plc_port=port)
+    graph.start('pressure_controller', files, calibration_file=CAL, gain=0.05)
+    probe = Probe(graph.domain_id)
+    client = PlcClient(RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml'), '127.0.0.1', port)
+    reads, stop = [], [False]
+
+    def watch():   # every register read, over Modbus, while the replays run
+        while not stop[0]:
+            try:
+                reads.append(client.read_commands_kpa())
+            except Exception:  # noqa: BLE001 - the mock starting: no read yet
+                client.close()
+            time.sleep(0.01)
+    import threading
+    watcher = threading.Thread(target=watch, daemon=True)
+    try:
+        diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', 10)
+        wait_until(lambda: any('plc_output: PLC output' == s.name and s.message == 'writing commands'
+                               for m in diagnostics for s in m.status), 30.0,
+                   what="plc_output writing the enabled controller's commands (0: no target)")
+        watcher.start()
+        refused = replay_onto(graph, turning_session)
+        remapped = replay_onto(graph, turning_session, '--namespace', 'replay')
+        time.sleep(0.5)   # the registers watched past the replay's end
+        stop[0] = True
+        watcher.join(2)
+        targets = [s for m in diagnostics for s in m.status if s.name == 'pressure_controller: guidance']
+    finally:
+        stop[0] = True
+        client.close()
+        probe.close()
+        graph.stop_all()
+    assert len(reads) > 100, len(reads)
+    assert not any(np.any(r) for r in reads), f'a register moved: {next(r for r in reads if np.any(r))}'
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    lines = [line for line in refused.stdout.splitlines() if line.strip()]
+    assert len(lines) == 1 and 'refusing to publish' in lines[0] and (
+        '/plc_output drives a suit there' in lines[0] or '/pressure_controller runs on the wall clock' in lines[0]), \
+        refused.stdout
+    assert remapped.returncode == 0, remapped.stdout + remapped.stderr
+    assert 'under /replay' in remapped.stdout and 'messages republished' in remapped.stdout
+    assert targets and not any('t1' in kv.value or 't2' in kv.value for s in targets for kv in s.values
+                               if kv.key == 'target'), [kv for s in targets[-1:] for kv in s.values]

@@ -36,7 +36,8 @@ def test_the_package_writes_only_mapped_registers():
     """The register map names every holding register the client may write; the mock PLC
     records anything else, and every test graph fails on such a record (process_graph)."""
     m = RegisterMap.load(CONFIG / 'hardware/plc_register_map.yaml')
-    writable = set(m.command_registers) | {m.heartbeat_register, m.sequence_register}
+    writable = set(m.command_registers) | {m.heartbeat_register, m.sequence_register, m.vent_register}
+    assert m.vent_register is not None
     assert all(m.is_mapped_holding(a) for a in writable)
     assert not any(m.is_mapped_holding(a) for a in set(range(65536)) - writable)
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from .. import interface
-from ..interface import (ACTIVE_TARGET, CLOCK, COMMAND, DEFAULT, EVENT, GAZE, HEAD_POSE, LATCHED, QOS_KINDS, SENSOR,
-                         TARGET)
+from ..interface import (ACTIVE_TARGET, CLOCK, COMMAND, CONFIRM, DEFAULT, EVENT, GAZE, HEAD_POSE, LATCHED,
+                         LIVE_TARGETS, PRESSURE_COMMAND, QOS_KINDS, SENSOR, TARGET)
 
-__all__ = ['BAG_QOS', 'CLOCK', 'COMMAND', 'DEFAULT', 'EVENT', 'LATCHED', 'REPLAYED_INPUTS', 'SENSOR', 'TOPICS',
-           'bag_topic']
+__all__ = ['BAG_QOS', 'CLOCK', 'COMMAND', 'CONTROL_TOPICS', 'DEFAULT', 'EVENT', 'LATCHED', 'REPLAYED_INPUTS',
+           'SENSOR', 'TOPICS', 'bag_topic', 'is_control_topic']
 
 #: RMW_DURATION_INFINITE as rosbag2 (Jazzy and later) writes it.
 INFINITE = QosTime(9223372036, 854775807)
@@ -32,6 +32,16 @@ TOPICS: dict[str, tuple[str, str]] = {t.name: (t.type, t.qos) for t in interface
 
 #: What `fabric-guidance replay BAG` republishes (the controller's inputs), besides /clock.
 REPLAYED_INPUTS = (GAZE, HEAD_POSE, TARGET, ACTIVE_TARGET)
+#: The topics whose messages move a suit through a live graph (the controller's inputs, the
+#: command itself, a target's pose, a study's confirm): a replay never publishes them where a
+#: live controller hears them (bag/player.py).
+CONTROL_TOPICS = (GAZE, HEAD_POSE, TARGET, ACTIVE_TARGET, PRESSURE_COMMAND, CONFIRM, LIVE_TARGETS)
+
+
+def is_control_topic(name: str) -> bool:
+    """True for a topic of CONTROL_TOPICS in any namespace (live_targets/<name> included)."""
+    parts = [p for p in name.split('/') if p]
+    return bool(parts) and (parts[-1] in CONTROL_TOPICS or (len(parts) > 1 and parts[-2] == LIVE_TARGETS))
 
 
 def bag_topic(name: str, namespace: str = '/') -> str:

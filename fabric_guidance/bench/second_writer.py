@@ -5,7 +5,9 @@ be refused with exception 06 and never applied); plc_output is then killed, the 
 takes the PLC and holds SECOND_WRITER_KPA with its own heartbeat, and falls silent with its
 connection open (a half-open link: the death the PLC sees last). From then every command
 register must read 0 within the watchdog's deadline, its command must never come back, and
-the respawned plc_output must guide again. Judged from the register log alone.
+the respawned plc_output must guide again (after the operator's enable when it was kept out
+long enough to request the PLC's vent: docs/safety.md, "A stop from any connection"). Judged
+from the register log alone.
 """
 from __future__ import annotations
 
@@ -78,6 +80,7 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
              'pattern': pattern}
         restarts = g.restart_count('plc_output')
         lab.mark_log('plc_output')
+        logged = len(g.log('plc_output'))
         w['t_kill'] = time.monotonic()
         os.kill(g.processes['plc_output'].pid, signal.SIGKILL)
         wait_until(lambda: any(e.counts == pattern for e in log.poll().entries if e.t > w['t_kill']),
@@ -89,8 +92,14 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
         # Its command is still the last in the log: guidance is back once something else is.
         wait_until(lambda: any(e.t > w['t_die'] and e.vented for e in log.poll().entries), RECOVERY_S,
                    what=f'fault {index}: the vent after the second writer fell silent')
-        wait_until(lambda: not log.poll().entries[-1].vented and log.entries[-1].counts != pattern, RECOVERY_S,
-                   what=f'fault {index}: {kind}: guidance back')
+
+        def back():
+            # A plc_output kept out by this writer for two PLC watchdog times wrote the PLC's vent
+            # request and vented the controller: the stop holds until the operator's enable.
+            if 'operator_enable' not in w and 'controller vented:' in g.log('plc_output')[logged:]:
+                w['operator_enable'] = lab.enable()
+            return not log.poll().entries[-1].vented and log.entries[-1].counts != pattern
+        wait_until(back, RECOVERY_S, what=f'fault {index}: {kind}: guidance back')
         w['recovery_s'] = time.monotonic() - w['t_die']
     finally:
         writer.close()

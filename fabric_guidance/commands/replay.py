@@ -12,7 +12,10 @@
       republishes the recorded inputs (gaze, head_pose, target, active_target) with /clock
       for nodes started with use_sim_time:=true (pressure_controller reruns live on the bag's
       time); --loop plays again from the start, the clock jumping back. A damaged bag is not
-      republished (exit 2, naming the damage).
+      republished (exit 2, naming the damage). Never into a live graph: a topic that moves a
+      suit (gaze, target, pressure_command, ...) heard by a pressure_controller on the wall
+      clock or published where a plc_output runs stops the replay in one line (exit 2), before
+      its first message or at once while playing; --namespace NS publishes under /NS instead.
 
 A recording cut off before it was closed (no summary section, no or a stale metadata.yaml) is
 replayed, both ways, up to its last intact chunk, after one line saying what was recovered and
@@ -43,6 +46,9 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument('--loops', type=int, default=0, help='graph replay with --loop: stop after this many passes')
     p.add_argument('--topics', nargs='+', default=None, help='graph replay: topics to republish '
                    '(default gaze head_pose target active_target)')
+    p.add_argument('--namespace', default='', metavar='NS',
+                   help='graph replay: publish every topic under /NS (the replay\'s own controller started '
+                        'there, -r __ns:=/NS, with use_sim_time:=true); /clock stays /clock')
     p.add_argument('--wait', type=float, default=2.0,
                    help='graph replay: wait up to this long for subscribers before starting [s]')
     return p
@@ -78,13 +84,14 @@ def run(args, stream=sys.stdout) -> int:
     if args.set:
         say('fabric-guidance replay: --set applies to --offline; set parameters of the live nodes instead')
         return 2
-    from ..bag.player import play
+    from ..bag.player import LiveGraphError, play
     from ..bag.topics import REPLAYED_INPUTS
     try:
-        n = play(args.bag, args.topics or REPLAYED_INPUTS, args.rate, args.loop, args.loops, args.wait, say)
+        n = play(args.bag, args.topics or REPLAYED_INPUTS, args.rate, args.loop, args.loops, args.wait, say,
+                 namespace=args.namespace)
     except KeyboardInterrupt:
         return 0
-    except ValueError as exc:
+    except (ValueError, LiveGraphError) as exc:
         say(f'fabric-guidance replay: {exc}')
         return 2
     say(f'{n} messages republished')

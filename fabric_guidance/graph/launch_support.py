@@ -1,7 +1,8 @@
 """What the package's launch files share (imported by launch/*.launch.py only: it needs launch).
 
 - `namespace_argument`, `launch_namespace`: the launch argument namespace (every node of the
-  launch in it; the parameter files are keyed `/**/<node>` so that it keeps its configuration).
+  launch in it; the parameter files are keyed `/**/<node>` so that it keeps its configuration);
+  `require_own_plc` (suit_plc.py): a namespaced launch names its suit's own PLC address.
 - `NodeOverrides`: launch arguments as node-scoped parameter files, loaded after the parameter
   files so that they win by construction (a `/**` file, which is what launch_ros makes of a
   dict, wins or loses by the order rcl happens to merge its entries in), removed at shutdown.
@@ -31,6 +32,9 @@ from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
 from ..lab import discovery_server, lab_network, security_policy
+from .suit_plc import require_own_plc
+
+__all__ = ['require_own_plc']   # the launch files' rule on a namespaced suit's PLC (suit_plc.py)
 
 #: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
 MOCK_PLC_LISTENING = 'mock PLC listening on'

@@ -33,6 +33,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from .. import interface
 from ..lab.lab_network import PROFILE_VARIABLES, profile_env, profile_variable
+from .suit_plc import require_own_plc
 from ..paths import share_dir
 
 ROOT = share_dir()
@@ -177,6 +178,9 @@ class Graph:
         `-p name:=value` overrides. ``as_name``: the key of the process and its log (default: the
         node), so that a graph can run two of a node (two mock PLCs)."""
         proc_key = as_name or node
+        if node == 'plc_output':   # as the launch files: a namespaced suit names its own PLC
+            require_own_plc(self.namespace, {k: overrides.get(k) for k in ('plc_host', 'plc_port')},
+                            'Graph.start(plc_output) in')
         with self._lock:
             self.specs[proc_key] = (node, tuple(params_files), dict(overrides))
             self._stopping.discard(proc_key)

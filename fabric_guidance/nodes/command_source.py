@@ -104,9 +104,11 @@ class CommandSource:
 
 def sent_age_s(info: Mapping | None, now_ns: int | None = None) -> float | None:
     """How long ago the publisher sent the message [s] (its source_timestamp against this
-    host's system clock, never negative), or None when the middleware gave no source time."""
+    host's system clock), or None when the middleware gave no source time. Negative when it was
+    stamped "in the future" (a clock stepped back): its age is then unknown, and the caller must
+    not take it for fresh."""
     source_ns = info.get('source_timestamp', 0) if info else 0
     if not source_ns or source_ns <= 0:
         return None
     now_ns = time.time_ns() if now_ns is None else now_ns
-    return max(0.0, (now_ns - source_ns) * 1e-9)
+    return (now_ns - source_ns) * 1e-9

@@ -7,6 +7,12 @@ watchdog watches, reads the measured pressures back and publishes them. A lost l
 with an exponential backoff, and the latest fresh command is written again once it is back.
 On SIGINT/SIGTERM `run()` calls `safe_shutdown()`, which vents every channel before exiting.
 
+A stop from any connection (plc_stop.py): kept out of a PLC by another client's write claim for
+two plc_watchdog_s, the node writes the PLC's vent request and reports ERROR with the
+other client's address; a PLC's vent latch seen set (by anyone) calls the controller's vent; the
+latch is released only for a command with pressure that the controller sent after that vent was
+answered (so after the operator's enable).
+
 A lifecycle node (docs/lifecycle.md): configure reads the maps and connects; only while active
 are commands written; inactive writes zeros with the heartbeat (the link held, the suit vented);
 cleanup, shutdown and error processing vent every PLC, confirm it and close the links.
@@ -52,10 +58,11 @@ from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
 from fabric_guidance.nodes.log_throttle import LogThrottle
 from fabric_guidance.nodes.managed import ManagedNode
 from fabric_guidance.nodes.parameters import declare, declare_config_file
+from fabric_guidance.nodes.plc_stop import KEPT_OUT_WATCHDOGS, KeptOut, StopRelay, VentLatch
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from fabric_guidance.nodes.spin import run
 from fabric_guidance.paths import resolve
-from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError
+from fabric_guidance.plc import PlcClient, PlcEndpoint, PlcLayout, PlcLinkError, PlcRefusedError
 from fabric_guidance.plc.pymodbus_compat import PYMODBUS_VERSION
 
 #: Errors about bad commands or an unreachable PLC are logged at most this often [s].
@@ -75,13 +82,14 @@ class _Link:
         self.ever_up = False
         self.failures = self.reconnects = 0
         self.last_round_trip_s: float | None = None
+        self.kept_out = KeptOut()    # another client's claim, the PLC's vent latch (plc_stop.py)
 
     @property
     def up(self) -> bool:
         return self.state == UP
 
 
-class PlcOutput(ManagedNode):
+class PlcOutput(ManagedNode, VentLatch):
     """The PLC driver as a lifecycle node (nodes/managed.py): configure reads the maps and
     connects; active writes commands; inactive writes zeros and the heartbeat (the link is held,
     the suit vented); cleanup, shutdown and error vent every PLC and close the links."""
@@ -125,6 +133,10 @@ class PlcOutput(ManagedNode):
                                          read_only=True)
         if not self.command_publisher:
             raise ValueError('parameter "command_publisher" must name a node, got an empty string')
+        self.plc_watchdog_s = declare(self, 'plc_watchdog_s', 0.5,
+                                      "the PLC's watchdog time: refused as busy (another client's "
+                                      'write claim) for twice as long, the node writes the vent request',
+                                      's', 0.05, 60.0, read_only=True)
         diagnostics_period_s = declare(self, 'diagnostics_period_s', 1.0, '/diagnostics publication period',
                                        's', 0.05, 60.0, read_only=True)
         if self.reconnect_min_s > self.reconnect_max_s:
@@ -140,6 +152,10 @@ class PlcOutput(ManagedNode):
         self._source: CommandSource | None = None
         self._refused_reported = 0
         self._command_label = ''
+        # A stop of the whole system (plc_stop.py): the controller's vent, called when a PLC's
+        # vent latch is seen; the re-arm waits for its next command with pressure after that.
+        self._relay = StopRelay(time.time)
+        self._controller_vent = None
         # Per-command warnings (a controller gone wrong sends one per message): decided before rclpy.
         self._log_throttle = LogThrottle(LOG_THROTTLE_S)
         self._forget_command()
@@ -155,7 +171,9 @@ class PlcOutput(ManagedNode):
         self._zeros = np.zeros(self.n)
         self._command = self._zeros        # latest valid command, already clamped [kPa]
         self._command_s: float | None = None  # time.monotonic() of its arrival
+        self._command_sent_wall: float | None = None  # its source timestamp [s, wall clock]
         self._invalid = False              # the latest message was invalid: vent until a valid one
+        self._invalid_why = ''
         self._vent_reason = ''
 
     # --------------------------------------------------------------- lifecycle
@@ -188,6 +206,8 @@ class PlcOutput(ManagedNode):
         self._command_label = layout_label(channel_map.channels)
         self._command_sub = self.create_subscription(Float64MultiArray, PRESSURE_COMMAND, self._on_command,
                                                      COMMAND_QOS)
+        if self._controller_vent is None:
+            self._controller_vent = self.vent_client(full_name(self.command_publisher, self.get_namespace()))
         if self._source is None:   # kept over a cleanup and configure: its counts are the node's
             topic = self._command_sub.topic_name   # as resolved (namespace, remaps)
             self._source = CommandSource(
@@ -252,7 +272,11 @@ class PlcOutput(ManagedNode):
         p = np.asarray(msg.data, dtype=float)
         label = msg.layout.dim[0].label if msg.layout.dim else ''
         why = ''
-        if label != self._command_label:
+        if age_s < 0.0:
+            # Sent "in the future": a clock stepped back (or the sender's is ahead); its age is
+            # unknown, so it is not counted fresh.
+            why = f'sent {-age_s:.3f} s in the future by its source timestamp (a clock stepped back)'
+        elif label != self._command_label:
             why = f'channels "{label}", configured "{self._command_label}"'
         elif p.shape != (self.n,):
             why = f'{p.size} values, need {self.n}'
@@ -260,7 +284,7 @@ class PlcOutput(ManagedNode):
             why = f'non-finite values on channels {[int(i) for i in np.flatnonzero(~np.isfinite(p))]}'
         if why:
             self._invalid_commands += 1
-            self._invalid, self._command = True, self._zeros
+            self._invalid, self._invalid_why, self._command = True, why, self._zeros
             if self._log_throttle.due('invalid'):
                 self.get_logger().error(f'invalid pressure_command ({why}): venting all channels')
             if self.write_on_command and self._all_up():
@@ -272,6 +296,7 @@ class PlcOutput(ManagedNode):
         self._invalid = False
         self._command = np.clip(p, 0.0, self.p_max_kpa)
         self._command_s = time.monotonic() - age_s
+        self._command_sent_wall = time.time() - age_s
         if self.write_on_command and self._all_up():
             self._write_now()
 
@@ -283,6 +308,7 @@ class PlcOutput(ManagedNode):
         target = self._target(time.monotonic())[0]
         for link in self._links:
             try:
+                self._maybe_rearm(link, target)
                 link.client.write_pressures(target[link.indices])
             except PlcLinkError as exc:
                 self._link_lost(link, exc)
@@ -302,6 +328,7 @@ class PlcOutput(ManagedNode):
 
     # ------------------------------------------------------------------- cycle
     def _on_write_timer(self) -> None:
+        self._tell_controller()
         now = time.monotonic()
         healthy = self._all_up()
         target, reason = self._target(now)
@@ -324,9 +351,11 @@ class PlcOutput(ManagedNode):
                 continue
             try:
                 # The first failing request ends the link's cycle: one timeout at most.
+                self._maybe_rearm(link, target)
                 link.last_round_trip_s = link.client.write_pressures(target[link.indices])
                 link.client.write_heartbeat(self._heartbeat + 1)
                 measured[link.indices] = link.client.read_measured_kpa()
+                self._read_latch(link)
             except PlcLinkError as exc:
                 self._link_lost(link, exc)
                 return
@@ -355,7 +384,10 @@ class PlcOutput(ManagedNode):
             link.client.read_measured_kpa()
         except PlcLinkError as exc:
             self._link_lost(link, exc)
+            if link.kept_out.overdue(time.monotonic(), self.plc_watchdog_s):
+                self._request_vent(link)
             return
+        link.kept_out.up()
         if link.ever_up:
             link.reconnects += 1
         link.ever_up = True
@@ -366,6 +398,7 @@ class PlcOutput(ManagedNode):
         """A link failed: vent every other link now, retry this one on its backoff."""
         was = link.state
         link.state, link.last_error = exc.state, str(exc)
+        link.kept_out.refused(isinstance(exc, PlcRefusedError) and exc.code == 6, time.monotonic())
         if was == UP:
             link.failures += 1
         if exc.state == 'down':
@@ -386,16 +419,26 @@ class PlcOutput(ManagedNode):
     def _schedule_retry(self, link: _Link) -> None:
         link.next_attempt_s = time.monotonic() + link.backoff_s
         link.backoff_s = min(2.0 * link.backoff_s, self.reconnect_max_s)
+        since = link.kept_out.since
+        if since is not None and not link.kept_out.requested:
+            # Kept out: try again when the watchdog's time is up, not a backoff later.
+            link.next_attempt_s = min(link.next_attempt_s, since + KEPT_OUT_WATCHDOGS * self.plc_watchdog_s)
 
     # ------------------------------------------------------------- diagnostics
     def _on_diagnostics_timer(self) -> None:
         _, reason = self._target(time.monotonic())
+        if reason == 'invalid command':   # with its reason here (the cycle's log line stays one per change)
+            reason = f'invalid command ({self._invalid_why})'
         faulty = [link for link in self._links if not link.up]
         if faulty:
             level = DiagnosticStatus.ERROR
             message = '; '.join(self._link_message(link) for link in faulty)
             if len(self._links) > 1:
                 message = f'venting all PLCs: {message}'
+        elif any(link.kept_out.latched for link in self._links):
+            latched = [link.name for link in self._links if link.kept_out.latched]
+            level, message = DiagnosticStatus.WARN, (
+                f'vent latch set on PLC {", ".join(latched)}: vented until the operator enables')
         elif reason:
             level, message = DiagnosticStatus.WARN, f'venting: {reason}'
         else:
@@ -421,6 +464,9 @@ class PlcOutput(ManagedNode):
                   'refused by publisher': ' '.join(f'{k}={v}' for k, v in sorted(
                       (self._source.refused_by if self._source is not None else {}).items())) or 'none',
                   'last refusal': self._source.last_refusal if self._source is not None and refused else '',
+                  'vent latched': ' '.join(link.name for link in self._links if link.kept_out.latched) or 'none',
+                  'vent requests written': sum(link.kept_out.vent_requests for link in self._links),
+                  'controller vent calls': f'{self._relay.calls} ({self._relay.failures} failed)',
                   **self.lifecycle_values()}
         statuses = [status(self, 'PLC output', level, message, values, hardware_id=f'PLC {self.plc_address}')]
         for link in self._links:
@@ -431,13 +477,19 @@ class PlcOutput(ManagedNode):
                                     'unit id': link.client.map.unit_id,
                                     'channels': ' '.join(link.client.map.names),
                                     'link failures': link.failures,
-                                    'reconnects': link.reconnects}, hardware_id=f'PLC {link.client.address}'))
+                                    'reconnects': link.reconnects,
+                                    'claim holder': link.kept_out.holder or 'unknown',
+                                    'vent latched': link.kept_out.latched},
+                                   hardware_id=f'PLC {link.client.address}'))
         publish_diagnostics(self, self._diagnostics_pub, statuses)
 
     @staticmethod
     def _link_message(link: _Link) -> str:
         # "down" only for a link that is: a PLC that answers but refuses, or a unit id that
         # gets no answer, is a configuration fault with its own words.
+        if link.state == 'refused' and link.kept_out.since is not None:
+            return (f'PLC {link.name} {link.kept_out.describe(time.monotonic())}; commands not '
+                    f'written: {link.last_error}')
         if link.state == 'refused':
             return f'PLC {link.name} refuses (link up, commands not written): {link.last_error}'
         if link.state == 'no answer':

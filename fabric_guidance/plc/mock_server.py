@@ -6,7 +6,9 @@ register map's addresses only (exception 02 elsewhere), function codes 3, 4, 6, 
 others), the quantity limits (03), silence for another unit id, the write sequence gate (a stale
 or unnumbered command write is answered normally and undone), the clamp to p_max counts, the
 heartbeat watchdog, the write claim (one connection writes; others get exception 06; the
-holder's close or silence vents and frees it) and the regulator lag (regulator.py). It records every write it gets,
+holder's close or silence vents and frees it), the vent latch (a vent request from any
+connection; the holder's re-arm) and the regulator lag (regulator.py); the registers and the
+request handling are contract.py's. It records every write it gets,
 optionally to a file (records.py), so tests can assert what left the package.
 """
 from __future__ import annotations
@@ -20,239 +22,22 @@ from pathlib import Path
 
 import numpy as np
 
+from .contract import _Registers
 from .records import MAX_LISTED, write_records
 from .register_map import REGISTER_MAX, RegisterMap
 from .regulator import RegulatorSim
-from .sequence import SequenceGate
+
+__all__ = ['MockPlcServer', '_Registers']
 
 # ------------------------------------------------------------------------ mock PLC
 #: The records file lags the records by at most this [s] (plus one scan).
 RECORDS_PERIOD_S = 0.1
-#: Quantity limits of the Modbus specification: read 1..125 registers, write 1..123.
-MAX_READ, MAX_WRITE = 125, 123
 _MBAP = struct.Struct('>HHHB')   # transaction id, protocol id, length (unit id + PDU), unit id
 #: Largest PDU of Modbus TCP (a 260-byte ADU less the 7-byte MBAP header).
 MAX_PDU = 253
-#: The exception a write from a connection without the write claim gets (SERVER DEVICE BUSY).
-BUSY = 6
 #: A connection silent this long is closed, and one that sent part of a request and then
 #: nothing for PARTIAL_S (the PLC program's kIdleMs and kPartialFrameMs, plc_link.h).
 IDLE_S, PARTIAL_S = 10.0, 1.0
-
-
-class _Registers:
-    """The PLC's registers and what the PLC program does with a request (the contract).
-
-    Only the map's registers exist: holding = the command registers, the sequence register and
-    the heartbeat register; input = the measured registers (with the contract's layout, the
-    arrays 0..N+1 and 0..N-1). Thread-safe through ``lock``; no sockets here.
-    """
-
-    def __init__(self, register_map: RegisterMap, lock: threading.RLock):
-        m = register_map
-        self._map, self.lock = m, lock
-        self.commands = tuple(m.command_registers)
-        self.holding_addresses = frozenset(self.commands) | {m.heartbeat_register} | (
-            {m.sequence_register} if m.sequence_register is not None else set())
-        self.input_addresses = frozenset(m.measured_registers)
-        # The gate works on the request that carries commands and number together; a map
-        # without that block has no sequencing (its client writes the commands alone).
-        self.sequence = m.sequence_register if m.sequenced_block() is not None else None
-        self._channel_of = {c.command_register: c.name for c in m.channels}
-        self.holding: dict[int, int] = {}
-        self.input: dict[int, int] = {}
-        self.gate = SequenceGate()
-        self.max_written_counts: dict[str, int] = {}
-        self.out_of_map_writes: list[tuple[int, int]] = []
-        self.over_limit_writes: list[tuple[int, int]] = []
-        #: (sequence number or None when the request had none, last applied) of undone writes
-        self.stale_writes: list[tuple[int | None, int | None]] = []
-        self.writes = 0    # client write requests that reached the registers
-        #: The connection holding the write claim (None: free), whether its time is still to be
-        #: taken at the next scan, writes refused with exception 06, claims lost to a close.
-        self.owner: int | None = None
-        self.claim_pending = False
-        self.busy = 0
-        self.owner_lost = 0
-        self.version = 0   # bumped on every change of the records
-        #: (time.monotonic_ns(), first address, values) per client write, when timing is on
-        #: (the benchmarks' landing times); None: off, nothing is recorded.
-        self.write_times: list[tuple[int, int, tuple[int, ...]]] | None = None
-        #: (time.monotonic_ns(), cause, command counts as applied, largest command count sent)
-        #: whenever the applied commands change or a write sends more than p_max, when the
-        #: register log is on (the chaos run's invariants); None: off.
-        self.register_log: list[tuple[int, str, tuple[int, ...], int]] | None = None
-        self._logged_state: tuple[int, ...] | None = None
-        self.power_up()
-
-    def power_up(self) -> None:
-        """All registers 0, the gate without a reference; the records are kept."""
-        with self.lock:
-            self.holding = dict.fromkeys(self.holding_addresses, 0)
-            self.input = dict.fromkeys(self.input_addresses, 0)
-            self.gate.reset()
-            self.owner, self.claim_pending = None, False
-            self.log_state('power_up')
-
-    def log_state(self, cause: str, sent_max: int = 0) -> None:
-        """One register log entry if the applied commands changed or sent_max is above p_max
-        (called with the lock held)."""
-        if self.register_log is None:
-            return
-        state = tuple(self.holding[a] for a in self.commands)
-        if state == self._logged_state and sent_max <= self._map.p_max_counts:
-            return
-        self._logged_state = state
-        self.register_log.append((time.monotonic_ns(), cause, state, sent_max))
-
-    # ---- one request (PDU in, PDU out; None: no answer)
-    def handle(self, pdu: bytes, connection: int = 0) -> bytes:
-        """The answer to one request from `connection` (numbered by the server, never reused)."""
-        fc = pdu[0]
-        try:
-            if fc in (3, 4):
-                if len(pdu) != 5:
-                    return _exception(fc, 3)
-                start, quantity = struct.unpack('>HH', pdu[1:5])
-                if not 1 <= quantity <= MAX_READ:
-                    return _exception(fc, 3)
-                table = self.holding if fc == 3 else self.input
-                with self.lock:
-                    if not self._mapped(table, start, quantity):
-                        return _exception(fc, 2)
-                    values = [table[a] for a in range(start, start + quantity)]
-                return struct.pack(f'>BB{quantity}H', fc, 2 * quantity, *values)
-            if fc == 6:
-                if len(pdu) != 5:
-                    return _exception(fc, 3)
-                address, value = struct.unpack('>HH', pdu[1:5])
-                if not self._mapped(self.holding, address, 1):
-                    self._record_out_of_map(address, [value])
-                    return _exception(fc, 2)
-                if not self._may_write(connection):
-                    return _exception(fc, BUSY)
-                self.write(address, [value])
-                return pdu[:5]
-            if fc == 16:
-                if len(pdu) < 6:
-                    return _exception(fc, 3)
-                start, quantity, byte_count = struct.unpack('>HHB', pdu[1:6])
-                if (not 1 <= quantity <= MAX_WRITE or byte_count != 2 * quantity
-                        or len(pdu) != 6 + byte_count):
-                    return _exception(fc, 3)
-                values = list(struct.unpack(f'>{quantity}H', pdu[6:]))
-                if not self._mapped(self.holding, start, quantity):
-                    self._record_out_of_map(start, values)
-                    return _exception(fc, 2)
-                if not self._may_write(connection):
-                    return _exception(fc, BUSY)
-                self.write(start, values)
-                return pdu[:5]
-        except struct.error:
-            return _exception(fc, 3)
-        return _exception(fc, 1)
-
-    def _may_write(self, connection: int) -> bool:
-        """False when another connection holds the write claim (the whole request refused,
-        heartbeat included: another client's heartbeat must never keep the watchdog armed for
-        commands it did not write); a free claim is taken by `connection`."""
-        with self.lock:
-            if self.owner is not None and self.owner != connection:
-                self.busy += 1
-                self.version += 1
-                return False
-            if self.owner is None:
-                self.owner, self.claim_pending = connection, True
-                # A new writer's numbers have no relation to the last one's: its first is taken,
-                # as after power-up (an earlier connection's late writes are refused above).
-                self.gate.reset()
-            return True
-
-    def connection_closed(self, connection: int) -> bool:
-        """The server closed `connection`; True when it held the write claim (now free, the
-        command registers zeroed: the caller vents the outputs)."""
-        with self.lock:
-            if self.owner is None or self.owner != connection:
-                return False
-            self.owner, self.claim_pending = None, False
-            self.owner_lost += 1
-            self.version += 1
-            for a in self.commands:
-                self.holding[a] = 0
-            self.log_state('owner closed')
-            return True
-
-    @staticmethod
-    def _mapped(table: dict, start: int, quantity: int) -> bool:
-        return all(a in table for a in range(start, start + quantity))
-
-    def _record_out_of_map(self, start: int, values: list[int]) -> None:
-        # Refused with exception 02 and never stored, but recorded: the package must not try.
-        with self.lock:
-            self.out_of_map_writes.extend((a, v) for a, v in enumerate(values, start)
-                                          if a not in self.holding)
-            self.version += 1
-
-    def write(self, start: int, values: list[int]) -> None:
-        """A client write to mapped holding registers, as the PLC program applies it."""
-        m = self._map
-        with self.lock:
-            self.writes += 1
-            self.version += 1
-            landed_ns = time.monotonic_ns()
-            before = dict(self.holding)
-            sent_max = max((v for a, v in enumerate(values, start) if a in self._channel_of), default=0)
-            for a, v in enumerate(values, start):
-                name = self._channel_of.get(a)
-                if name is not None:
-                    # Recorded as sent (before the clamp and the gate): the records are about
-                    # what the package wrote.
-                    self.max_written_counts[name] = max(v, self.max_written_counts.get(name, 0))
-                    if v > m.p_max_counts:
-                        self.over_limit_writes.append((a, v))
-                    v = min(v, m.p_max_counts)   # stored clamped: never reaches an output
-                self.holding[a] = v
-            if self._undo_unless_sequenced(before, start, values):
-                self.log_state('stale write undone', sent_max)
-                return
-            self.log_state('write', sent_max)
-            if self.write_times is not None:
-                # CLOCK_MONOTONIC is system-wide: comparable with a sender's stamps in another
-                # process. Taken under the lock, so a take_write_times() never misses one.
-                self.write_times.append((landed_ns, start, tuple(values)))
-
-    def _undo_unless_sequenced(self, before: dict[int, int], start: int,
-                               values: list[int]) -> bool:
-        """The sequence gate on a write just stored; True when it was undone."""
-        seq = self.sequence
-        if seq is None:
-            return False
-        commands_changed = any(self.holding[a] != before[a] for a in self.commands)
-        seq_changed = self.holding[seq] != before[seq]
-        if not (commands_changed or seq_changed):
-            return False
-        last = self.gate.last
-        if seq_changed and self.gate.accept(self.holding[seq]):
-            return False
-        # Not newer, or no number at all: answered normally but undone (the library the PLC
-        # program runs on writes first and offers no hook; the program restores).
-        for a in self.commands + (seq,):
-            self.holding[a] = before[a]
-        written_seq = values[seq - start] if start <= seq < start + len(values) else None
-        self.stale_writes.append((written_seq, last))
-        return True
-
-    def force_commands_zero(self) -> None:
-        """The watchdog's vent: done by the PLC itself, not a client write (not recorded)."""
-        with self.lock:
-            for a in self.commands:
-                self.holding[a] = 0
-            self.log_state('watchdog')
-
-
-def _exception(fc: int, code: int) -> bytes:
-    """An exception response PDU: the function code with its high bit set, then the code."""
-    return bytes([(fc | 0x80) & 0xFF, code])
 
 
 class MockPlcServer:
@@ -410,6 +195,8 @@ class MockPlcServer:
         """One client connection: request, answer, in order (Modbus TCP, MBAP framing)."""
         self._writers.add(writer)
         connection = next(self._connection_ids)
+        peername = writer.get_extra_info('peername')
+        peer = (str(peername[0]), int(peername[1])) if peername else ('', 0)
         try:
             while True:
                 # Nothing for IDLE_S, or a request cut short: a dead peer's connection is closed
@@ -422,7 +209,7 @@ class MockPlcServer:
                 pdu = await asyncio.wait_for(reader.readexactly(length - 1), PARTIAL_S)
                 if unit != self.map.unit_id:
                     continue  # another unit id: no answer at all; the connection stays open
-                answer = self._holding.handle(pdu, connection)
+                answer = self._holding.handle(pdu, connection, peer)
                 writer.write(_MBAP.pack(tid, 0, len(answer) + 1, unit) + answer)
                 await writer.drain()
         except (asyncio.IncompleteReadError, ConnectionError, asyncio.TimeoutError):
@@ -462,6 +249,8 @@ class MockPlcServer:
         """One PLC scan: watchdog, vent if tripped, regulator step, measured -> input registers."""
         m, h = self.map, self._holding
         with self._lock:
+            if h.latched and any(h.holding[a] for a in h.commands):
+                h.force_commands_zero('vent latch')
             counts = [h.holding[a] for a in m.command_registers]
             result = self._sim.scan(list(m.decode(counts)), h.holding[m.heartbeat_register], now_s)
             if result.vent:
@@ -501,6 +290,8 @@ class MockPlcServer:
                 'stale_count': len(h.stale_writes), 'stale_writes': h.stale_writes[:MAX_LISTED],
                 'watchdog_trips': self._sim.watchdog.trips,
                 'busy_count': h.busy, 'owner_lost_count': h.owner_lost,
+                'vent_request_count': h.vent_requests, 'rearm_count': h.rearms,
+                'vent_latched': h.latched,
             }
 
     def save_records(self) -> None:
@@ -583,6 +374,12 @@ class MockPlcServer:
         """How often the watchdog vented after heartbeats stopped (kept across restarts)."""
         with self._lock:
             return self._sim.watchdog.trips
+
+    @property
+    def vent_latched(self) -> bool:
+        """True while the vent latch holds (a vent request, not yet re-armed by the holder)."""
+        with self._lock:
+            return self._holding.latched
 
     @property
     def watchdog_armed(self) -> bool:

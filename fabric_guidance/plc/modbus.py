@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from . import pymodbus_compat as compat
-from .register_map import REGISTER_MAX, RegisterMap
+from .register_map import CLAIM_HOLDER_REGISTERS, REARM, REGISTER_MAX, VENT_REQUEST, RegisterMap
 from .sequence import SEQ_MODULUS, resync
 
 #: The states of a link that is not up, as PlcLinkError.state and plc_output's /diagnostics say.
@@ -120,6 +120,39 @@ class PlcClient:
         """Write the heartbeat counter (taken mod 65536, so a plain ever-growing counter works)."""
         self._call('write heartbeat', 'write_register', self.map.heartbeat_register,
                    int(value) & REGISTER_MAX)
+
+    # ---- the vent latch (register_map.VENT_REQUEST / REARM; docs/plc.md "Vent request")
+    def request_vent(self) -> None:
+        """Write the vent request: taken from any client, write claim or not; the PLC vents at
+        once and stays vented until the claim's holder re-arms."""
+        self._call('write vent request', 'write_register', self._vent_register(), VENT_REQUEST)
+
+    def rearm(self) -> None:
+        """Release the vent latch (the claim's holder only; others get exception 06). Starts
+        nothing: the commands stay 0 until the next command write."""
+        self._call('write re-arm', 'write_register', self._vent_register(), REARM)
+
+    def read_vent_latched(self) -> bool:
+        """True while the PLC's vent latch holds."""
+        return bool(self._call('read vent register', 'read_holding_registers', self._vent_register(),
+                               count=1).registers[0])
+
+    def read_claim_holder(self) -> str:
+        """'address:port' of the client holding the PLC's write claim; '' while it is free or when
+        the map has no claim_holder_register."""
+        first = self.map.claim_holder_register
+        if first is None:
+            return ''
+        hi, lo, port = self._call('read claim holder', 'read_input_registers', first,
+                                  count=CLAIM_HOLDER_REGISTERS).registers
+        if not (hi or lo or port):
+            return ''
+        return f'{hi >> 8}.{hi & 0xFF}.{lo >> 8}.{lo & 0xFF}:{port}'
+
+    def _vent_register(self) -> int:
+        if self.map.vent_register is None:
+            raise ValueError(f'{self.map.source}: no vent_register: this PLC has no vent latch')
+        return self.map.vent_register
 
     def write_counts(self, counts: Sequence[int]) -> None:
         """Raw register counts to the command registers, as they are (no clamp, no scaling):

@@ -38,13 +38,19 @@ MAX_CHANNELS = 123
 UNIT_ID_RANGE = (1, 247)
 
 _TOP_FIELDS = ('unit_id', 'p_max_kpa', 'counts_per_kpa', 'heartbeat_register', 'channels')
-#: Fields a map may leave out (a PLC program without write sequencing).
-_OPTIONAL_FIELDS = ('sequence_register',)
+#: Fields a map may leave out (a PLC program without write sequencing, or without the vent latch).
+_OPTIONAL_FIELDS = ('sequence_register', 'vent_register', 'claim_holder_register')
+#: Values of the vent register (docs/plc.md): written, VENT_REQUEST latches the vent (from any
+#: connection) and REARM releases it (the write claim's holder only); read, 1 while latched.
+VENT_REQUEST, REARM = 1, 2
+#: Input registers from claim_holder_register on: the write claim holder's IPv4 address (high
+#: and low 16 bits) and TCP port; all 0 while the claim is free.
+CLAIM_HOLDER_REGISTERS = 3
 _CHANNEL_FIELDS = ('name', 'command_register', 'measured_register')
 #: The fields of a file with several PLCs, and of each of its endpoints.
 _LAYOUT_FIELDS = ('p_max_kpa', 'counts_per_kpa', 'endpoints')
 _ENDPOINT_FIELDS = ('name', 'host', 'port', 'unit_id', 'heartbeat_register', 'sequence_register',
-                    'channels')
+                    'vent_register', 'claim_holder_register', 'channels')
 _ENDPOINT_REQUIRED = ('name', 'host', 'unit_id', 'channels')
 
 
@@ -80,6 +86,11 @@ class RegisterMap:
     #: Holding register right after the command block that carries each write's sequence
     #: number (plc/sequence.py); None: the PLC does not check write order.
     sequence_register: int | None = None
+    #: Holding register of the PLC's vent latch (VENT_REQUEST from any client, REARM from the
+    #: claim's holder); None: the PLC has none.
+    vent_register: int | None = None
+    #: First of the CLAIM_HOLDER_REGISTERS input registers naming the claim's holder; None: none.
+    claim_holder_register: int | None = None
 
     # ------------------------------------------------------------------ views
     @property
@@ -137,6 +148,7 @@ class RegisterMap:
         """True for the holding registers the package may write: the commands, the heartbeat and
         the sequence register."""
         return (address == self.heartbeat_register or address == self.sequence_register
+                or (self.vent_register is not None and address == self.vent_register)
                 or address in self.command_registers)
 
     # ------------------------------------------------------------- conversion
@@ -250,12 +262,30 @@ class RegisterMap:
                                                 + (f' ({block[0] + block[1]})' if block else ''))
             if sequence == heartbeat:
                 raise fail('sequence_register', f'{sequence} is also the heartbeat_register')
+        vent = None
+        if data.get('vent_register') is not None:
+            vent = _integer(data['vent_register'], 0, REGISTER_MAX, fail, 'vent_register')
+            taken = {heartbeat: 'heartbeat_register', sequence: 'sequence_register'}
+            taken.update({c.command_register: f'the command register of channel {excerpt(c.name)}'
+                          for c in channels})
+            if vent in taken:
+                raise fail('vent_register', f'{vent} is also {taken[vent]}')
+        holder = None
+        if data.get('claim_holder_register') is not None:
+            holder = _integer(data['claim_holder_register'], 0, REGISTER_MAX - CLAIM_HOLDER_REGISTERS + 1,
+                              fail, 'claim_holder_register')
+            clash = [c.name for c in channels
+                     if holder <= c.measured_register < holder + CLAIM_HOLDER_REGISTERS]
+            if clash:
+                raise fail('claim_holder_register', f'{holder}..{holder + CLAIM_HOLDER_REGISTERS - 1} '
+                                                    f'overlaps the measured registers of {clash}')
         if expected_channels is not None:
             names = [c.name for c in channels]
             if names != list(expected_channels):
                 raise fail('channels', f'names {names} do not match the expected channels, in order, '
                                        f'{list(expected_channels)}')
-        return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source, sequence_register=sequence)
+        return cls(unit_id, p_max, scale, heartbeat, tuple(channels), source, sequence_register=sequence,
+                   vent_register=vent, claim_holder_register=holder)
 
 
 @dataclass(frozen=True)
@@ -357,9 +387,12 @@ class PlcLayout:
             n = len(channels) if isinstance(channels, list) else 0
             sub = {'unit_id': unit_id, 'p_max_kpa': data['p_max_kpa'],
                    'counts_per_kpa': data['counts_per_kpa'], 'channels': channels,
-                   # The PLC contract's layout unless stated: sequence n, heartbeat n + 1.
+                   # The PLC contract's layout unless stated: sequence n, heartbeat n + 1,
+                   # vent n + 2; the claim holder's address in input registers n..n + 2.
                    'heartbeat_register': entry.get('heartbeat_register', n + 1),
-                   'sequence_register': entry.get('sequence_register', n)}
+                   'sequence_register': entry.get('sequence_register', n),
+                   'vent_register': entry.get('vent_register', n + 2),
+                   'claim_holder_register': entry.get('claim_holder_register', n)}
             m = RegisterMap.from_dict(sub, f'{source}: {where} ({name})')
             maps.append((name, host, port, m))
         all_names = [c for *_, m in maps for c in m.names]

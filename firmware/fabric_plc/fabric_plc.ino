@@ -51,7 +51,11 @@ void accept_client(uint32_t now) {
     return;
   }
   clients[free_slot] = incoming;
-  plc::open_connection(connections[free_slot], next_id++, now);
+  const IPAddress ip = incoming.remoteIP();
+  const plc::Peer peer = {(static_cast<uint32_t>(ip[0]) << 24) | (static_cast<uint32_t>(ip[1]) << 16) |
+                              (static_cast<uint32_t>(ip[2]) << 8) | ip[3],
+                          incoming.remotePort()};
+  plc::open_connection(connections[free_slot], next_id++, now, peer);
   if (next_id == 0) next_id = 1;
   if (used + 1 < kSockets - 1) return;
   uint8_t idlest = kSockets;

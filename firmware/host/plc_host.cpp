@@ -213,6 +213,9 @@ void write_state(const Options& o, const plc::Core& core, const std::vector<uint
   s += ", \"watchdog_trips\": " + std::to_string(r.watchdog_trips);
   s += ", \"busy_count\": " + std::to_string(r.busy);
   s += ", \"owner_lost_count\": " + std::to_string(r.owner_lost);
+  s += ", \"vent_request_count\": " + std::to_string(r.vent_requests);
+  s += ", \"rearm_count\": " + std::to_string(r.rearms);
+  s += ", \"vent_latched\": " + std::string(core.vent_latched() ? "true" : "false");
   s += ", \"owner\": " + std::to_string(core.owner());
   s += ", \"closed\": {\"peer_closed\": " + std::to_string(reaped[plc::kPeerClosed]) +
        ", \"idle\": " + std::to_string(reaped[plc::kIdle]) +
@@ -307,7 +310,10 @@ int main(int argc, char** argv) {
     t = now_ms();
     const uint64_t serve_start_us = now_us();
     if (ready > 0 && (fds[0].revents & POLLIN)) {
-      int fd = accept4(listener, nullptr, nullptr, SOCK_NONBLOCK);
+      sockaddr_in from;
+      socklen_t from_len = sizeof(from);
+      memset(&from, 0, sizeof(from));
+      int fd = accept4(listener, reinterpret_cast<sockaddr*>(&from), &from_len, SOCK_NONBLOCK);
       if (fd >= 0) {
         setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
         setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &kSendBuffer, sizeof(kSendBuffer));
@@ -327,7 +333,8 @@ int main(int argc, char** argv) {
         }
         Client c;
         c.link.fd = fd;
-        plc::open_connection(c.connection, next_id++, t);
+        plc::open_connection(c.connection, next_id++, t,
+                             plc::Peer{ntohl(from.sin_addr.s_addr), ntohs(from.sin_port)});
         clients.push_back(c);
       }
     }
@@ -360,7 +367,8 @@ int main(int argc, char** argv) {
                    std::to_string(core.owner()) + ",";
       now_state += std::to_string(r.stale + r.unsequenced) + "," +
                    std::to_string(r.watchdog_trips) + "," +
-                   std::to_string(r.out_of_map) + "," + std::to_string(r.over_limit);
+                   std::to_string(r.out_of_map) + "," + std::to_string(r.over_limit) + "," +
+                   std::to_string(r.vent_requests) + "," + std::to_string(r.rearms);
       // Outputs and counters on every change; the rest (write counts) at most every 100 ms.
       if (now_state != written || static_cast<uint32_t>(t - last_state) >= 100) {
         written = now_state;

@@ -114,12 +114,12 @@ void test_mbap_echo_and_read_holding() {
 
 void test_out_of_map_answers_02() {
   plc::Core core(config());
-  CHECK(is_exception(ask_pdu(core, read_pdu(3, 0, kN + 3)), 3, 2));   // one past the heartbeat
+  CHECK(is_exception(ask_pdu(core, read_pdu(3, 0, kN + 4)), 3, 2));   // one past the vent register
   CHECK(is_exception(ask_pdu(core, read_pdu(3, 100, 1)), 3, 2));      // the old heartbeat address
-  CHECK(is_exception(ask_pdu(core, read_pdu(4, kN - 1, 2)), 4, 2));   // inputs: N only
-  CHECK(ask_pdu(core, read_pdu(4, 0, kN)).size() == 2 + 2 * kN);
-  CHECK(is_exception(ask_pdu(core, write6_pdu(kN + 2, 1)), 6, 2));
-  CHECK(is_exception(ask_pdu(core, write16_pdu(kN, {1, 2, 3})), 16, 2));
+  CHECK(is_exception(ask_pdu(core, read_pdu(4, kN + 2, 2)), 4, 2));   // inputs: N + 3
+  CHECK(ask_pdu(core, read_pdu(4, 0, kN + 3)).size() == 2 + 2 * (kN + 3));
+  CHECK(is_exception(ask_pdu(core, write6_pdu(kN + 3, 1)), 6, 2));
+  CHECK(is_exception(ask_pdu(core, write16_pdu(kN + 1, {1, 2, 3})), 16, 2));
   CHECK(is_exception(ask_pdu(core, read_pdu(3, 0xffff, 2)), 3, 2));   // no 16-bit wrap-around
   CHECK(core.records().out_of_map == 2);
   CHECK(core.holding(kN) == 0 && core.holding(kN + 1) == 0);          // nothing written
@@ -386,7 +386,7 @@ void test_a_second_connection_is_refused_with_06_whole() {
   ask_pdu(core, command_pdu({500}, 10));
   CHECK(is_exception(ask_from(core, 2, command_pdu({3000}, 2000)), 16, 6));
   CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 1, 4242)), 6, 6));
-  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 2, 1)), 6, 2));  // 02 before 06
+  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 3, 1)), 6, 2));  // 02 before 06
   CHECK(ask_from(core, 2, read_pdu(3, 0, 1)).size() == 4);               // reads are anyone's
   core.scan(t + 10);
   CHECK(core.holding(0) == 500 && core.holding(kN + 1) != 4242 && core.records().busy == 2);
@@ -439,6 +439,77 @@ void test_a_claim_without_a_heartbeat_expires() {
   core.scan(600);
   CHECK(core.owner() == 0);
   CHECK(ask_from(core, 2, write6_pdu(kN + 1, 9)).size() == 5 && core.owner() == 2);
+}
+
+Bytes ask_from_peer(plc::Core& core, plc::ConnectionId connection, plc::Peer peer,
+                    const Bytes& pdu) {
+  uint8_t out[plc::kMaxAdu];
+  Bytes f = adu(pdu);
+  size_t n = core.handle(connection, f.data(), f.size(), out, sizeof(out), peer);
+  if (n == 0) return Bytes();
+  return Bytes(out + plc::kMbapLength, out + n);
+}
+
+void test_a_vent_request_from_any_connection_holds_until_the_holder_rearms() {
+  plc::Core core(config());
+  uint32_t t = arm(core, 0);  // kConn holds the claim
+  ask_pdu(core, command_pdu({2000, 2000}, 10));
+  core.scan(t + 10);
+  CHECK(core.output_counts(0) == 2000);
+  // Another connection's vent request: a normal answer, every command 0 at once.
+  CHECK(ask_from(core, 2, write6_pdu(kN + 2, plc::kVentRequest)).size() == 5);
+  CHECK(core.vent_latched() && core.holding(0) == 0 && core.output_counts(1) == 0);
+  CHECK(core.holding(kN + 2) == 1 && core.owner() == kConn);
+  // The holder's ordinary writes (commands, heartbeat) do not lift it.
+  for (uint32_t k = 1; k < 100; ++k) {
+    ask_pdu(core, command_pdu({3000}, static_cast<uint16_t>(10 + k)));
+    ask_pdu(core, write6_pdu(kN + 1, static_cast<uint16_t>(core.holding(kN + 1) + 1)));
+    CHECK(core.holding(0) == 0);
+    core.scan(t + 10 + 10 * k);
+    CHECK(core.output_counts(0) == 0 && core.holding(kN) == 10 + k);
+  }
+  t += 1000;
+  // Nobody but the holder re-arms; a value other than the two is refused with 03.
+  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 2, plc::kRearm)), 6, 6));
+  CHECK(is_exception(ask_from(core, 2, write6_pdu(kN + 2, 0)), 6, 3));
+  CHECK(is_exception(ask_pdu(core, write6_pdu(kN + 2, 0)), 6, 3));
+  CHECK(is_exception(ask_pdu(core, write16_pdu(kN, {200, 1, 7})), 16, 3));
+  CHECK(core.vent_latched());
+  // The holder's re-arm starts nothing: the commands stay 0 until its next command write.
+  CHECK(ask_pdu(core, write6_pdu(kN + 2, plc::kRearm)).size() == 5);
+  ask_pdu(core, write6_pdu(kN + 1, static_cast<uint16_t>(core.holding(kN + 1) + 1)));
+  core.scan(t + 10);
+  CHECK(!core.vent_latched() && core.holding(kN + 2) == 0 && core.output_counts(0) == 0);
+  ask_pdu(core, command_pdu({700}, 500));
+  core.scan(t + 20);
+  CHECK(core.output_counts(0) == 700);
+  CHECK(core.records().vent_requests == 1 && core.records().rearms == 1);
+}
+
+void test_a_vent_request_takes_no_claim_and_outlives_the_holder() {
+  plc::Core core(config());
+  core.scan(0);
+  CHECK(ask_from(core, 3, write16_pdu(kN + 2, {plc::kVentRequest})).size() == 5);
+  CHECK(core.owner() == 0 && core.vent_latched());
+  uint32_t t = arm(core, 10);  // kConn claims with its heartbeat
+  ask_pdu(core, command_pdu({900}, 1));
+  core.scan(t + 10);
+  CHECK(core.owner() == kConn && core.output_counts(0) == 0);
+  core.connection_closed(kConn);
+  CHECK(core.vent_latched());  // a new holder must re-arm explicitly
+}
+
+void test_the_claim_holder_s_address_is_in_the_input_registers() {
+  plc::Core core(config());
+  Bytes r = ask_pdu(core, read_pdu(4, kN, 3));
+  CHECK(r.size() == 8 && r[2] == 0 && r[3] == 0 && r[6] == 0 && r[7] == 0);  // free: 0
+  const plc::Peer peer = {0x0a000105u, 40312};  // 10.0.1.5:40312
+  ask_from_peer(core, 4, peer, write6_pdu(kN + 1, 1));
+  r = ask_from(core, 5, read_pdu(4, kN, 3));
+  CHECK(r.size() == 8 && ((r[2] << 8) | r[3]) == 0x0a00 && ((r[4] << 8) | r[5]) == 0x0105 &&
+        ((r[6] << 8) | r[7]) == 40312);
+  core.connection_closed(4);
+  CHECK(core.input(kN) == 0 && core.input(kN + 1) == 0 && core.input(kN + 2) == 0);
 }
 
 // A platform connection for serve_once: what arrived, room to send, the peer's state.
@@ -547,6 +618,9 @@ int main() {
   RUN(test_the_holder_s_close_vents_and_frees_the_claim);
   RUN(test_a_silent_holder_loses_the_claim_with_the_watchdog);
   RUN(test_a_claim_without_a_heartbeat_expires);
+  RUN(test_a_vent_request_from_any_connection_holds_until_the_holder_rearms);
+  RUN(test_a_vent_request_takes_no_claim_and_outlives_the_holder);
+  RUN(test_the_claim_holder_s_address_is_in_the_input_registers);
   RUN(test_serve_once_answers_one_request_per_pass);
   RUN(test_serve_once_never_writes_what_does_not_fit);
   RUN(test_serve_once_reaps_dead_and_idle_connections);

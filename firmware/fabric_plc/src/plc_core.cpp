@@ -49,15 +49,21 @@ void Core::power_up() {
   last_change_ms_ = 0;
   bad_frame_ = false;
   owner_ = 0;
+  owner_peer_ = Peer();
+  // A power cycle releases the vent latch (it is not kept in EEPROM); the suit is vented at
+  // power-up anyway until a client's heartbeat arms the watchdog (docs/plc.md).
+  latched_ = false;
   claim_pending_ = false;
   owner_heard_ms_ = 0;
   handling_ = 0;
+  handling_peer_ = Peer();
 }
 
 size_t Core::handle(ConnectionId connection, const uint8_t* req, size_t len, uint8_t* out,
-                    size_t cap) {
+                    size_t cap, Peer peer) {
   bad_frame_ = false;
   handling_ = connection;
+  handling_peer_ = peer;
   if (cap < kMaxAdu) return 0;
   // MBAP: transaction id (2), protocol id (2, always 0), length (2: unit id + PDU), unit id.
   if (len < kMbapLength + 1 || be16(req + 2) != 0 || be16(req + 4) != len - 6) {
@@ -97,7 +103,7 @@ size_t Core::read_registers(const uint8_t* pdu, size_t len, uint8_t* pdu_out, si
   if (quantity == 0 || quantity > kMaxReadQuantity) {
     return exception(pdu[0], kIllegalDataValue, pdu_out);
   }
-  const uint32_t size = holding ? holding_count() : config_.channels;
+  const uint32_t size = holding ? holding_count() : input_count();
   if (static_cast<uint32_t>(start) + quantity > size) {
     return exception(pdu[0], kIllegalDataAddress, pdu_out);
   }
@@ -105,7 +111,7 @@ size_t Core::read_registers(const uint8_t* pdu, size_t len, uint8_t* pdu_out, si
   pdu_out[0] = pdu[0];
   pdu_out[1] = static_cast<uint8_t>(2 * quantity);
   for (uint16_t i = 0; i < quantity; ++i) {
-    put_be16(pdu_out + 2 + 2 * i, holding ? holding_[start + i] : input_[start + i]);
+    put_be16(pdu_out + 2 + 2 * i, holding ? holding_[start + i] : input(start + i));
   }
   return 2 + 2 * quantity;
 }
@@ -118,7 +124,12 @@ size_t Core::write_single(const uint8_t* pdu, size_t len, uint8_t* pdu_out) {
     ++records_.out_of_map;
     return exception(pdu[0], kIllegalDataAddress, pdu_out);
   }
-  if (!may_write(handling_)) return exception(pdu[0], kServerDeviceBusy, pdu_out);
+  bool vent_only = false;
+  const uint8_t refused = vent_register_check(address, pdu + 3, 1, &vent_only);
+  if (refused) return exception(pdu[0], refused, pdu_out);
+  if (!vent_only && !may_write(handling_, handling_peer_)) {
+    return exception(pdu[0], kServerDeviceBusy, pdu_out);
+  }
   apply_write(address, pdu + 3, 1);
   memcpy(pdu_out, pdu, 5);  // the normal answer echoes the request, also when it was undone
   return 5;
@@ -138,13 +149,32 @@ size_t Core::write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out) {
     ++records_.out_of_map;
     return exception(pdu[0], kIllegalDataAddress, pdu_out);
   }
-  if (!may_write(handling_)) return exception(pdu[0], kServerDeviceBusy, pdu_out);
+  bool vent_only = false;
+  const uint8_t refused = vent_register_check(start, pdu + 6, quantity, &vent_only);
+  if (refused) return exception(pdu[0], refused, pdu_out);
+  if (!vent_only && !may_write(handling_, handling_peer_)) {
+    return exception(pdu[0], kServerDeviceBusy, pdu_out);
+  }
   apply_write(start, pdu + 6, quantity);
   memcpy(pdu_out, pdu, 5);
   return 5;
 }
 
-bool Core::may_write(ConnectionId connection) {
+uint8_t Core::vent_register_check(uint16_t start, const uint8_t* be_values, uint16_t count,
+                                  bool* vent_only) {
+  const uint16_t vent_at = static_cast<uint16_t>(config_.channels + 2);
+  *vent_only = false;
+  if (!(start <= vent_at && vent_at < static_cast<uint32_t>(start) + count)) return 0;
+  const uint16_t v = be16(be_values + 2 * (vent_at - start));
+  if (v != kVentRequest && v != kRearm) return kIllegalDataValue;
+  // A vent request alone is anyone's: a stop must reach the suit from every connection, the
+  // write claim's holder or not. It takes no claim.
+  *vent_only = count == 1 && v == kVentRequest;
+  // Only the holder re-arms; the claim check after this refuses anyone else with 06.
+  return 0;
+}
+
+bool Core::may_write(ConnectionId connection, Peer peer) {
   if (owner_ != 0 && owner_ != connection) {
     // Refused whole, heartbeat included: another client's heartbeat must never keep the
     // watchdog armed for commands it did not write.
@@ -153,6 +183,7 @@ bool Core::may_write(ConnectionId connection) {
   }
   if (owner_ == 0 && connection != 0) {
     owner_ = connection;
+    owner_peer_ = peer;
     claim_pending_ = true;
     // A new writer's numbers have no relation to the last one's: its first is taken, as after
     // power-up. Writes of an earlier connection are refused above, so none can overtake it.
@@ -164,6 +195,7 @@ bool Core::may_write(ConnectionId connection) {
 void Core::connection_closed(ConnectionId connection) {
   if (connection == 0 || connection != owner_) return;
   owner_ = 0;
+  owner_peer_ = Peer();
   claim_pending_ = false;
   ++records_.owner_lost;
   if (armed_) ++records_.watchdog_trips;  // tripped by the close, not by the time
@@ -172,6 +204,10 @@ void Core::connection_closed(ConnectionId connection) {
 
 void Core::vent_now() {
   armed_ = false;
+  zero_commands();
+}
+
+void Core::zero_commands() {
   for (uint8_t ch = 0; ch < config_.channels; ++ch) {
     holding_[ch] = 0;
     outputs_[ch] = 0;
@@ -181,8 +217,22 @@ void Core::vent_now() {
 void Core::apply_write(uint16_t start, const uint8_t* be_values, uint16_t count) {
   const uint16_t n = config_.channels;
   const uint16_t seq_at = n, heartbeat_at = static_cast<uint16_t>(n + 1);
+  const uint16_t vent_at = static_cast<uint16_t>(n + 2);
   const uint32_t end = static_cast<uint32_t>(start) + count;
   ++records_.writes;
+  // The vent register first (its value was checked): a request that re-arms and commands
+  // applies its commands; one that requests the vent does not.
+  if (start <= vent_at && vent_at < end) {
+    if (be16(be_values + 2 * (vent_at - start)) == kVentRequest) {
+      ++records_.vent_requests;
+      latched_ = true;
+      zero_commands();  // at once, and at every scan while latched
+    } else {
+      ++records_.rearms;
+      latched_ = false;
+    }
+    holding_[vent_at] = latched_ ? 1 : 0;
+  }
   // Recorded before the gate: the records are about what was sent.
   for (uint16_t a = start; a < end && a < n; ++a) {
     const uint16_t v = be16(be_values + 2 * (a - start));
@@ -212,7 +262,8 @@ void Core::apply_write(uint16_t start, const uint8_t* be_values, uint16_t count)
   if (accept) {
     for (uint16_t a = start; a < end && a < n; ++a) {
       const uint16_t v = be16(be_values + 2 * (a - start));
-      holding_[a] = v > config_.p_max_counts ? config_.p_max_counts : v;
+      // Latched: the gate moves, the commands are stored as 0 (a read-back never shows one).
+      holding_[a] = latched_ ? 0 : (v > config_.p_max_counts ? config_.p_max_counts : v);
     }
   }
   if (start <= heartbeat_at && heartbeat_at < end) {
@@ -244,13 +295,15 @@ void Core::scan(uint32_t now_ms) {
   // the claim: another client may then write. The watchdog has vented by then.
   if (owner_ != 0 && static_cast<uint32_t>(now_ms - owner_heard_ms_) >= config_.watchdog_ms) {
     owner_ = 0;
+    owner_peer_ = Peer();
   }
+  const bool live = armed_ && !latched_;
   for (uint8_t ch = 0; ch < config_.channels; ++ch) {
-    if (!armed_) holding_[ch] = 0;
+    if (!live) holding_[ch] = 0;
     // The clamp again on the way out: nothing above p_max reaches an output, whatever the
     // registers hold.
     const uint16_t v = holding_[ch];
-    outputs_[ch] = armed_ ? (v > config_.p_max_counts ? config_.p_max_counts : v) : 0;
+    outputs_[ch] = live ? (v > config_.p_max_counts ? config_.p_max_counts : v) : 0;
   }
 }
 
@@ -267,7 +320,13 @@ uint16_t Core::holding(uint16_t address) const {
 }
 
 uint16_t Core::input(uint16_t address) const {
-  return address < config_.channels ? input_[address] : 0;
+  const uint16_t n = config_.channels;
+  if (address < n) return input_[address];
+  // The claim holder's address (0 while the claim is free): who keeps a refused client out.
+  if (address == n) return static_cast<uint16_t>(owner_peer_.ip >> 16);
+  if (address == n + 1) return static_cast<uint16_t>(owner_peer_.ip & 0xffff);
+  if (address == n + 2) return owner_peer_.port;
+  return 0;
 }
 
 }  // namespace plc

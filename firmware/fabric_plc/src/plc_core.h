@@ -30,6 +30,19 @@ enum Exception : uint8_t {
 // A connection as the platform numbers it (never reused while the program runs); 0 is none.
 typedef uint32_t ConnectionId;
 
+// The client's address as the platform saw it at accept (IPv4 in host order); 0.0.0.0:0 unknown.
+struct Peer {
+  uint32_t ip;
+  uint16_t port;
+};
+
+// The vent register (holding N+2): any connection may write kVentRequest (the vent latch is set,
+// every command register 0 and every output 0 V at once, kept at every scan); only the claim's
+// holder may write kRearm (the latch released; nothing starts: the commands stay 0 until its
+// next write). Any other value: exception 03. It reads 1 while latched, else 0.
+const uint16_t kVentRequest = 1;
+const uint16_t kRearm = 2;
+
 struct Config {
   uint8_t unit_id;        // Modbus unit id this endpoint answers to (1..247)
   uint8_t channels;       // N: command registers 0..N-1, sequence N, heartbeat N+1
@@ -53,6 +66,8 @@ struct Records {
   uint32_t watchdog_trips;       // armed -> tripped transitions (silence, or the holder's close)
   uint32_t busy;                 // writes refused with exception 06: another connection's claim
   uint32_t owner_lost;           // the claim holder's connection closed (vented if armed)
+  uint32_t vent_requests;        // kVentRequest written to the vent register (any connection)
+  uint32_t rearms;               // kRearm written by the claim's holder
   uint16_t max_written[kMaxChannels];  // largest count ever sent per channel (before the clamp)
   uint16_t over_limit_list[kMaxListed][2];  // (address, value)
   uint16_t out_of_map_list[kMaxListed][2];  // (first address, first value)
@@ -72,9 +87,10 @@ class Core {
   // holds the write claim (the first to write while it is free claims it); any other gets
   // exception 06 and changes nothing. Returns the answer's length; 0 means no answer at all: another
   // unit id, or a frame that is not Modbus TCP (the caller then drops the connection if
-  // bad_frame() says so).
+  // bad_frame() says so). `peer` is the connection's address, shown in the claim holder's input
+  // registers (N..N+2) while it holds the claim.
   size_t handle(ConnectionId connection, const uint8_t* req, size_t len, uint8_t* out,
-                size_t cap);
+                size_t cap, Peer peer = Peer());
   // The platform closed `connection` (the peer left, or it was reaped). If it held the write
   // claim: every command register to 0 and the outputs vented now, the claim free.
   void connection_closed(ConnectionId connection);
@@ -88,14 +104,18 @@ class Core {
   // zeroed. After scan(), output_counts() is what the outputs must show.
   void scan(uint32_t now_ms);
   uint16_t output_counts(uint8_t channel) const;
-  bool vented() const { return !armed_; }
+  bool vented() const { return !armed_ || latched_; }
+  bool vent_latched() const { return latched_; }
 
   // The regulators' monitor, already scaled to counts (scaling.h), into input register ch.
   void set_measured(uint8_t channel, uint16_t counts);
 
   uint16_t holding(uint16_t address) const;
   uint16_t input(uint16_t address) const;
-  uint16_t holding_count() const { return static_cast<uint16_t>(config_.channels + 2); }
+  // Holding: commands 0..N-1, sequence N, heartbeat N+1, vent register N+2. Input: measured
+  // 0..N-1, then the claim holder's IPv4 address (N: high, N+1: low 16 bits) and port (N+2).
+  uint16_t holding_count() const { return static_cast<uint16_t>(config_.channels + 3); }
+  uint16_t input_count() const { return static_cast<uint16_t>(config_.channels + 3); }
   const Config& config() const { return config_; }
   const Records& records() const { return records_; }
   uint32_t rejected_writes() const { return records_.stale + records_.unsequenced; }
@@ -108,13 +128,19 @@ class Core {
   size_t write_multiple(const uint8_t* pdu, size_t len, uint8_t* pdu_out);
   // False (and exception 06 in pdu_out) when `connection` may not write now; claims a free
   // claim for it.
-  bool may_write(ConnectionId connection);
+  bool may_write(ConnectionId connection, Peer peer);
+  // 0 when the values a write puts into the vent register (if it covers it) are allowed for
+  // `connection`, else the exception code (03 a value that is neither, 06 a re-arm by another
+  // connection than the holder's). *vent_only: the request writes the vent register alone.
+  uint8_t vent_register_check(uint16_t start, const uint8_t* be_values, uint16_t count,
+                              bool* vent_only);
   // Applies a write that lies inside the holding registers: the gate, the clamp, the records.
   void apply_write(uint16_t start, const uint8_t* be_values, uint16_t count);
-  void vent_now();
+  void vent_now();       // the watchdog tripped by a close: vented until a heartbeat change
+  void zero_commands();  // every command register and output 0
 
   Config config_;
-  uint16_t holding_[kMaxChannels + 2];
+  uint16_t holding_[kMaxChannels + 3];
   uint16_t input_[kMaxChannels];
   uint16_t outputs_[kMaxChannels];
   bool has_reference_;   // the gate has applied a sequence number since power-up
@@ -125,9 +151,12 @@ class Core {
   uint32_t last_change_ms_;
   bool bad_frame_;
   ConnectionId owner_;       // holds the write claim; 0: free
+  Peer owner_peer_;          // its address
+  bool latched_;             // the vent latch (vent register): set by anyone, reset by the holder
   bool claim_pending_;       // claimed since the last scan (its time is taken there)
   uint32_t owner_heard_ms_;  // the claim, or the owner's last heartbeat change
   ConnectionId handling_;    // the connection of the request being handled
+  Peer handling_peer_;       // and its address
   Records records_;
 };
 

@@ -31,6 +31,7 @@ const uint32_t kPartialFrameMs = 1000;
 
 struct Connection {
   ConnectionId id;     // 0: the slot is free
+  Peer peer;           // the client's address (shown while it holds the write claim)
   uint32_t last_rx_ms;
   uint16_t length;
   uint8_t buffer[kMaxAdu];
@@ -44,8 +45,10 @@ enum Verdict : uint8_t {
   kBadFrame,       // not Modbus TCP: the stream cannot be re-synchronised
 };
 
-inline void open_connection(Connection& c, ConnectionId id, uint32_t now_ms) {
+inline void open_connection(Connection& c, ConnectionId id, uint32_t now_ms,
+                            Peer peer = Peer()) {
   c.id = id;
+  c.peer = peer;
   c.last_rx_ms = now_ms;
   c.length = 0;
 }
@@ -79,7 +82,7 @@ Verdict serve_once(Core& core, Link& link, Connection& c, uint32_t now_ms) {
   if (total < kMbapLength + 1 || total > kMaxAdu) return kBadFrame;
   if (c.length < total) return kKeep;
   uint8_t out[kMaxAdu];
-  const size_t n = core.handle(c.id, c.buffer, total, out, sizeof(out));
+  const size_t n = core.handle(c.id, c.buffer, total, out, sizeof(out), c.peer);
   c.length = 0;
   if (core.bad_frame()) return kBadFrame;
   if (n == 0) return kKeep;
