@@ -16,7 +16,7 @@ import threading
 import pytest
 
 from fabric_guidance import atomic
-from fabric_guidance.experiments import analyze
+from fabric_guidance.experiments import analyze, study_folder
 from fabric_guidance.experiments.stats import analyze_trials
 from fabric_guidance.graph.process_graph import wait_until
 from fabric_guidance.study import store as store_module
@@ -223,7 +223,7 @@ def test_a_session_killed_mid_block_keeps_its_trials_and_resumes(tmp_path):
 
 
 def test_analyze_reads_the_study_folder_as_the_store_writes_it(tmp_path, capsys):
-    assert analyze.STUDY_FORMAT == (store_module.FORMAT_KEY, store_module.FORMAT_VERSION)
+    assert study_folder.FORMAT == (store_module.FORMAT_KEY, store_module.FORMAT_VERSION)
     root = tmp_path / 's'
     for pid in ('P1', 'P2', 'P3'):
         run_participant(root, pid)
