@@ -17,7 +17,7 @@ import numpy as np
 from ..atomic import write_text
 from ..study.plan import participant_blocks
 from ..study.session import Session
-from ..study.store import Study
+from ..study.store import Study, StudyError
 from .block_bag import BlockBags
 from .driver import SessionDriver, target_phases
 from .simulated import SimulatedParticipant, Timing, design_of
@@ -42,7 +42,8 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
     pid = participant_label(subject)
     p = study.add_participant(pid)
     if p.index != subject:
-        raise ValueError(f'{study.root}: participant {pid} was registered with index {p.index}, not {subject}')
+        raise StudyError(f'{study.root / "participants.tsv"}: participant {pid} was registered with index {p.index}, '
+                         f'not {subject}: the simulated participants are registered in order (use a new --out)')
     store = study.session(pid, 1, design)
     if store.lost is not None:
         say(f'sub-{pid}: {store.lost.line()}')

@@ -94,7 +94,7 @@ def _tsv(columns: Sequence[str], rows: Sequence[dict]) -> str:
 def read_tsv(path: Path) -> tuple[list[str], list[dict]]:
     """Header and rows (strings) of a TSV; StudyError naming the file when unreadable."""
     try:
-        with path.open(newline='', encoding='utf-8') as f:
+        with path.open(newline='', encoding='utf-8-sig') as f:     # -sig: a spreadsheet's BOM
             lines = list(csv.reader(f, delimiter='\t', quoting=csv.QUOTE_NONE, escapechar='\\'))
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise StudyError(f'{path}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
@@ -182,36 +182,59 @@ class Study:
             _write(root / PARTICIPANTS, _tsv(list(PARTICIPANT_COLUMNS), []))
         return cls(root)
 
-    def participants(self) -> list[Participant]:
+    def _participant_rows(self) -> tuple[list[str], list[dict], list[Participant]]:
+        """participants.tsv's header and rows as written (a researcher's columns included) and
+        the participants; StudyError naming the file and line for a row the package cannot use."""
         path = self.root / PARTICIPANTS
         if not path.exists():
-            return []
-        _, rows = read_tsv(path)
-        out = []
+            return list(PARTICIPANT_COLUMNS), [], []
+        header, rows = read_tsv(path)
+        absent = [c for c in PARTICIPANT_COLUMNS if c not in header]
+        if absent:
+            raise StudyError(f'{path}: line 1: no column {absent[0]} (the columns {", ".join(PARTICIPANT_COLUMNS)} '
+                             'are fabric_guidance\'s; add your own beside them)')
+        out, seen = [], {}
         for i, r in enumerate(rows, start=2):
+            pid = r['participant_id']
             try:
-                pid = r['participant_id']
                 if not pid.startswith('sub-'):
                     raise ValueError
-                out.append(Participant(check_participant(pid[4:]), int(r['index']), r['registered_utc']))
-            except (KeyError, ValueError):
-                raise StudyError(f'{path}: line {i}: not a participant row') from None
-        return out
+                check_participant(pid[4:])
+            except ValueError:
+                raise StudyError(f'{path}: line {i}: participant_id {excerpt(pid)} is not sub-<letters or digits>') \
+                    from None
+            if pid in seen:
+                raise StudyError(f'{path}: line {i}: {pid} is registered twice (also line {seen[pid]})')
+            seen[pid] = i
+            # The index is the registration order, which seeds the condition order and the
+            # targets: one edited by hand would give a participant another's, so it is refused.
+            if r['index'] != str(i - 2):
+                raise StudyError(f'{path}: line {i}: index {excerpt(r["index"])} of {pid} is not its registration '
+                                 f'order ({i - 2}); the index is fabric_guidance\'s (it seeds the condition order '
+                                 'and the targets): put the rows and the index back as they were written')
+            out.append(Participant(pid[4:], i - 2, r['registered_utc']))
+        return header, rows, out
+
+    def participants(self) -> list[Participant]:
+        """The registered participants in registration order."""
+        return self._participant_rows()[2]
 
     def add_participant(self, participant_id: str) -> Participant:
-        """Register a new participant (index = the next); the existing one if already there."""
+        """Register a new participant (index = the next); the existing one if already there.
+        Columns a researcher added to participants.tsv are kept, in their order (the new row
+        has n/a there)."""
         try:
             check_participant(participant_id)
         except ValueError as exc:
             raise StudyError(str(exc)) from None
-        known = self.participants()
+        header, rows, known = self._participant_rows()
         for p in known:
             if p.participant_id == participant_id:
                 return p
-        p = Participant(participant_id, max((q.index for q in known), default=-1) + 1, _utc())
-        rows = [{'participant_id': f'sub-{q.participant_id}', 'index': str(q.index), 'registered_utc': q.registered_utc}
-                for q in known + [p]]
-        _write(self.root / PARTICIPANTS, _tsv(list(PARTICIPANT_COLUMNS), rows))
+        p = Participant(participant_id, len(known), _utc())
+        rows.append({'participant_id': f'sub-{p.participant_id}', 'index': str(p.index),
+                     'registered_utc': p.registered_utc})
+        _write(self.root / PARTICIPANTS, _tsv(header, rows))
         return p
 
     def participant(self, participant_id: str) -> Participant:
@@ -263,6 +286,10 @@ class SessionStore:
         if side.get(FORMAT_KEY) != FORMAT_VERSION:
             raise StudyError(f'{self.sidecar_path}: study format version {excerpt(side.get(FORMAT_KEY))}, '
                              f'this fabric_guidance reads version {FORMAT_VERSION}')
+        if side.get('ParticipantIndex') != self.participant.index:
+            raise StudyError(f'{self.sidecar_path}: participant index {excerpt(side.get("ParticipantIndex"))} '
+                             f'recorded, participants.tsv gives {self.participant.index}: the index seeds the '
+                             'condition order and the targets; put participants.tsv back as it was written')
         recorded = StudyDesign.from_dict(side.get('Parameters') or {}, str(self.sidecar_path))
         if recorded != self.design:
             mine, theirs = self.design.as_dict(), recorded.as_dict()
