@@ -315,8 +315,11 @@ class SessionStore:
             for r in cut:
                 r['status'] = 'interrupted'
             self.lost = Lost(block, len(cut))
+            # The cut block's bags stay named (its first run's bag holds what happened up to the cut).
+            bags = [b.get('bag') for b in side['BlocksStarted'] if b['block'] == block and b.get('bag')]
             side['BlocksStarted'] = [b for b in side['BlocksStarted'] if b['block'] in done or b.get('interrupted')]
-            side.setdefault('BlocksInterrupted', []).append({'block': block, 'trials': len(cut), 'found_utc': _utc()})
+            side.setdefault('BlocksInterrupted', []).append({'block': block, 'trials': len(cut), 'bags': bags,
+                                                             'found_utc': _utc()})
             self._write_rows()
             self._write_sidecar()
 
