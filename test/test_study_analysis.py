@@ -14,7 +14,7 @@ from test_study_store import DESIGN, run_participant  # noqa: E402 (test/ is on 
 
 
 def trials_path(root: Path, pid: str) -> Path:
-    return next((root / f'sub-{pid}').rglob(f'sub-{pid}_*_task-speed_*.tsv'))
+    return next((root / f'sub-{pid}').rglob(f'sub-{pid}_*_task-speed_beh.tsv'))
 
 
 def whole(root: Path, *pids: str) -> None:

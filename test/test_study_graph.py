@@ -33,7 +33,7 @@ def short_scene(tmp_path: Path, conditions=(1, 3), trials=1, trial_s=6.0, protoc
 
 
 def rows_of(out: Path, protocol: str) -> list[dict]:
-    return read_tsv(out / 'sub-01' / 'ses-1' / f'sub-01_ses-1_task-{protocol}_trials.tsv')[1]
+    return read_tsv(out / 'sub-01' / 'ses-1' / 'beh' / f'sub-01_ses-1_task-{protocol}_beh.tsv')[1]
 
 
 def test_speed_session_wearer_presses_and_no_command_between_trials(tmp_path):
@@ -81,7 +81,7 @@ def test_sigkill_mid_block_resumes_at_that_block(tmp_path):
     # 2 s trials: what is tested is where the kill falls (between trials, mid-block), not what a trial finds
     scene = short_scene(tmp_path, conditions=(1, 2), trials=2, trial_s=2.0)
     out = tmp_path / 'study'
-    tsv = out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.tsv'
+    tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
     # its own session: SIGKILL to the group takes the seven nodes down with it, as a power loss would
     proc = _study(scene, out, start_new_session=True)
     try:
@@ -143,7 +143,7 @@ def alive(pid: int) -> bool:
 def test_a_study_killed_with_sigkill_leaves_no_process_and_resumes_into_clean_logs(tmp_path):
     scene = short_scene(tmp_path, conditions=(1,), trials=2, trial_s=2.0)
     out = tmp_path / 'study'
-    tsv = out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.tsv'
+    tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
     proc = _study(scene, out)
     try:
         wait_until(lambda: tsv.exists() and len(read_tsv(tsv)[1]) >= 1, 240, 0.05, what='a trial written')
@@ -161,11 +161,11 @@ def test_a_study_killed_with_sigkill_leaves_no_process_and_resumes_into_clean_lo
     output, _ = rerun.communicate(timeout=300)
     assert rerun.returncode == 0, output
     assert 'was cut off' in output, output
-    logs = sorted((out / 'logs' / 'sub-01').glob('graph*'))
+    logs = sorted((out / 'sourcedata' / 'logs' / 'sub-01').glob('graph*'))
     assert [p.name for p in logs] == ['graph', 'graph-2']       # the resumed run's own logs
     for log in logs[1].glob('*.log'):
         assert b'\0' not in log.read_bytes(), log
-    side = json.loads((out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.json').read_text())
+    side = json.loads((out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.json').read_text())
     cut = side['BlocksInterrupted'][0]
-    assert cut['bags'] == ['sub-01_ses-1_task-speed_block-1_run-1_bag'], cut
-    assert (out / 'sub-01' / 'ses-1' / cut['bags'][0]).is_dir()
+    assert cut['bags'] == ['sub-01_ses-1_task-speed_run-1_bag'], cut
+    assert (out / 'sub-01' / 'ses-1' / 'beh' / cut['bags'][0]).is_dir()

@@ -21,9 +21,9 @@ import pandas as pd
 from ..sim.protocols import CONDITION_NAMES
 
 DESCRIPTION = 'dataset_description.json'
-FORMAT = ('FabricGuidanceStudyFormat', 1)
-#: A session's trials of one task, and its sidecar beside it (the same name, .json).
-TRIALS_GLOB = 'sub-*/ses-*/sub-*_ses-*_task-*_trials.tsv'
+FORMAT = ('FabricGuidanceStudyFormat', 2)
+#: A session's trials of one task (a BIDS behavioural file), and its sidecar beside it (.json).
+TRIALS_GLOB = 'sub-*/ses-*/beh/sub-*_ses-*_task-*_beh.tsv'
 MISSING = 'n/a'
 #: Whether a larger value of a measure is better (decides each participant's best condition).
 HIGHER_IS_BETTER = {

@@ -1,14 +1,17 @@
-"""A study folder, BIDS-like, written as the session goes so that a crash keeps every finished
-trial:
+"""A study folder, a BIDS dataset of behavioural data, written as the session goes so that a
+crash keeps every finished trial:
 
-    STUDY_DIR/dataset_description.json        name, format version, what wrote it
-    STUDY_DIR/participants.tsv (+ .json)      participant_id, index, registered_utc
-    STUDY_DIR/sub-<id>/ses-<n>/
-        sub-<id>_ses-<n>_task-<protocol>_trials.tsv   one row per trial (trial_columns.COLUMNS)
-        sub-<id>_ses-<n>_task-<protocol>_trials.json  sidecar: every parameter (the StudyDesign),
-                                                      every column with its unit, the blocks done
-        sub-<id>_ses-<n>_task-<protocol>_block-<k>_bag/  one bag per block (reserved here, written
-                                                      by the operator layer)
+    STUDY_DIR/dataset_description.json        BIDS version, format version, what wrote it
+    STUDY_DIR/README.md, .bidsignore          (dataset.py)
+    STUDY_DIR/participants.tsv (+ .json)      participant_id, index, registered_utc, a researcher's own
+    STUDY_DIR/sub-<id>/ses-<n>/beh/
+        sub-<id>_ses-<n>_task-<protocol>_beh.tsv   one row per trial (trial_columns.COLUMNS)
+        sub-<id>_ses-<n>_task-<protocol>_beh.json  sidecar: every column with its unit, every
+                                                   parameter (the StudyDesign), the blocks done
+        sub-<id>_ses-<n>_task-<protocol>_run-<r>_events.tsv (+ .json)  the events of run r (a
+                                                   block's attempt, events.py) and its time anchor
+        sub-<id>_ses-<n>_task-<protocol>_run-<r>_bag/  run r's bag (reserved here, written by the
+                                                   operator layer)
 
 Every file is replaced whole (atomic.py: a temporary file, fsync, rename), the trials file after
 every trial, so a SIGKILL or a power loss leaves the file as it was before or after a trial,
@@ -23,20 +26,26 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 import errno
 import io
 import json
 import math
 from pathlib import Path
+import time
 from typing import Sequence
 
 from ..atomic import write_text
 from ..core.safe_input import excerpt
+from ..experiments.study_folder import TRIALS_GLOB
+from . import dataset
+from .events import EVENT_COLUMNS
 from .plan import Block, StudyDesign, check_participant
-from .trial_columns import COLUMNS
+from .trial_columns import COLUMNS, FILE_NAMES
 
-FORMAT_VERSION = 1
+#: 2: the BIDS layout (beh/, _beh.tsv, events, no column named after an entity). A folder of
+#: version 1 is refused in one line: finish it with the version that wrote it.
+FORMAT_VERSION = 2
 FORMAT_KEY = 'FabricGuidanceStudyFormat'
 DESCRIPTION = 'dataset_description.json'
 PARTICIPANTS = 'participants.tsv'
@@ -46,9 +55,6 @@ PARTICIPANT_COLUMNS = {
     'registered_utc': ('-', 'when the participant was registered, ISO 8601 UTC'),
 }
 MISSING = 'n/a'                  # BIDS's empty cell
-#: Columns added to format 1 since its first trials files: a file without them is read with
-#: MISSING there (and written with them from its next row on).
-ADDED_COLUMNS = ('ignored_presses',)
 
 
 class StudyError(ValueError):
@@ -118,7 +124,16 @@ def _read_json(path: Path) -> dict:
 
 
 def _sidecar_columns(columns: dict[str, tuple[str, str]]) -> dict:
-    return {name: {'Description': text, 'Units': unit} for name, (unit, text) in columns.items()}
+    """Each column's description at the sidecar's top level, as BIDS tools read it; Units only
+    where there is one."""
+    return {name: {'Description': text, **({'Units': unit} if unit != '-' else {})}
+            for name, (unit, text) in columns.items()}
+
+
+def _utc_of(steady_s: float) -> str:
+    """The UTC time of an instant on the steady clock (time.monotonic), ISO 8601."""
+    return (datetime.now(timezone.utc) - timedelta(seconds=time.monotonic() - steady_s)).isoformat(
+        timespec='microseconds')
 
 
 @dataclass(frozen=True)
@@ -168,16 +183,11 @@ class Study:
         if not (root / DESCRIPTION).exists():
             if root.exists() and (not root.is_dir() or any(root.iterdir())):
                 raise StudyError(f'{root}: not a study folder (no {DESCRIPTION}) and not empty')
-            from importlib import metadata
-            package = __package__.split('.')[0]
-            try:
-                version = metadata.version(package)
-            except metadata.PackageNotFoundError:
-                version = 'unknown'
             root.mkdir(parents=True, exist_ok=True)
-            _write(root / DESCRIPTION, json.dumps({
-                'Name': name or root.name, 'BIDSVersion': '1.9.0', 'DatasetType': 'raw', FORMAT_KEY: FORMAT_VERSION,
-                'GeneratedBy': [{'Name': package, 'Version': version}]}, indent=2) + '\n')
+            _write(root / 'README.md', dataset.readme(name or root.name))
+            _write(root / '.bidsignore', dataset.bidsignore())
+            _write(root / DESCRIPTION, json.dumps(dataset.description(name or root.name, FORMAT_KEY, FORMAT_VERSION),
+                                                  indent=2) + '\n')
             _write(root / 'participants.json', json.dumps(_sidecar_columns(PARTICIPANT_COLUMNS), indent=2) + '\n')
             _write(root / PARTICIPANTS, _tsv(list(PARTICIPANT_COLUMNS), []))
         return cls(root)
@@ -261,23 +271,27 @@ class SessionStore:
 
     def __init__(self, study: Study, participant: Participant, session: int, design: StudyDesign):
         self.study, self.participant, self.session, self.design = study, participant, session, design
-        folder = study.root / f'sub-{participant.participant_id}' / f'ses-{session}'
+        folder = study.root / f'sub-{participant.participant_id}' / f'ses-{session}' / 'beh'
         self.folder = folder
         self.prefix = f'sub-{participant.participant_id}_ses-{session}_task-{design.protocol}'
-        self.trials_path = folder / f'{self.prefix}_trials.tsv'
-        self.sidecar_path = folder / f'{self.prefix}_trials.json'
+        self.trials_path = folder / f'{self.prefix}_beh.tsv'
+        self.sidecar_path = folder / f'{self.prefix}_beh.json'
         self.lost: Lost | None = None
         self._rows: list[dict] = []
         self._unwritten = False
+        self._run: dict | None = None        # the run events go to: its number, block, start, events
+        self._early: list[dict] = []         # events before the first run (its start's vent)
         if self.sidecar_path.exists():
             self._reopen()
         else:
             folder.mkdir(parents=True, exist_ok=True)
             self._sidecar = {
+                **_sidecar_columns(COLUMNS),
                 'TaskName': design.protocol, FORMAT_KEY: FORMAT_VERSION, 'Participant': participant.participant_id,
                 'ParticipantIndex': participant.index, 'Session': session, 'Parameters': design.as_dict(),
-                'Units': {'time': 's, steady clock (monotonic) unless the column says UTC', 'angle': 'deg'},
-                'Columns': _sidecar_columns(COLUMNS), 'BlocksStarted': [], 'BlocksDone': []}
+                'Clock': 'times in s on the steady clock (monotonic) of the machine that ran the session; '
+                         'each run\'s events sidecar pairs its start with UTC',
+                'RunsStarted': 0, 'BlocksStarted': [], 'BlocksDone': []}
             self._write_rows()
             self._write_sidecar()
 
@@ -297,13 +311,11 @@ class SessionStore:
             raise StudyError(f'{self.sidecar_path}: parameters differ from those recorded: {"; ".join(diff)}')
         # Every parameter listed, those added since it was written too (their defaults: equal).
         side['Parameters'] = self.design.as_dict()
-        side['Columns'] = _sidecar_columns(COLUMNS)
+        side.update(_sidecar_columns(COLUMNS))
         self._sidecar = side
         if self.trials_path.exists():
             header, rows = read_tsv(self.trials_path)
-            if header == [c for c in COLUMNS if c not in ADDED_COLUMNS]:
-                rows = [{c: r.get(c, MISSING) for c in COLUMNS} for r in rows]
-            elif header != list(COLUMNS):
+            if header != list(COLUMNS):
                 raise StudyError(f'{self.trials_path}: columns differ from this version\'s '
                                  f'(first difference: {next((a for a, b in zip(header, COLUMNS) if a != b), "count")})')
             self._rows = rows
@@ -316,10 +328,11 @@ class SessionStore:
                 r['status'] = 'interrupted'
             self.lost = Lost(block, len(cut))
             # The cut block's bags stay named (its first run's bag holds what happened up to the cut).
-            bags = [b.get('bag') for b in side['BlocksStarted'] if b['block'] == block and b.get('bag')]
+            runs = [b for b in side['BlocksStarted'] if b['block'] == block]
             side['BlocksStarted'] = [b for b in side['BlocksStarted'] if b['block'] in done or b.get('interrupted')]
-            side.setdefault('BlocksInterrupted', []).append({'block': block, 'trials': len(cut), 'bags': bags,
-                                                             'found_utc': _utc()})
+            side.setdefault('BlocksInterrupted', []).append({
+                'block': block, 'trials': len(cut), 'runs': [b['run'] for b in runs if 'run' in b],
+                'bags': [b['bag'] for b in runs if b.get('bag')], 'found_utc': _utc()})
             self._write_rows()
             self._write_sidecar()
 
@@ -343,29 +356,86 @@ class SessionStore:
         done = set(self.done_blocks())
         return [b for b in blocks if b.key not in done]
 
-    def bag_path(self, block: Block) -> Path:
-        """Where the block's bag goes (a directory that does not exist yet: a redone block gets
-        a new name, the interrupted one's bag stays); the block is recorded as started."""
-        run = 1 + sum(1 for b in self._sidecar['BlocksStarted'] + self._sidecar.get('BlocksInterrupted', [])
-                      if b['block'] == block.key)
-        path = self.folder / f'{self.prefix}_block-{block.order}_run-{run}_bag'
-        while path.exists():
+    def run_path(self, run: int, suffix: str) -> Path:
+        """A file of run `run` (suffix: 'events.tsv', 'events.json', 'bag')."""
+        return self.folder / f'{self.prefix}_run-{run}_{suffix}'
+
+    def start_run(self, block: Block, steady_s: float) -> dict:
+        """A new run of `block` (its attempt), starting at steady_s [s, steady clock]: recorded
+        as started in the sidecar, its events sidecar written with the start on the steady clock
+        and in UTC; its events and bag get the run's number (never one used before)."""
+        self.flush_events()
+        run = int(self._sidecar.get('RunsStarted', 0)) + 1
+        while any(self.run_path(run, x).exists() for x in ('events.tsv', 'events.json', 'bag')):
             run += 1
-            path = self.folder / f'{self.prefix}_block-{block.order}_run-{run}_bag'
-        self._sidecar['BlocksStarted'].append({'block': block.key, 'condition': block.condition,
-                                               'bag': path.name, 'started_utc': _utc()})
+        self._sidecar['RunsStarted'] = run
+        utc = _utc_of(steady_s)
+        self._sidecar['BlocksStarted'].append({'block': block.key, 'condition': block.condition, 'run': run,
+                                               'bag': self.run_path(run, 'bag').name,
+                                               'events': self.run_path(run, 'events.tsv').name,
+                                               'started_utc': utc, 'started_steady_s': steady_s})
         self._write_sidecar()
-        return path
+        # An events sidecar holds column descriptions only (BIDS): the run's block and its time
+        # anchor are the sidecar's BlocksStarted entry and the run's first event.
+        _write(self.run_path(run, 'events.json'), json.dumps(_sidecar_columns(EVENT_COLUMNS), indent=2) + '\n')
+        self._run = {'run': run, 'block': block.key, 'start': steady_s, 'events': [], 'bag': False, 'dirty': True}
+        self._event({'trial_type': 'run_start', 'steady_s': steady_s, 'duration': 0.0, 'value': utc})
+        for e in self._early:
+            self._event(e)
+        self._early = []
+        self.flush_events()
+        return self._run
+
+    def bag_path(self, block: Block) -> Path:
+        """Where the block's bag goes (a directory that does not exist yet: a redone block's run
+        gets a new number, the interrupted one's bag stays): the bag of the block's run noted
+        already (note()), else of a run started now."""
+        run = self._run
+        if run is None or run['block'] != block.key or run['bag']:
+            run = self.start_run(block, time.monotonic())
+        run['bag'] = True
+        return self.run_path(run['run'], 'bag')
+
+    def note(self, block: Block | None, events: Sequence[dict]) -> None:
+        """Events of the session (events.step_events): a 'condition' event starts a new run of
+        `block`; written with the next trial (record) or flush_events()."""
+        for e in events:
+            if e['trial_type'] == 'condition' and block is not None:
+                self.start_run(block, e['steady_s'])
+            if self._run is None:
+                self._early.append(e)
+            else:
+                self._event(e)
+
+    def _event(self, e: dict) -> None:
+        run = self._run
+        row = {c: _cell(e.get(c)) for c in EVENT_COLUMNS if c not in ('onset',)}
+        row['onset'] = _cell(e['steady_s'] - run['start'])
+        run['events'].append(row)
+        run['dirty'] = True
+
+    def flush_events(self) -> None:
+        """Write the current run's events file (sorted by onset, as BIDS has them)."""
+        run = self._run
+        if run is None or not run['dirty']:
+            return
+        rows = sorted(run['events'], key=lambda r: float(r['onset']))
+        _write(self.run_path(run['run'], 'events.tsv'), _tsv(list(EVENT_COLUMNS), rows))
+        run['dirty'] = False
 
     def append(self, row: dict) -> None:
         """Record one finished trial durably (the whole file replaced atomically, fsynced).
         DiskFull: the row is kept here and written with the next append (or flush())."""
-        unknown = sorted(set(row) - set(COLUMNS))
+        full = {FILE_NAMES.get(k, k): v for k, v in row.items()}
+        unknown = sorted(set(full) - set(COLUMNS))
         if unknown:
             raise ValueError(f'trial row: unknown column(s) {", ".join(unknown)}')
-        full = dict(row)
         if full.get('scene') in (None, 'study'):
             full['scene'] = self.study.root.name
+        if full.get('package_version') is None:
+            full['package_version'] = dataset.package_version()
+        if full.get('git_commit') is None:
+            full['git_commit'] = dataset.git_commit()
         full['recorded_utc'] = _utc()
         self._rows.append({c: _cell(full.get(c)) for c in COLUMNS})
         self._unwritten = True
@@ -386,7 +456,9 @@ class SessionStore:
         raise ValueError(f'amend: no row of block {block}, repetition {repetition}')
 
     def record(self, step) -> None:
-        """Write what a session.Step produced: its rows, its amended statuses, its finished blocks."""
+        """Write what a session.Step produced: its rows, its amended statuses, its finished blocks
+        (and the run's events so far)."""
+        self.flush_events()
         for row in step.rows:
             self.append(row)
         for block, repetition, status in step.amended:
@@ -395,7 +467,8 @@ class SessionStore:
             self.finish_block(block)
 
     def finish_block(self, block: Block) -> None:
-        """Mark the block done in the sidecar (durable)."""
+        """Mark the block done in the sidecar (durable), its run's events written."""
+        self.flush_events()
         self._sidecar['BlocksDone'].append({'block': block.key, 'condition': block.condition, 'order': block.order,
                                             'finished_utc': _utc()})
         self._write_sidecar()
@@ -403,7 +476,7 @@ class SessionStore:
 
 def trials_files(root: str | Path) -> list[Path]:
     """Every trials file of the study, sorted."""
-    return sorted(Path(root).glob('sub-*/ses-*/sub-*_ses-*_task-*_trials.tsv'))
+    return sorted(Path(root).glob(TRIALS_GLOB))
 
 
 def study_trials(root: str | Path, protocol: str | None = None) -> list[dict]:
