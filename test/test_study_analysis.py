@@ -127,3 +127,10 @@ def test_each_measure_knows_its_direction(tmp_path, capsys):
     assert '2 subjects (blocks) x 4 conditions; lower is better' in out
     code, out, err = run(capsys, root)
     assert '; higher is better' in out
+
+
+def test_study_trials_counts_only_blocks_that_ended(tmp_path):
+    from fabric_guidance.study.store import study_trials
+    root = tmp_path / 's'
+    run_participant(root, 'P1', stop_after=3)          # block 1 done, block 2 cut after one trial
+    assert [r['block'] for r in study_trials(root)] == [r['block'] for r in read_tsv(trials_path(root, 'P1'))[1][:2]]

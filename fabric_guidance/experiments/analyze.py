@@ -4,11 +4,13 @@ conditions table, or on the one a live study's folder gives.
 Prints the Friedman test, the Dunn-Bonferroni pairwise comparisons and the best condition per
 subject; --plot writes the violin plot, --report a markdown report (embedding the plot if any).
 A STUDY_DIR (docs/study.md) is read as the analysis of the headless experiment reads its trials:
-the 'ok' rows of every sub-*/ses-*/*_task-<protocol>_trials.tsv, each participant's mean per
-condition of each measure of the protocol (speed: identified targets per trial; accuracy: the
-horizontal and the vertical error), one analysis per measure (--measure: one); --table writes
-the subjects x conditions table. Exit status: 0 done, 2 bad table, folder or arguments, 1 an
-output file could not be written.
+the trials that ended of every sub-*/ses-*/beh/*_task-<protocol>_beh.tsv (study_folder.py: 'ok'
+rows of blocks listed done, each value range-checked), each participant's mean per condition of
+each measure of the protocol (speed: identified targets per trial; accuracy: the horizontal and
+the vertical error), one analysis per measure (--measure: one; each measure knows whether lower
+is better); a participant without every condition is left out and named, one participant is
+reported without the tests; --table writes the subjects x conditions table. Exit status: 0
+done, 2 bad table, folder or arguments, 1 an output file could not be written.
 
 Also runs alone: python -m fabric_guidance.experiments.analyze TABLE.csv
 """

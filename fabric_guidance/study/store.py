@@ -480,11 +480,15 @@ def trials_files(root: str | Path) -> list[Path]:
 
 
 def study_trials(root: str | Path, protocol: str | None = None) -> list[dict]:
-    """Every 'ok' row of every participant's trials files under root (protocol: only that task)."""
+    """Every trial that ended in every participant's trials files under root (protocol: only
+    that task): 'ok' rows of the blocks their sidecar lists done (a block cut off and not yet
+    run again does not count)."""
     root = Path(root)
     check_version(root)
     out = []
     for path in trials_files(root):
         _, rows = read_tsv(path)
-        out.extend(r for r in rows if r.get('status') == 'ok' and (protocol is None or r.get('protocol') == protocol))
+        done = {b.get('block') for b in _read_json(path.with_suffix('.json')).get('BlocksDone', [])}
+        out.extend(r for r in rows if r.get('status') == 'ok' and r.get('block') in done
+                   and (protocol is None or r.get('protocol') == protocol))
     return out
