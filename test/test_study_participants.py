@@ -97,3 +97,19 @@ def test_a_file_without_the_packages_columns_is_refused(tmp_path):
     write(root, [['participant_id', 'age'], ['sub-P1', '30']])
     text = one_line_error(lambda: Study.open(root).participants())
     assert 'participants.tsv: line 1: no column index' in text
+
+
+def test_study_simulated_refuses_a_swapped_index_in_one_line(tmp_path, capsys):
+    from fabric_guidance.live_study.study_command import main as study_main
+    root = tmp_path / 's'
+    study = Study.open(root)
+    study.add_participant('01')
+    study.add_participant('02')
+    (h, a, b) = lines(root)
+    a[1], b[1] = b[1], a[1]
+    write(root, [h, a, b])
+    code = study_main(['--simulated', '--participants', '2', '--trials', '1', '--trial-s', '2', '--out', str(root)])
+    err = capsys.readouterr().err
+    assert code == 1 and 'Traceback' not in err and err.count('\n') == 1, err
+    assert "participants.tsv: line 2: index '1' of sub-01 is not its registration order (0)" in err
+    assert not (root / 'sourcedata').exists()          # refused before any graph started
