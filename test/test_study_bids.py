@@ -141,3 +141,28 @@ def test_both_simulated_protocols_into_one_folder_pass_the_validator(tmp_path):
     assert report['summary']['tasks'] == ['accuracy', 'speed'] and report['summary']['subjects'] == ['01']
     assert sorted(p.name for p in out.glob('scene-*.yaml')) == ['scene-accuracy.yaml', 'scene-speed.yaml']
     assert list((out / 'sub-01' / 'ses-1' / 'beh').glob('*_run-1_bag'))
+
+
+def test_noting_a_steps_events_writes_nothing_before_its_vent_is_carried_out(tmp_path, monkeypatch):
+    """RecordedSession notes a Step before the driver carries out its actions: a block's end
+    (vent, then the next condition) must not wait on the disk; its files come with the bag's
+    reservation or the trial's row."""
+    from fabric_guidance.study import store as store_module
+    from fabric_guidance.study.events import RecordedSession
+    from fabric_guidance.study.plan import participant_blocks
+    from fabric_guidance.study.session import Session
+    from fabric_guidance.study.store import Study
+    study = Study.open(tmp_path / 's')
+    study.add_participant('P1')
+    st = study.session('P1', 1, DESIGN)
+    blocks = participant_blocks(DESIGN, 'P1', 0)
+    session = RecordedSession(Session(DESIGN, blocks), st)
+    writes = []
+    real = store_module._write
+    monkeypatch.setattr(store_module, '_write', lambda path, text: (writes.append(path.name), real(path, text)))
+    step = session.start(100.0)
+    assert [a.kind for a in step.actions][:2] == ['vent', 'set_condition'] and writes == []
+    path = st.bag_path(blocks[0])                   # the driver's set_condition reserves the bag
+    assert path.name == 'sub-P1_ses-1_task-speed_run-1_bag'
+    assert sorted(writes) == ['sub-P1_ses-1_task-speed_beh.json', 'sub-P1_ses-1_task-speed_run-1_events.json',
+                              'sub-P1_ses-1_task-speed_run-1_events.tsv']

@@ -281,6 +281,7 @@ class SessionStore:
         self._unwritten = False
         self._run: dict | None = None        # the run events go to: its number, block, start, events
         self._early: list[dict] = []         # events before the first run (its start's vent)
+        self._closed: list[dict] = []        # runs ended since the last flush_events()
         if self.sidecar_path.exists():
             self._reopen()
         else:
@@ -360,11 +361,13 @@ class SessionStore:
         """A file of run `run` (suffix: 'events.tsv', 'events.json', 'bag')."""
         return self.folder / f'{self.prefix}_run-{run}_{suffix}'
 
-    def start_run(self, block: Block, steady_s: float) -> dict:
+    def start_run(self, block: Block, steady_s: float, write: bool = True) -> dict:
         """A new run of `block` (its attempt), starting at steady_s [s, steady clock]: recorded
-        as started in the sidecar, its events sidecar written with the start on the steady clock
-        and in UTC; its events and bag get the run's number (never one used before)."""
-        self.flush_events()
+        as started in the sidecar, its first event the start on the steady clock and in UTC; its
+        events and bag get the run's number (never one used before). write=False: the files are
+        written with the next flush_events() (note() runs before the step's vent is carried out)."""
+        if self._run is not None:
+            self._closed.append(self._run)
         run = int(self._sidecar.get('RunsStarted', 0)) + 1
         while any(self.run_path(run, x).exists() for x in ('events.tsv', 'events.json', 'bag')):
             run += 1
@@ -374,34 +377,34 @@ class SessionStore:
                                                'bag': self.run_path(run, 'bag').name,
                                                'events': self.run_path(run, 'events.tsv').name,
                                                'started_utc': utc, 'started_steady_s': steady_s})
-        self._write_sidecar()
-        # An events sidecar holds column descriptions only (BIDS): the run's block and its time
-        # anchor are the sidecar's BlocksStarted entry and the run's first event.
-        _write(self.run_path(run, 'events.json'), json.dumps(_sidecar_columns(EVENT_COLUMNS), indent=2) + '\n')
-        self._run = {'run': run, 'block': block.key, 'start': steady_s, 'events': [], 'bag': False, 'dirty': True}
+        self._run = {'run': run, 'block': block.key, 'start': steady_s, 'events': [], 'bag': False, 'dirty': True,
+                     'new': True}
         self._event({'trial_type': 'run_start', 'steady_s': steady_s, 'duration': 0.0, 'value': utc})
         for e in self._early:
             self._event(e)
         self._early = []
-        self.flush_events()
+        if write:
+            self.flush_events()
         return self._run
 
     def bag_path(self, block: Block) -> Path:
         """Where the block's bag goes (a directory that does not exist yet: a redone block's run
         gets a new number, the interrupted one's bag stays): the bag of the block's run noted
-        already (note()), else of a run started now."""
+        already (note()), else of a run started now. The run's files are written here."""
         run = self._run
         if run is None or run['block'] != block.key or run['bag']:
-            run = self.start_run(block, time.monotonic())
+            run = self.start_run(block, time.monotonic(), write=False)
         run['bag'] = True
+        self.flush_events()
         return self.run_path(run['run'], 'bag')
 
     def note(self, block: Block | None, events: Sequence[dict]) -> None:
-        """Events of the session (events.step_events): a 'condition' event starts a new run of
-        `block`; written with the next trial (record) or flush_events()."""
+        """Events of the session (events.step_events), kept in memory: a 'condition' event starts
+        a new run of `block`; written with the next bag_path(), trial (record) or flush_events()
+        (never before the step's actions are carried out: a vent waits on no disk)."""
         for e in events:
             if e['trial_type'] == 'condition' and block is not None:
-                self.start_run(block, e['steady_s'])
+                self.start_run(block, e['steady_s'], write=False)
             if self._run is None:
                 self._early.append(e)
             else:
@@ -415,13 +418,22 @@ class SessionStore:
         run['dirty'] = True
 
     def flush_events(self) -> None:
-        """Write the current run's events file (sorted by onset, as BIDS has them)."""
-        run = self._run
-        if run is None or not run['dirty']:
-            return
-        rows = sorted(run['events'], key=lambda r: float(r['onset']))
-        _write(self.run_path(run['run'], 'events.tsv'), _tsv(list(EVENT_COLUMNS), rows))
-        run['dirty'] = False
+        """Write what the runs noted since the last flush: a new run's entry in the sidecar and
+        its events sidecar (column descriptions only, as BIDS has it), and each run's events file
+        (sorted by onset)."""
+        runs = self._closed + ([self._run] if self._run is not None else [])
+        self._closed = []
+        if any(r['new'] for r in runs):
+            self._write_sidecar()
+        for run in runs:
+            if run['new']:
+                _write(self.run_path(run['run'], 'events.json'),
+                       json.dumps(_sidecar_columns(EVENT_COLUMNS), indent=2) + '\n')
+                run['new'] = False
+            if run['dirty']:
+                rows = sorted(run['events'], key=lambda r: float(r['onset']))
+                _write(self.run_path(run['run'], 'events.tsv'), _tsv(list(EVENT_COLUMNS), rows))
+                run['dirty'] = False
 
     def append(self, row: dict) -> None:
         """Record one finished trial durably (the whole file replaced atomically, fsynced).
