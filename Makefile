@@ -41,7 +41,7 @@ PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py
 SITE    := import sysconfig; print(sysconfig.get_path('purelib'))
 
 .PHONY: flakes test-hololens demo test test-deep test-launch test-launch-jazzy test-launch-all test-py312 bench chaos soak \
-  venv clean system-deps system-deps-if-root test-pymodbus
+  venv clean system-deps system-deps-if-root test-pymodbus bids-validator
 
 venv: $(STAMP)
 
@@ -69,6 +69,7 @@ STAGE = test/stage.sh $(STAGES)
 test: $(STAMP)
 	@rm -f $(STAGES)
 	@$(STAGE) system-deps $(MAKE) --no-print-directory system-deps-if-root
+	@$(STAGE) bids-validator $(MAKE) --no-print-directory bids-validator
 	@$(STAGE) hololens $(MAKE) --no-print-directory test-hololens
 	@$(STAGE) pytest $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
 	@$(STAGE) pymodbus $(MAKE) --no-print-directory test-pymodbus
@@ -193,11 +194,13 @@ soak: $(STAMP)
 # them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their
 # reason, and `make test` names them at the end (test/skipped_groups.py). Only what is missing is
 # installed: nothing is fetched when all are there.
-SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime
+SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime nodejs
+# npm: Debian's package where no npm is there (NodeSource's nodejs brings its own and conflicts with it).
 system-deps:
 	@if [ "$$(id -u)" != 0 ]; then echo "system-deps: run as root (apt-get install $(SYSTEM_DEPS))"; exit 1; fi
 	@missing=$$(for p in $(SYSTEM_DEPS); do \
-	  dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	  dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done; \
+	  command -v npm >/dev/null || echo npm); \
 	if [ -z "$$missing" ]; then echo "system-deps: $(SYSTEM_DEPS) installed"; else \
 	  echo "system-deps: installing" $$missing; \
 	  (apt-get update -qq || (sleep 10 && apt-get update -qq)) && \
@@ -209,9 +212,19 @@ system-deps-if-root:
 	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && command -v dpkg-query >/dev/null; then \
 	  $(MAKE) --no-print-directory system-deps; fi
 
+# The BIDS validator (npm's, 1.x) the study folder is held to (test_study_bids), pinned, installed
+# into a folder of the project's own; without npm the test skips with its reason.
+BIDS_VALIDATOR_VERSION := 1.15.0
+BIDS_VALIDATOR := .npm-bids/node_modules/.bin/bids-validator
+bids-validator:
+	@if ! command -v npm >/dev/null; then \
+	  echo "SKIPPED bids-validator: npm absent (make system-deps installs nodejs npm)"; \
+	elif [ "$$($(BIDS_VALIDATOR) --version 2>/dev/null)" != "$(BIDS_VALIDATOR_VERSION)" ]; then \
+	  npm install --prefix .npm-bids --no-audit --no-fund --loglevel=error bids-validator@$(BIDS_VALIDATOR_VERSION); fi
+
 clean:
 	rm -rf $(VENV) .venv-launch .venv-launch-jazzy $(VENV312) build-launch build-launch-jazzy .venv-pymodbus-* \
-	  .pytest_cache .hypothesis \
+	  .pytest_cache .hypothesis .npm-bids \
 	  *.egg-info
 
 # The flake finder: the graph and timing-sensitive tests RUNS times under LOAD busy processes

@@ -13,6 +13,7 @@ import shutil
 import sys
 
 ARDUINO_AVR_CORE = Path('/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h')
+BIDS_VALIDATOR = Path(__file__).resolve().parent.parent / '.npm-bids' / 'node_modules' / '.bin' / 'bids-validator'
 
 #: (group, what it needs, missing?) : the Debian packages are make system-deps's.
 GROUPS = (
@@ -23,6 +24,8 @@ GROUPS = (
     ("the PLC program's AVR build (test_plc_firmware)", 'gcc-avr, avr-libc, arduino-core-avr',
      lambda: not (shutil.which('avr-g++') and shutil.which('avr-size') and ARDUINO_AVR_CORE.exists())),
     ('mbpoll as a foreign Modbus client (test_plc_contract)', 'mbpoll', lambda: not shutil.which('mbpoll')),
+    ("npm's BIDS validator on the study folder (test_study_bids; make bids-validator installs it)", 'nodejs, npm',
+     lambda: not (shutil.which('node') and BIDS_VALIDATOR.exists())),
     ('the loopback socket check (test_bad_input)', 'iproute2', lambda: not shutil.which('ss')),
     ('the graph split over network namespaces (test_netns, test_lab_network)', 'iproute2 and root',
      lambda: not shutil.which('ip') or os.geteuid() != 0),

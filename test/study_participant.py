@@ -15,6 +15,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fabric_guidance.study.plan import StudyDesign, participant_blocks  # noqa: E402
+from fabric_guidance.study.events import RecordedSession  # noqa: E402
 from fabric_guidance.study.session import Session  # noqa: E402
 
 FRAME_S = 1.0 / 90.0
@@ -79,9 +80,7 @@ def main(argv):
         for b in step.blocks:
             print(f'block {b.key} done', flush=True)
 
-    session = Session(design, blocks, {'gaze_source': 'script', 'clock_state': '-'})
-    if blocks:
-        store.bag_path(blocks[0])
+    session = RecordedSession(Session(design, blocks, {'gaze_source': 'script', 'clock_state': '-'}), store)
     drive(session, on_step=on_step)
     print('finished', flush=True)
 

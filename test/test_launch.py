@@ -610,7 +610,7 @@ def test_a_short_accuracy_study_on_the_launched_sim_graph_writes_its_trials_and_
     assert row['status'] == 'ok' and row['press_source'] == 'wearer_sim' and row['condition'] == '1', row
     assert 0.0 <= float(row['h_error_deg']) < 60.0 and 0.0 <= float(row['v_error_deg']) < 60.0
     bags = sorted(store.folder.glob('*_bag'))
-    assert [b.name for b in bags] == ['sub-01_ses-1_task-accuracy_block-1_run-1_bag']
+    assert [b.name for b in bags] == ['sub-01_ses-1_task-accuracy_run-1_bag']
     with AnyReader(bags) as reader:
         topics = {c.topic: c for c in reader.connections}
         presses = [reader.deserialize(raw, c.msgtype).frame_id

@@ -57,7 +57,7 @@ def test_a_blocks_bag_holds_its_presses_and_gaze(tmp_path):
     store = study.session('01', 1, design)
     block = participant_blocks(design, '01', 0)[0]
     path = store.bag_path(block)
-    assert path.name.endswith('_block-1_run-1_bag') and not path.exists()
+    assert path.name.endswith('_run-1_bag') and not path.exists()
     op = Operator(fresh_domain_id())
     counts = {}
     op.node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS,
@@ -90,7 +90,7 @@ def test_a_blocks_bag_holds_its_presses_and_gaze(tmp_path):
     got = [int(m.header.frame_id.split('-')[1]) for m in msgs['/gaze']]
     assert len(got) >= 20 and got == sorted(set(got)) and set(got) <= set(sent), got
     # a redone block gets run-2: the first one's bag stays as it is
-    assert store.bag_path(block).name.endswith('_block-1_run-2_bag')
+    assert store.bag_path(block).name.endswith('_run-2_bag')
 
 
 CHILD = textwrap.dedent('''
@@ -132,10 +132,10 @@ def test_a_simulated_sessions_blocks_each_have_their_bag(tmp_path):
     (tmp_path / 'short.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
     out = tmp_path / 'study'
     assert run_study_session(load_scene(tmp_path / 'short.yaml'), 1, out, lambda line: None) == 0
-    folder = out / 'sub-01' / 'ses-1'
-    rows = read_tsv(folder / 'sub-01_ses-1_task-accuracy_trials.tsv')[1]
+    folder = out / 'sub-01' / 'ses-1' / 'beh'
+    rows = read_tsv(folder / 'sub-01_ses-1_task-accuracy_beh.tsv')[1]
     bags = sorted(folder.glob('*_bag'))
-    assert [b.name for b in bags] == [f'sub-01_ses-1_task-accuracy_block-{k}_run-1_bag' for k in (1, 2)]
+    assert [b.name for b in bags] == [f'sub-01_ses-1_task-accuracy_run-{k}_bag' for k in (1, 2)]
     assert len(rows) == 2 and {r['status'] for r in rows} == {'ok'}
     for bag in bags:
         msgs = read_bag(bag)

@@ -2,6 +2,7 @@
 model does, the session judges the press on the gaze at its stamp, switches the condition within
 the graph, keeps the suit vented between trials, writes every trial as it ends, and a session
 killed with SIGKILL mid-block resumes at that block with the finished trials intact."""
+import json
 import os
 from pathlib import Path
 import signal
@@ -32,7 +33,7 @@ def short_scene(tmp_path: Path, conditions=(1, 3), trials=1, trial_s=6.0, protoc
 
 
 def rows_of(out: Path, protocol: str) -> list[dict]:
-    return read_tsv(out / 'sub-01' / 'ses-1' / f'sub-01_ses-1_task-{protocol}_trials.tsv')[1]
+    return read_tsv(out / 'sub-01' / 'ses-1' / 'beh' / f'sub-01_ses-1_task-{protocol}_beh.tsv')[1]
 
 
 def test_speed_session_wearer_presses_and_no_command_between_trials(tmp_path):
@@ -80,7 +81,7 @@ def test_sigkill_mid_block_resumes_at_that_block(tmp_path):
     # 2 s trials: what is tested is where the kill falls (between trials, mid-block), not what a trial finds
     scene = short_scene(tmp_path, conditions=(1, 2), trials=2, trial_s=2.0)
     out = tmp_path / 'study'
-    tsv = out / 'sub-01' / 'ses-1' / 'sub-01_ses-1_task-speed_trials.tsv'
+    tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
     # its own session: SIGKILL to the group takes the seven nodes down with it, as a power loss would
     proc = _study(scene, out, start_new_session=True)
     try:
@@ -114,3 +115,57 @@ def test_keyboard_keys_press_confirm_and_send_commands():
     src = KeyboardSource(lambda: presses.append(1), commands.append, io.StringIO(' x\nprs q '))
     src.start().join(5)
     assert len(presses) == 3 and commands == ['pause', 'repeat', 'skip', 'stop']   # nothing read after q
+
+
+def children_of(pid: int) -> dict[int, str]:
+    """Live processes whose parent is `pid` (pid -> command line); a zombie has ended."""
+    found = {}
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / 'stat').read_text().rsplit(')', 1)[1].split()
+            if int(fields[1]) == pid and fields[0] != 'Z':
+                found[int(entry.name)] = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode()
+        except (OSError, ValueError, IndexError):
+            continue
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = (Path('/proc') / str(pid) / 'stat').read_text().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != 'Z'
+
+
+def test_a_study_killed_with_sigkill_leaves_no_process_and_resumes_into_clean_logs(tmp_path):
+    scene = short_scene(tmp_path, conditions=(1,), trials=2, trial_s=2.0)
+    out = tmp_path / 'study'
+    tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
+    proc = _study(scene, out)
+    try:
+        wait_until(lambda: tsv.exists() and len(read_tsv(tsv)[1]) >= 1, 240, 0.05, what='a trial written')
+        nodes = {p: c for p, c in children_of(proc.pid).items() if 'fabric_guidance.nodes.' in c}
+        assert len(nodes) >= 7, nodes          # the graph's seven nodes (and the block's recorder)
+        proc.send_signal(signal.SIGKILL)        # the study process alone, not its group
+        assert proc.wait(10) == -signal.SIGKILL
+        wait_until(lambda: not any(alive(p) for p in nodes), 30.0, 0.05,
+                   what=f'the killed study\'s nodes to end: {[c[-60:] for p, c in nodes.items() if alive(p)]}')
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    rerun = _study(scene, out)
+    output, _ = rerun.communicate(timeout=300)
+    assert rerun.returncode == 0, output
+    assert 'was cut off' in output, output
+    logs = sorted((out / 'sourcedata' / 'logs' / 'sub-01').glob('graph*'))
+    assert [p.name for p in logs] == ['graph', 'graph-2']       # the resumed run's own logs
+    for log in logs[1].glob('*.log'):
+        assert b'\0' not in log.read_bytes(), log
+    side = json.loads((out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.json').read_text())
+    cut = side['BlocksInterrupted'][0]
+    assert cut['bags'] == ['sub-01_ses-1_task-speed_run-1_bag'], cut
+    assert (out / 'sub-01' / 'ses-1' / 'beh' / cut['bags'][0]).is_dir()

@@ -67,13 +67,13 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     text = '\n'.join(lines)
     assert 'P01: no calibration yet; calibrating now' in text
     assert (cal_dir / 'P01.yaml').is_file(), text           # written by the graph's controller, as <id>.yaml
-    header, rows = read_tsv(out / 'sub-P01' / 'ses-1' / 'sub-P01_ses-1_task-speed_trials.tsv')
+    header, rows = read_tsv(out / 'sub-P01' / 'ses-1' / 'beh' / 'sub-P01_ses-1_task-speed_beh.tsv')
     assert [(r['condition'], r['status']) for r in rows] == [('1', 'ok')], rows
     # wearer_sim presses as the headset's clicker does (its uplink)
     assert int(rows[0]['identified']) >= 1 and rows[0]['press_source'] == 'headset', text
     assert rows[0]['calibration_file'] == 'P01.yaml' and len(rows[0]['calibration_sha256']) == 64
     assert rows[0]['clock_state'] == 'synced'      # gaze_bridge's clock estimate of wearer_sim's headset clock
-    assert list((out / 'sub-P01' / 'ses-1').glob('*_block-1_run-1_bag')), 'the block has its bag'
+    assert list((out / 'sub-P01' / 'ses-1' / 'beh').glob('*_run-1_bag')), 'the block has its bag'
 
 
 def test_the_operators_keys_reach_the_session_as_its_commands():

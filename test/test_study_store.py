@@ -16,11 +16,12 @@ import threading
 import pytest
 
 from fabric_guidance import atomic
-from fabric_guidance.experiments import analyze
+from fabric_guidance.experiments import analyze, study_folder
 from fabric_guidance.experiments.stats import analyze_trials
 from fabric_guidance.graph.process_graph import wait_until
 from fabric_guidance.study import store as store_module
 from fabric_guidance.study.plan import StudyDesign, participant_blocks
+from fabric_guidance.study.events import RecordedSession
 from fabric_guidance.study.session import Session
 from fabric_guidance.study.store import DiskFull, Study, StudyError, read_tsv, study_trials
 from fabric_guidance.study.trial_columns import COLUMNS
@@ -36,7 +37,8 @@ def run_participant(root: Path, pid: str, design: StudyDesign = DESIGN, stop_aft
     study = Study.open(root)
     p = study.add_participant(pid)
     st = study.session(pid, 1, design)
-    session = Session(design, st.remaining(participant_blocks(design, pid, p.index)), {'gaze_source': 'test'})
+    session = RecordedSession(Session(design, st.remaining(participant_blocks(design, pid, p.index)),
+                                      {'gaze_source': 'test'}), st)
     count = [0]
 
     def on_step(step):
@@ -54,18 +56,24 @@ def test_the_layout_participants_and_the_sidecar(tmp_path):
     st = run_participant(root, 'P1')
     run_participant(root, 'P2')
     desc = json.loads((root / 'dataset_description.json').read_text())
-    assert desc['FabricGuidanceStudyFormat'] == 1 and desc['BIDSVersion']
+    assert desc['FabricGuidanceStudyFormat'] == 2 and desc['BIDSVersion'] == '1.10.0'
+    generated = desc['GeneratedBy'][0]
+    assert generated['Name'] == 'fabric_guidance' and generated['Version'] not in ('', 'n/a', 'unknown')
+    assert generated['Description'].startswith('git commit ')
+    assert (root / 'README.md').is_file() and '**/*_bag/' in (root / '.bidsignore').read_text()
     header, rows = read_tsv(root / 'participants.tsv')
     assert header == ['participant_id', 'index', 'registered_utc']
     assert [(r['participant_id'], r['index']) for r in rows] == [('sub-P1', '0'), ('sub-P2', '1')]
-    assert st.trials_path == root / 'sub-P1' / 'ses-1' / 'sub-P1_ses-1_task-speed_trials.tsv'
+    assert st.trials_path == root / 'sub-P1' / 'ses-1' / 'beh' / 'sub-P1_ses-1_task-speed_beh.tsv'
     header, rows = read_tsv(st.trials_path)
     assert header == list(COLUMNS) and len(rows) == 8 and {r['status'] for r in rows} == {'ok'}
     side = json.loads(st.sidecar_path.read_text())
     assert StudyDesign.from_dict(side['Parameters']) == DESIGN
-    assert set(side['Columns']) == set(COLUMNS)
-    assert all(c['Units'] and c['Description'] for c in side['Columns'].values())
-    assert side['Columns']['trial_end_s']['Units'] == 's' and side['Columns']['h_error_deg']['Units'] == 'deg'
+    # every column described at the sidecar's top level (where BIDS tools read it), a unit where there is one
+    assert set(COLUMNS) <= set(side) and all(side[c]['Description'] for c in COLUMNS)
+    assert side['trial_end_s']['Units'] == 's' and side['h_error_deg']['Units'] == 'deg'
+    assert 'Units' not in side['block'] and 'subject' not in header and 'session' not in header
+    assert {r['package_version'] for r in rows} == {generated['Version']}
     assert len(side['BlocksDone']) == 4
     assert not list(root.rglob('.*.tmp'))
     assert {r['wearer'] for r in study_trials(root)} == {'P1', 'P2'}
@@ -91,10 +99,11 @@ def test_bad_input_in_one_line(tmp_path):
         Study.open(tmp_path / 'other')
     cases.append((info, 'not a study folder'))
     desc = json.loads((root / 'dataset_description.json').read_text())
-    (root / 'dataset_description.json').write_text(json.dumps({**desc, 'FabricGuidanceStudyFormat': 2}))
+    # a folder of format 1 (before the BIDS layout) is refused: finished with the version that wrote it
+    (root / 'dataset_description.json').write_text(json.dumps({**desc, 'FabricGuidanceStudyFormat': 1}))
     with pytest.raises(StudyError) as info:
         Study.open(root)
-    cases.append((info, 'study format version 2, this fabric_guidance reads version 1'))
+    cases.append((info, 'study format version 1, this fabric_guidance reads version 2'))
     for info, text in cases:
         assert text in str(info.value) and '\n' not in str(info.value), str(info.value)
 
@@ -160,11 +169,15 @@ def test_a_stopped_session_resumes_at_its_unfinished_block(tmp_path):
     assert Study.open(root).session('P1', 1, DESIGN).lost is None      # said once
     blocks = participant_blocks(DESIGN, 'P1', 0)
     assert [b.key for b in again.remaining(blocks)] == [b.key for b in blocks[1:]]
-    # run 1 was the interrupted one; a block started (its bag reserved) and not finished is cut off too
-    assert again.bag_path(blocks[1]).name == 'sub-P1_ses-1_task-speed_block-2_run-2_bag'
+    # runs 1 and 2 were the first session's blocks (run 2 the cut one, named in BlocksInterrupted);
+    # a block started (its bag reserved) and not finished is cut off too
+    side = json.loads(again.sidecar_path.read_text())
+    assert side['BlocksInterrupted'][0]['runs'] == [2]
+    assert (again.folder / 'sub-P1_ses-1_task-speed_run-2_events.tsv').is_file()
+    assert again.bag_path(blocks[1]).name == 'sub-P1_ses-1_task-speed_run-3_bag'
     third = Study.open(root).session('P1', 1, DESIGN)
     assert third.lost == store_module.Lost(blocks[1].key, 0)
-    assert third.bag_path(blocks[1]).name.endswith('block-2_run-3_bag')
+    assert third.bag_path(blocks[1]).name.endswith('_run-4_bag')
 
 
 class Child:
@@ -202,14 +215,14 @@ def test_a_session_killed_mid_block_keeps_its_trials_and_resumes(tmp_path):
     Child(killed, 'P1').finish()
     child = Child(killed, 'P2', hang_after=3)
     wait_until(lambda: 'hanging\n' in child.lines, 120.0, what='the third trial written')
-    on_disk = read_tsv(killed / 'sub-P2' / 'ses-1' / 'sub-P2_ses-1_task-speed_trials.tsv')[1]
+    on_disk = read_tsv(killed / 'sub-P2' / 'ses-1' / 'beh' / 'sub-P2_ses-1_task-speed_beh.tsv')[1]
     child.proc.send_signal(signal.SIGKILL)
     assert child.proc.wait(30.0) == -signal.SIGKILL
     assert [f'trial {r["block"]} {r["repetition"]} {r["status"]}\n' for r in on_disk] == \
         [ln for ln in child.lines if ln.startswith('trial ')]          # every trial it had reported
     lines = Child(killed, 'P2').finish()
     assert lines[0].startswith(f'block {on_disk[2]["block"]} was cut off: its 1 finished trial(s)')
-    after = read_tsv(killed / 'sub-P2' / 'ses-1' / 'sub-P2_ses-1_task-speed_trials.tsv')[1]
+    after = read_tsv(killed / 'sub-P2' / 'ses-1' / 'beh' / 'sub-P2_ses-1_task-speed_beh.tsv')[1]
     assert after[:2] == on_disk[:2]                                     # the finished block untouched
     assert after[2] == {**on_disk[2], 'status': 'interrupted'}
     assert [r['block'] for r in after[3:5]] == [on_disk[2]['block']] * 2  # the block redone whole
@@ -223,7 +236,7 @@ def test_a_session_killed_mid_block_keeps_its_trials_and_resumes(tmp_path):
 
 
 def test_analyze_reads_the_study_folder_as_the_store_writes_it(tmp_path, capsys):
-    assert analyze.STUDY_FORMAT == (store_module.FORMAT_KEY, store_module.FORMAT_VERSION)
+    assert study_folder.FORMAT == (store_module.FORMAT_KEY, store_module.FORMAT_VERSION)
     root = tmp_path / 's'
     for pid in ('P1', 'P2', 'P3'):
         run_participant(root, pid)
@@ -259,23 +272,18 @@ def test_docs_study_describes_every_column_and_parameter():
         assert f'| `{name}` |' in text, f'docs/study.md: no row for the parameter {name}'
 
 
-def test_the_press_sources_are_recorded_and_a_file_from_before_them_resumes(tmp_path):
+def test_the_press_sources_are_recorded_and_a_sidecar_from_before_them_resumes(tmp_path):
     root = tmp_path / 's'
     st = run_participant(root, 'P1', DESIGN.with_(press_sources=('keyboard',)), stop_after=1)
     assert json.loads(st.sidecar_path.read_text())['Parameters']['press_sources'] == ['keyboard']
     with pytest.raises(StudyError, match=r"press_sources \['keyboard'\] recorded, \[\] given"):
         Study.open(root).session('P1', 1, DESIGN)
-    # P2's files as written before the column ignored_presses and the parameter press_sources
+    # a sidecar written before the parameter press_sources resumes with its default (all)
     st = run_participant(root, 'P2', stop_after=1)
-    header, rows = read_tsv(st.trials_path)
-    older = [c for c in COLUMNS if c != 'ignored_presses']
-    st.trials_path.write_text(store_module._tsv(older, rows))
     side = json.loads(st.sidecar_path.read_text())
-    del side['Parameters']['press_sources'], side['Columns']['ignored_presses']
+    del side['Parameters']['press_sources']
     st.sidecar_path.write_text(json.dumps(side))
     st = run_participant(root, 'P2')                 # resumes; nothing recorded is lost
     header, rows = read_tsv(st.trials_path)
-    assert header == list(COLUMNS) and rows[0]['ignored_presses'] == 'n/a' and rows[0]['status'] == 'interrupted'
-    assert {r['ignored_presses'] for r in rows if r['status'] == 'ok'} == {'0'} and len(rows) == 1 + 8
-    side = json.loads(st.sidecar_path.read_text())
-    assert side['Parameters']['press_sources'] == [] and 'ignored_presses' in side['Columns']
+    assert header == list(COLUMNS) and rows[0]['status'] == 'interrupted' and len(rows) == 1 + 8
+    assert json.loads(st.sidecar_path.read_text())['Parameters']['press_sources'] == []

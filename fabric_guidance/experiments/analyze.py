@@ -4,11 +4,13 @@ conditions table, or on the one a live study's folder gives.
 Prints the Friedman test, the Dunn-Bonferroni pairwise comparisons and the best condition per
 subject; --plot writes the violin plot, --report a markdown report (embedding the plot if any).
 A STUDY_DIR (docs/study.md) is read as the analysis of the headless experiment reads its trials:
-the 'ok' rows of every sub-*/ses-*/*_task-<protocol>_trials.tsv, each participant's mean per
-condition of each measure of the protocol (speed: identified targets per trial; accuracy: the
-horizontal and the vertical error), one analysis per measure (--measure: one); --table writes
-the subjects x conditions table. Exit status: 0 done, 2 bad table, folder or arguments, 1 an
-output file could not be written.
+the trials that ended of every sub-*/ses-*/beh/*_task-<protocol>_beh.tsv (study_folder.py: 'ok'
+rows of blocks listed done, each value range-checked), each participant's mean per condition of
+each measure of the protocol (speed: identified targets per trial; accuracy: the horizontal and
+the vertical error), one analysis per measure (--measure: one; each measure knows whether lower
+is better); a participant without every condition is left out and named, one participant is
+reported without the tests; --table writes the subjects x conditions table. Exit status: 0
+done, 2 bad table, folder or arguments, 1 an output file could not be written.
 
 Also runs alone: python -m fabric_guidance.experiments.analyze TABLE.csv
 """
@@ -22,17 +24,15 @@ import pandas as pd
 
 from .. import subcommand
 from ..atomic import write_text
-from ..sim.protocols import CONDITION_NAMES, MEASURES
-from .stats import analyze_blocks, analyze_trials, format_analysis, load_table
+from ..sim.protocols import MEASURES
+from .stats import analyze_blocks, analyze_trials, condition_label, format_analysis, load_table
+from .study_folder import HIGHER_IS_BETTER, TRIALS_GLOB, complete, read_study
 
 PROG = 'fabric-guidance analyze'
 HELP = ('Friedman test + Dunn-Bonferroni post-hoc on a subjects x conditions CSV (as the paper\'s table) '
         'or on a live study\'s folder')
-#: The study folder as study/store.py writes it (this layer sits below study/: the layout is
-#: read here as any BIDS reader reads it; test_study_store checks both agree).
-STUDY_DESCRIPTION = 'dataset_description.json'
-STUDY_FORMAT = ('FabricGuidanceStudyFormat', 1)
-STUDY_TRIALS = 'sub-*/ses-*/sub-*_ses-*_task-*_trials.tsv'
+#: The study folder as study/store.py writes it (study_folder.py reads it).
+STUDY_TRIALS = TRIALS_GLOB
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -61,42 +61,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def study_frame(root: Path, protocol: str | None = None):
-    """The 'ok' trials of a study folder as a DataFrame (subject: the participant id, condition:
-    the names experiments.stats uses) and the protocol; ValueError in one line."""
-    import json
-    path = root / STUDY_DESCRIPTION
-    try:
-        description = json.loads(path.read_text(encoding='utf-8'))
-    except FileNotFoundError:
-        raise ValueError(f'{root}: not a study folder (no {STUDY_DESCRIPTION}) and not a table') from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ValueError(f'{path}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
-    key, version = STUDY_FORMAT
-    if not isinstance(description, dict) or description.get(key) != version:
-        found = description.get(key) if isinstance(description, dict) else None
-        raise ValueError(f'{path}: study format version {found!r}, this fabric_guidance reads version {version}')
-    frames = []
-    for trials in sorted(root.glob(STUDY_TRIALS)):
-        try:
-            frames.append(pd.read_csv(trials, sep='\t', na_values=['n/a'], keep_default_na=False,
-                                      dtype={'wearer': str, 'status': str, 'protocol': str}))
-        except (OSError, ValueError) as exc:
-            raise ValueError(f'{trials}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
-    if not frames:
-        raise ValueError(f'{root}: no trials yet (no {STUDY_TRIALS})')
-    data = pd.concat(frames, ignore_index=True)
-    data = data[data['status'] == 'ok']
-    protocols = sorted(set(data['protocol']))
-    if protocol is None:
-        if len(protocols) != 1:
-            raise ValueError(f'{root}: holds the tasks {", ".join(protocols) or "none"}: choose one with --protocol')
-        protocol = protocols[0]
-    data = data[data['protocol'] == protocol].copy()
-    if not len(data):
-        raise ValueError(f'{root}: no finished {protocol} trials')
-    data['subject'] = data['wearer']
-    data['condition'] = data['condition'].map(CONDITION_NAMES)
-    return data.reset_index(drop=True), protocol
+    """The trials of a study folder that count (study_folder.read_study) as a DataFrame and the
+    protocol; ValueError in one line."""
+    data = read_study(root, protocol)
+    return data.frame, data.protocol
 
 
 def write_report(args: argparse.Namespace, title: str, analyses: dict, plots: dict) -> None:
@@ -111,18 +79,28 @@ def write_report(args: argparse.Namespace, title: str, analyses: dict, plots: di
 
 
 def run_study(args: argparse.Namespace) -> int:
-    """analyze STUDY_DIR: one analysis per measure of the study's protocol."""
+    """analyze STUDY_DIR: one analysis per measure of the study's protocol; a participant
+    without a finished trial in every condition is left out (named), one participant is
+    reported without the tests."""
     try:
-        data, protocol = study_frame(args.table, args.protocol)
-        measures = MEASURES[protocol]
+        data = read_study(args.table, args.protocol)
+        protocol = data.protocol
+        measures = {m: HIGHER_IS_BETTER[m] for m in MEASURES[protocol]}
         if args.measure is not None:
-            if args.measure not in data.columns:
-                raise ValueError(f'--measure: {args.measure} is not a column of the trials')
-            measures = {args.measure: measures.get(args.measure, not args.lower_is_better)}
-        analyses = {m: analyze_trials(data, m, higher_is_better=hib) for m, hib in measures.items()}
+            measures = {args.measure: HIGHER_IS_BETTER.get(args.measure, not args.lower_is_better)}
+        tables = {m: complete(data, m) for m in measures}
+        for m, (frame, _) in tables.items():
+            if frame.empty:
+                raise ValueError(f'{args.table}: no participant has a finished trial with a {m} in every condition '
+                                 f'({"; ".join(tables[m][1][-3:])})')
+        analyses = {m: analyze_trials(frame, m, higher_is_better=measures[m], conditions=data.conditions)
+                    if frame['subject'].nunique() > 1 else one_participant(frame, m, data.conditions)
+                    for m, (frame, _) in tables.items()}
     except ValueError as exc:
         subcommand.error(PROG, exc)
         return 2
+    for note in data.notes:
+        print(f'left out: {note}')
     several = len(analyses) > 1
 
     def out(path: Path | None, measure: str) -> Path | None:
@@ -131,26 +109,42 @@ def run_study(args: argparse.Namespace) -> int:
     plots = {}
     try:
         for measure, analysis in analyses.items():
-            print(f'{protocol}: {measure}, per participant mean over their finished trials '
-                  f'({len(analysis.table)} participants)')
-            print(format_analysis(analysis), end='', flush=True)
+            for note in tables[measure][1]:
+                print(f'left out: {note}')
+            direction = 'higher' if measures[measure] else 'lower'
+            if isinstance(analysis, pd.DataFrame):
+                print(f'{protocol}: {measure}, per participant mean over their finished trials (1 participant: '
+                      f'the Friedman test needs at least 2); {direction} is better')
+                print(analysis.rename(columns=condition_label).to_string(float_format=lambda v: f'{v:.3f}'))
+                table = analysis
+            else:
+                print(f'{protocol}: {measure}, per participant mean over their finished trials '
+                      f'({len(analysis.table)} participants)')
+                print(format_analysis(analysis), end='', flush=True)
+                table = analysis.table
             if args.table_out is not None:
-                table = out(args.table_out, measure)
-                write_text(table, analysis.table.rename_axis('subject').to_csv())
-                print(f'table: {table}')
-            if args.plot is not None:
+                path = out(args.table_out, measure)
+                write_text(path, table.rename_axis('subject').to_csv())
+                print(f'table: {path}')
+            if args.plot is not None and not isinstance(analysis, pd.DataFrame):
                 from .violin_plots import violin_plot
                 plots[measure] = violin_plot(analysis, f'{measure} (per participant)', out(args.plot, measure),
                                              significance=analysis)
                 print(f'plot: {plots[measure]}')
             print()
         write_report(args, f'Statistics of the study {args.table.name} ({protocol})',
-                     {f'{m} (per participant)': a for m, a in analyses.items()},
+                     {f'{m} (per participant)': a for m, a in analyses.items() if not isinstance(a, pd.DataFrame)},
                      {f'{m} (per participant)': p for m, p in plots.items()})
     except OSError as exc:
         subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1
     return 0
+
+
+def one_participant(frame: pd.DataFrame, measure: str, conditions) -> pd.DataFrame:
+    """The subjects x conditions table of means of a single participant (no test is defined)."""
+    table = frame.groupby(['subject', 'condition'])[measure].mean().unstack('condition')
+    return table.reindex(columns=list(conditions))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,8 @@ wearer_sim as the HoloLens) on free ports, as `fabric-guidance demo` and `soak` 
 
 `supervise()` opts nodes into the launch files' restart policy: a supervised process that dies
 (not stopped through `stop`/`stop_all`) is started again with the same parameters after a
-back-off that doubles while it keeps dying young. Every process of a graph carries its token in
+back-off that doubles while it keeps dying young. Every node ends with the process that
+started the graph, even one killed with SIGKILL (nodes/parent.py). Every process of a graph carries its token in
 the environment, so `leftovers()` finds any that outlived `stop_all()`, its children included.
 """
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import Any, Callable, Mapping, Sequence
 from .. import interface
 from ..lab.lab_network import PROFILE_VARIABLES, profile_env, profile_variable
 from .suit_plc import require_own_plc
+from ..nodes.parent import PARENT_ENV
 from ..paths import share_dir
 
 ROOT = share_dir()
@@ -196,7 +198,9 @@ class Graph:
             cmd += ['-p', f'{key}:={_param_text(value)}']
         # A supervised restart appends: its log follows its predecessor's.
         log = open(self.log_dir / f'{proc_key}.log', 'a' if self._restarting else 'w')
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=ROOT)
+        # The node ends with this process, however it ends (nodes/parent.py).
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
+                                env={**self.env, PARENT_ENV: str(os.getpid())})
         log.close()   # the child has its own descriptor
         with self._lock:
             self.processes[proc_key] = proc

@@ -3,7 +3,7 @@ the headless experiment on the same scene, seed and participants, with the simul
 seed-to-seed spread (the same study headless on other seeds) beside both. Speed adds mean_find_s
 (target shown to its press), the phase a graph could lengthen.
 
-python -m fabric_guidance.live_study.compare STUDY_DIR [--seeds 5] [--out TABLE.md]
+python -m fabric_guidance.live_study.compare STUDY_DIR [--protocol speed] [--seeds 5] [--out TABLE.md]
 
 Per condition and measure: the mean over participants of each participant's mean (as the
 paper's tables), live and headless on the study's seed; the headless means on the study's seed
@@ -53,20 +53,21 @@ def _typed(row: dict) -> dict:
 
 def _record(row: dict):
     from ..sim.protocols import TrialRecord
+    from ..study.trial_columns import FILE_NAMES
     from dataclasses import fields
-    return TrialRecord(**{f.name: row.get(f.name) for f in fields(TrialRecord)})
+    return TrialRecord(**{f.name: row.get(FILE_NAMES.get(f.name, f.name)) for f in fields(TrialRecord)})
 
 
-def compare(study: Path, seeds: int = 5, workers: int = 2) -> str:
-    data = yaml.safe_load((study / 'scene.yaml').read_text())
-    protocol = data['protocol']['kind']
+def compare(study: Path, seeds: int = 5, workers: int = 2, protocol: str = 'speed') -> str:
+    scene_file = study / f'scene-{protocol}.yaml'
+    data = yaml.safe_load(scene_file.read_text())
     rows = study_trials(study, protocol)
-    n = len({r['subject'] for r in rows})
+    n = len({r['subject_index'] for r in rows})
     live = [_record(_typed(r)) for r in rows]
     headless = {}
     for k in range(seeds):
         d = dict(data, seed=int(data['seed']) + k)
-        scene = scene_from_dict(d, f'{study / "scene.yaml"} (seed {d["seed"]})')
+        scene = scene_from_dict(d, f'{scene_file} (seed {d["seed"]})')
         headless[d['seed']] = run_protocol(scene, n, workers)
     base = int(data['seed'])
     lines = [f'{protocol}: {n} participants, {data["repetitions"]} trials per condition'
@@ -88,10 +89,11 @@ def compare(study: Path, seeds: int = 5, workers: int = 2) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog='python -m fabric_guidance.live_study.compare', description=__doc__.split('\n')[0])
     p.add_argument('study', type=Path)
+    p.add_argument('--protocol', choices=sorted(MEASURES), default='speed')
     p.add_argument('--seeds', type=int, default=5)
     p.add_argument('--out', type=Path, default=None)
     args = p.parse_args(argv)
-    table = compare(args.study, args.seeds)
+    table = compare(args.study, args.seeds, protocol=args.protocol)
     print(table)
     if args.out is not None:
         write_text(args.out, table)

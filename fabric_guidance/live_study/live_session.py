@@ -27,6 +27,7 @@ from typing import Callable
 from ..core.calibration_state import DONE, FAILED, REFUSED
 from ..graph.process_graph import wait_until
 from ..study.plan import participant_blocks
+from ..study.events import RecordedSession
 from ..study.session import Session
 from ..study.store import Study
 from .block_bag import BlockBags
@@ -188,8 +189,8 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
                    'calibration_file': cal.name if cal is not None else f'{participant}.yaml',
                    'calibration_sha256': hashlib.sha256(cal.read_bytes()).hexdigest() if readable else '-',
                    'scene': scene.name}
-        session = Session(design, blocks, context)
         bags = BlockBags(op, store, namespace or '/', say=say)
+        session = RecordedSession(Session(design, blocks, context), bags)     # its events per run
 
         def set_condition(cond: int) -> None:
             op.set_condition(cond)

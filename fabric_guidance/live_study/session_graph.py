@@ -16,8 +16,9 @@ import numpy as np
 
 from ..atomic import write_text
 from ..study.plan import participant_blocks
+from ..study.events import RecordedSession
 from ..study.session import Session
-from ..study.store import Study
+from ..study.store import Study, StudyError
 from .block_bag import BlockBags
 from .driver import SessionDriver, target_phases
 from .simulated import SimulatedParticipant, Timing, design_of
@@ -42,23 +43,25 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
     pid = participant_label(subject)
     p = study.add_participant(pid)
     if p.index != subject:
-        raise ValueError(f'{study.root}: participant {pid} was registered with index {p.index}, not {subject}')
+        raise StudyError(f'{study.root / "participants.tsv"}: participant {pid} was registered with index {p.index}, '
+                         f'not {subject}: the simulated participants are registered in order (use a new --out)')
     store = study.session(pid, 1, design)
     if store.lost is not None:
         say(f'sub-{pid}: {store.lost.line()}')
     blocks = store.remaining(participant_blocks(design, pid, subject))
     if not blocks:
         return []
-    part = SimulatedParticipant(scene, subject, blocks[0].condition, study.root / 'logs' / f'sub-{pid}', say, design)
+    # The graph's logs and calibration are source data (BIDS: sourcedata/, which BIDS tools pass over).
+    logs = study.root / 'sourcedata' / 'logs' / f'sub-{pid}'
+    part = SimulatedParticipant(scene, subject, blocks[0].condition, logs, say, design)
     try:
         part.start()
         cal = part.calibration_file
         context = {'gaze_source': 'wearer_sim', 'clock_state': 'synced', 'calibration_file': cal.name,
                    'calibration_sha256': hashlib.sha256(cal.read_bytes()).hexdigest(), 'git_commit': _commit(),
                    'scene': scene.name}
-        session = Session(design, blocks, context)
-
         bags = BlockBags(part.op, store, say=say)
+        session = RecordedSession(Session(design, blocks, context), bags)     # its events per run
 
         def set_condition(cond: int) -> None:
             if cond != part.condition:
@@ -97,7 +100,7 @@ def run_study_session(scene, participants: int, out: Path, say: Callable[[str], 
         f'{participants} participants, {design.trials} trials per condition; folder {out}')
     for subject in range(participants):
         run_participant(scene, design, study, subject, say, timing)
-    write_text(out / 'timing.json', json.dumps(timing, indent=1))
+    write_text(out / f'timing-{design.protocol}.json', json.dumps(timing, indent=1))
     say(timing_line(timing))
     say(f'analysis: fabric-guidance analyze {out}')
     return 0

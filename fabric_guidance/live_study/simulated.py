@@ -63,6 +63,15 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
                             repetition=0)
 
 
+def fresh_folder(base: Path) -> Path:
+    """base, or base-2, base-3 ... the first that does not exist yet."""
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f'{base.name}-{n}')
+    return path
+
+
 class SimulatedParticipant:
     """One participant's graph and its operator: start(), switch(condition), close()."""
 
@@ -83,7 +92,8 @@ class SimulatedParticipant:
         graph_overrides(self.lab, scene, subject, cond.number, self.calibration_file, self.gaze_rate_hz)
         # Domains 101-200: the tests' graphs take 1-100 (process_graph.fresh_domain_id), and a
         # session that meets another graph's target_selector on its domain would steer that one.
-        self.graph = Graph(log_dir / 'graph', domain_id=101 + (os.getpid() * 7 + subject) % 100)
+        # A folder of its own per run: a resumed study never writes into the logs of the run before.
+        self.graph = Graph(fresh_folder(log_dir / 'graph'), domain_id=101 + (os.getpid() * 7 + subject) % 100)
         self.op: Operator | None = None
         self.timing = Timing()
         self.condition = cond.number

@@ -5,11 +5,12 @@
 runs the session on the simulated graph with a scene's wearers as participants (wearer_sim
 presses the key as the headless model does); --trials and --trial-s shorten it, --seed changes
 the scene's seed (the population, the targets, the condition orders). The scene used is written
-to DIR/scene.yaml, so that `fabric-guidance experiment --scene DIR/scene.yaml` runs the same study
-headless. The session is study.session's state machine driven on the graph (driver.py); every
-finished trial is in the study folder (study.store) at once, atomically; run the same command
-again on the same DIR after a crash and the session resumes at the first unfinished block.
-`fabric-guidance analyze DIR` analyses it.
+to DIR/scene-<protocol>.yaml, so that `fabric-guidance experiment --scene DIR/scene-speed.yaml`
+runs the same study headless; both tasks may share one study folder (a BIDS dataset). The
+session is study.session's state machine driven on the graph (driver.py); every finished trial is
+in the study folder (study.store) at once, atomically; run the same command again on the same DIR
+after a crash and the session resumes at the first unfinished block (the graph's nodes end with
+the command, however it ends). `fabric-guidance analyze DIR` analyses it.
 
   fabric-guidance study --participant P07 --protocol speed --out DIR [--namespace NS]
 
@@ -75,8 +76,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def study_scene(args, out: Path):
-    """The scene of the study with --seed/--trials/--trial-s applied, written to out/scene.yaml
-    (wearer_sim reads the scene from that file) and loaded from there."""
+    """The scene of the study's task with --seed/--trials/--trial-s applied, written to
+    out/scene-<protocol>.yaml (wearer_sim reads the scene from that file; one per task, so that
+    one study folder holds both tasks) and loaded from there."""
     from ..sim.scene import load_scene, scene_path
     source = scene_path(args.scene or SCENES[args.protocol])
     data = yaml.safe_load(Path(source).read_text())
@@ -88,7 +90,7 @@ def study_scene(args, out: Path):
         if data['protocol'].get('kind') != 'speed':
             raise ValueError('--trial-s: only the speed protocol has timed trials')
         data['protocol']['trial_s'] = float(args.trial_s)
-    written = out / 'scene.yaml'
+    written = out / f'scene-{args.protocol}.yaml'
     existing = written.read_text() if written.exists() else None
     text = yaml.safe_dump(data, sort_keys=False)
     if existing is not None and yaml.safe_load(existing) != data:

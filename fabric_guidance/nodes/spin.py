@@ -18,6 +18,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from .managed import ConfigureError, ManagedNode
+from .parent import die_with_parent
 from .parameters import check_params_files
 
 
@@ -66,7 +67,11 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
     rclpy's own signal handlers would shut the context down first; ours only set a flag that
     the spin loop checks every 50 ms. Raising from the handler instead would interrupt whatever
     runs at that instant (a callback, rclpy's C++ take path, a Modbus request) half-way.
+    A node a graph started ends with the graph's process (nodes/parent.py).
     """
+    if not die_with_parent():
+        print('[fabric_guidance] not started: the process that started this node has ended', flush=True)
+        return 1
     try:
         check_params_files(sys.argv if args is None else args)
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

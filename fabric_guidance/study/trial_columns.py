@@ -2,6 +2,10 @@
 describes them from here). First the columns of the headless experiment's trials
 (sim.protocols.TrialRecord: `analyze`, the experiment's plots and compare-paper read human data
 unchanged), then what a live trial adds.
+
+A trials file is a BIDS behavioural file: a column may not be named after a BIDS entity (BIDS
+tools take `subject` or `session` for the file's own), so the session's `subject` and `session`
+are written as `subject_index` and `session_number` (FILE_NAMES); COLUMNS are the file's names.
 """
 from __future__ import annotations
 
@@ -11,7 +15,7 @@ from ..sim.protocols import TrialRecord
 
 #: TrialRecord's columns as a study fills them: (unit, description).
 RECORD_COLUMNS: dict[str, tuple[str, str]] = {
-    'scene': ('-', 'the study (its folder name): where the headless experiment names its scene'),
+    'scene': ('-', "the scene a simulated study ran (its name); a live session: the study folder's name"),
     'protocol': ('-', "the task: 'speed' or 'accuracy'"),
     'subject': ('-', 'participant index, 0-based in registration order (seeds the order and targets)'),
     'wearer': ('-', 'participant id (sub-<id> without the prefix)'),
@@ -68,5 +72,9 @@ STORE_COLUMNS: dict[str, tuple[str, str]] = {
 }
 
 COLUMNS: dict[str, tuple[str, str]] = {**RECORD_COLUMNS, **SESSION_COLUMNS, **CONTEXT_COLUMNS, **STORE_COLUMNS}
+#: The session's row keys written under another name (a BIDS entity's name is the file's own).
+FILE_NAMES = {'subject': 'subject_index', 'session': 'session_number'}
+#: The columns as the file has them, in order.
+COLUMNS = {FILE_NAMES.get(k, k): v for k, v in COLUMNS.items()}
 #: The context keys the operator layer supplies.
 LIVE_CONTEXT = tuple(CONTEXT_COLUMNS)
