@@ -7,17 +7,19 @@ Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `chann
             inputs the step used, layout in bag/controller_io.py), controller_parameters (String,
             YAML, latched: parameters, calibration and channel map; again after a live calibration),
             speech (String, condition 4), calibration_status (String), /diagnostics
-Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
+Services    start_calibration (Trigger), enable (SetBool), vent (Trigger), trial_gate (SetBool)
 
-The enable latch: `enable false` and `vent` stop every pressure the node sends, a running
-calibration included (it ends, failed, and the suit vents at once), and only `enable true` lifts
-the latch. No lifecycle transition, parameter, new calibration or start_calibration does (a
-disabled controller refuses to calibrate); start_enabled is the latch's value when the process
-starts (the lab launch with respawn: false, so a restarted controller waits for the operator).
+Two gates (controller_gates.py): the operator's arm, the enable latch (`enable false` and `vent`
+stop every pressure the node sends, a running calibration included, and only `enable true`
+lifts it; no lifecycle transition, parameter, new calibration, start_calibration or trial gate
+does; start_enabled is its value when the process starts: false in the lab launch, so a
+restarted controller waits for the operator), and the study session's trial gate. Pressure
+flows only while both are open.
 
 Parameters set at run time take effect at once or are refused with the reason (the table in
 core/controller_parameters.py says which and what each does; on_set_parameters applies them).
-p_max_kpa can be lowered at any time and raised no higher than the value the node started with.
+The safety limits (p_max_kpa, gaze_timeout_s, stall_timeout_s) only tighten, and a tightening
+is held across restarts (held_limits.py); use_sim_time is fixed while the node runs.
 
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
@@ -68,10 +70,11 @@ from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
 from ..core.control_step import RESET_KEEP_STALL, RESET_VENT, ControllerSetup, StepInput, guidance_step, safe_command
 from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
                          DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
-                         VENT)
+                         TRIAL_GATE, VENT)
 from ..paths import resolve
 from .array_layout import named_layout
 from .diagnostics import publish_diagnostics, status
+from .controller_gates import Gates
 from .controller_settings import LiveParameters
 from .managed import ManagedNode
 from .parameters import declare_table
@@ -79,7 +82,7 @@ from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
 
-class PressureController(LiveParameters, ManagedNode):
+class PressureController(Gates, LiveParameters, ManagedNode):
     """Eq. 5 as a lifecycle node (nodes/managed.py): configure loads the channel map and the
     calibration; only while active does it step and guide; deactivate, cleanup, shutdown and
     error processing publish a vent. Topics and services exist in every state (the latched
@@ -93,16 +96,18 @@ class PressureController(LiveParameters, ManagedNode):
         self.v = v = declare_table(self, PARAMETERS[:-1])
         check_wearer(v['wearer'], 'parameter "wearer"')
         condition(v['condition'])
-        #: The hardware ceiling: p_max_kpa as the node started (the lab's params file); at run
-        #: time it can be lowered and raised back, never above this.
-        self.ceiling_kpa = v['p_max_kpa']
+        self.hold_error = ''
+        self.load_held_limits()   # a limit tightened before a restart is in force again
+        self.started = time.time()   # tells a restart from a vent (diagnostics `started`)
         self.channel_map = self.calibration = self.setup = self.controller = None
         self.zeros = np.zeros(0)
         self.control_timer = None
         self._declaring = False
 
-        #: The enable latch (module doc): only enable and vent move it after this.
+        #: The operator's arm, the enable latch (module doc): only enable and vent move it after this.
         self.enabled = v['start_enabled']
+        #: The study session's trial gate (controller_gates.py): open unless a session closes it.
+        self.gate_open = True
         self.gaze_origin = self.gaze_direction = None
         self.gaze_received = -float('inf')   # self.now_s(): the steady clock
         self.step_count = 0
@@ -136,6 +141,7 @@ class PressureController(LiveParameters, ManagedNode):
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
         self.create_service(SetBool, ENABLE, self.on_enable)
         self.create_service(Trigger, VENT, self.on_vent)
+        self.create_service(SetBool, TRIAL_GATE, self.on_trial_gate)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0, self.publish_diagnostics, clock=self.steady)
         self.add_on_set_parameters_callback(self.on_set_parameters)
@@ -359,7 +365,11 @@ class PressureController(LiveParameters, ManagedNode):
             return response
         if not self.enabled:
             response.success = False
-            response.message = 'cannot calibrate: guidance disabled (enable false or vent): call enable first'
+            response.message = ("cannot calibrate: the operator's arm is off (enable false, vent or a restart): "
+                                'the operator must call enable first')
+            return response
+        if not self.gate_open:
+            response.success, response.message = False, "cannot calibrate: the study session's trial gate is closed"
             return response
         if self.now_s() - self.gaze_received > self.gaze_timeout:
             response.success = False
@@ -382,27 +392,6 @@ class PressureController(LiveParameters, ManagedNode):
         self.get_logger().info(response.message)
         return response
 
-    def on_enable(self, request, response):
-        if request.data and not self.active:
-            response.success = False
-            response.message = f'cannot enable: the node is {self.state_label} (activate it first)'
-            return response
-        self.enabled = bool(request.data)
-        if self.enabled:   # enabling starts afresh (and forgets a no-progress stop)
-            self.vent_controller()
-            response.success, response.message = True, 'guidance enabled'
-            return response
-        # Disabling is a latch like vent: a running calibration ends and the suit vents now.
-        self.vent_all('disabled by request (enable false)')
-        response.success, response.message = True, 'guidance disabled (vented); call enable to guide again'
-        return response
-
-    def on_vent(self, request, response):
-        self.enabled = False
-        self.vent_all('vented by request')
-        response.success, response.message = True, 'vented; call enable to guide again'
-        return response
-
     # ---- the control step
     def publish(self, channels: np.ndarray) -> None:
         # Last line of defence: nothing above P_MAX and nothing non-finite leaves this node.
@@ -417,9 +406,9 @@ class PressureController(LiveParameters, ManagedNode):
         t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
         fresh = self.now_s() - self.gaze_received <= self.gaze_timeout
         clock = self.now_s()   # the steady clock: the stall watch and the calibration's schedule
-        if self.procedure is not None and not self.enabled:   # no pressure past the latch, whatever set it
-            self.end_calibration('guidance disabled')
-        inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.enabled,
+        if self.procedure is not None and not self.flowing:   # no pressure past a gate, whatever closed it
+            self.end_calibration('guidance disabled' if not self.enabled else 'trial gate closed')
+        inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.flowing,
                         bool(self.target_name) and self.target is not None, self.reset_pending,
                         self.procedure is not None, self.condition.number, self.step_count, self.command_count,
                         clock)
@@ -535,13 +524,22 @@ class PressureController(LiveParameters, ManagedNode):
             level, message = DiagnosticStatus.WARN, f'{self.state_label}: not guiding (vented)'
         elif self.procedure is not None:
             level, message = DiagnosticStatus.OK, f'calibrating: {self.last_status}'
+        elif self.vent_reason == 'disabled' or not self.flowing:
+            level, message = DiagnosticStatus.WARN, (
+                "vented: the operator's arm is off (enable false, vent or a restart): nothing guides until enable"
+                if not self.enabled else "vented: the study session's trial gate is closed")
         elif self.vent_reason:
             level, message = DiagnosticStatus.WARN, f'vented: {self.vent_reason}'
         else:
             level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
+        if self.held_text:
+            message += f'; held limits: {self.held_text}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
         values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
-                  'enabled': self.enabled, 'wearer': self.wearer,
+                  'enabled': self.enabled, 'armed': self.enabled, 'trial_gate': 'open' if self.gate_open else 'closed',
+                  'started': f'{self.started:.6f}', 'p_max_kpa': f'{self.p_max:g}',
+                  'held_limits': (self.held_text or 'none') + (f'; {self.hold_error}' if self.hold_error else ''),
+                  'wearer': self.wearer,
                   # whose calibration guides ('' none): a study session sees a first-time participant
                   'calibration': self.calibration.wearer if self.calibration is not None else '',
                   **self.lifecycle_values()}
