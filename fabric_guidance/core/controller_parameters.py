@@ -260,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     return markdown_main('fabric_guidance.core.controller_parameters', markdown, argv)
 
 
-__all__ = ['BY_NAME', 'CALIBRATION', 'FIXED_AT_RUN_TIME', 'LIMITS', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown',
+__all__ = ['BY_NAME', 'CALIBRATION', 'FIXED_AT_RUN_TIME', 'LIMITS', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP',
+           'check', 'default', 'markdown',
            'loosens', 'renamed', 'tightest']
 
 if __name__ == '__main__':
