@@ -24,7 +24,7 @@ import time
 from typing import Callable
 
 from ..core.geometry import azimuth_deg, elevation_deg
-from .operator import Operator
+from .operator import Operator, OperatorError
 
 #: The loop's sleep between polls [s].
 POLL_S = 0.002
@@ -178,6 +178,17 @@ class SessionDriver:
                  'press e to arm (enable) and resume, or q to stop')
         self.handle(self.session.disarmed(time.monotonic(), why))
 
+    def gate(self, on: bool) -> None:
+        """The controller's trial gate. Refused (the operator's arm is off), or not answered (the
+        controller lost: a restart's first seconds, a dead process): the session holds, once this
+        step's actions are done (watch_arm)."""
+        try:
+            refused = self.op.trial_gate(on)
+        except OperatorError as exc:
+            refused = f'pressure_controller did not answer ({exc})'
+        if refused:
+            self._disarmed = refused
+
     def _check_calls(self, wait: bool = False) -> None:
         """The target's and the front's calls on target_selector that were sent without waiting
         (the loop goes on judging gaze and presses meanwhile): their answers, in order; a refusal
@@ -269,11 +280,9 @@ class SessionDriver:
             if self.timing.vented_from_ns is not None:
                 self.timing.vented.append((self.timing.vented_from_ns, time.monotonic_ns()))
                 self.timing.vented_from_ns = None
-            refused = op.trial_gate(True)
-            if refused:                 # the operator's arm is off: held after this step's actions
-                self._disarmed = refused
+            self.gate(True)
         elif kind == 'vent':
-            op.trial_gate(False)
+            self.gate(False)
             self.timing.vented_from_ns = time.monotonic_ns()
         elif kind == 'show_target':
             visible = action.visible is not False
