@@ -111,6 +111,7 @@ def test_the_operators_keys_reach_the_session_as_its_commands():
                 'refused': None, 'presses': [], 'actions': [], 'rows': [], 'amended': [], 'blocks': [],
                 'ignored': None})()
     session = Recorder()
+
     class ArmedOp:      # the controller armed: the session may take `arm`
         controller_started = '1'
 
