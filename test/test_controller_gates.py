@@ -153,3 +153,39 @@ def test_a_held_limits_file_that_cannot_be_read_stops_the_start_in_one_line(tmp_
     with pytest.raises(ValueError, match=r'held limits .*pressure_controller_limits.yaml: field "held.p_max_kpa"'):
         with controller(tmp_path):
             pass
+
+
+# ------------------------------------------------------------------ one person's calibration
+def test_a_parameter_set_naming_another_person_than_its_calibration_is_refused_at_start(tmp_path):
+    import rclpy
+    from rclpy.context import Context
+    from fabric_guidance.graph.process_graph import fresh_domain_id
+    from fabric_guidance.nodes.pressure_controller import PressureController
+    from test_controller_latch import OK, SIM_CAL_FILE
+    context = Context()
+    rclpy.init(context=context, domain_id=fresh_domain_id())
+    node = None
+    try:
+        node = PressureController(context=context, parameter_overrides=[
+            Parameter('wearer', value='bob'), Parameter('calibration_file', value=str(SIM_CAL_FILE)),
+            Parameter('autostart', value=False)])
+        assert node.trigger_configure() != OK
+        assert 'field "wearer" is "sim-wearer", the parameter "wearer" is "bob"' in node.configure_error
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def test_a_calibration_file_of_another_person_is_refused_at_run_time(tmp_path):
+    from test_controller_latch import SIM_CAL_FILE
+    with controller(tmp_path, calibration_file='') as rig:
+        assert rig.set(wearer='bob')[0].successful
+        (refused,) = rig.set(calibration_file=str(SIM_CAL_FILE))
+        assert not refused.successful and "one person's calibration never guides another" in refused.reason
+        result = rig.node.set_parameters_atomically([Parameter('wearer', value='carol'),
+                                                     Parameter('calibration_file', value=str(SIM_CAL_FILE))])
+        assert not result.successful and rig.node.calibration is None and rig.node.wearer == 'bob'
+        # the default, unnamed wearer takes the file's
+        assert rig.node.set_parameters_atomically([Parameter('wearer', value='wearer'),
+                                                   Parameter('calibration_file', value=str(SIM_CAL_FILE))]).successful

@@ -257,7 +257,7 @@ def test_sigterm_vents_before_exit(controller):
 # Short, but with room for the scripted wearer below to answer each step on a loaded 2-core
 # machine: it has dwell - window = 0.6 s to turn before the recording window opens.
 FAST_CAL = dict(calibration_steps=5, calibration_dwell_s=0.8, calibration_rest_s=0.4, calibration_window_s=0.2,
-                wearer='alice')
+                wearer='alice', calibration_file='')   # alice has no file yet (sim-wearer's is not hers)
 ALICE = [PowerLaw(18.0, 0.7, 22.0), PowerLaw(25.0, 0.6, 18.0), PowerLaw(45.0, 0.5, 28.0), PowerLaw(35.0, 0.6, 30.0)]
 SIGN = {'left': (1, 0), 'right': (-1, 0), 'down': (0, -1), 'up': (0, 1)}
 

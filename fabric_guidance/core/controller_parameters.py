@@ -117,7 +117,9 @@ PARAMETERS: tuple[Parameter, ...] = (
               'calibration'),
     Parameter('calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
               "'' = ~/.fabric_guidance/calibrations", live=_NEXT_CAL),
-    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path)",
+    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path); a "
+              'calibration_file of another person is refused (the default `wearer` names nobody: the file\'s '
+              'wearer is taken)',
               live='checked as a file name; another wearer vents and drops the calibration in use, loading '
               '<calibration_dir>/<wearer>.yaml if it exists (else no guidance until calibrated); refused '
               'during a calibration'),

@@ -82,7 +82,10 @@ class SimulatedParticipant:
         if not outcome.ok:
             raise ValueError(f'calibration of {wearer.name} refused: {outcome.error}')
         log_dir.mkdir(parents=True, exist_ok=True)
-        self.calibration_file = outcome.calibration.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
+        # The file names the participant the controller guides (wearer `subNN`): one person's
+        # calibration never guides another.
+        named = dataclasses.replace(outcome.calibration, wearer=f'sub{subject + 1:02d}')
+        self.calibration_file = named.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
         cond = condition_of(first_condition)
         self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
         self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)

@@ -12,7 +12,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter as RosParameter
 
 from ..core import Calibration, condition
-from ..core.controller_parameters import BY_NAME, CALIBRATION, FIXED_AT_RUN_TIME, LIMITS, check, loosens, tightest
+from ..core.controller_parameters import (BY_NAME, CALIBRATION, FIXED_AT_RUN_TIME, LIMITS, check, default, loosens,
+                                          tightest)
 from ..core.safe_input import check_wearer
 from .held_limits import limits_file, read_held, write_held
 
@@ -68,6 +69,7 @@ class LiveParameters:
         calibration, loaded = self.calibration, ''
         if 'calibration_file' in changed:
             calibration, loaded = self.read_calibration(values['calibration_file']), values['calibration_file']
+            self.same_person(calibration, values['wearer'], values['calibration_file'])
         elif 'wearer' in changed and (self.calibration is None or self.calibration.wearer != values['wearer']):
             # Another person: never guided with someone else's fit; their own file if they have one.
             own = self.cal_dir_of(values['calibration_dir']) / f'{values["wearer"]}.yaml'
@@ -128,3 +130,13 @@ class LiveParameters:
             self.hold_error = f'not held across a restart: {exc}'
             self.get_logger().error(f'limits {sorted(tightened)} applied but {self.hold_error}')
         self.held_text = ', '.join(f'{n} {v:g}' for n, v in self.held.items())
+
+    @staticmethod
+    def same_person(calibration, wearer: str, cal_file: str) -> None:
+        """ValueError when a calibration names another person than `wearer` (the default, unnamed
+        `wearer` takes the file's): one person's calibration never guides another."""
+        if calibration is None or wearer == default('wearer') or calibration.wearer == wearer:
+            return
+        raise ValueError(f'calibration file {cal_file}: field "wearer" is "{calibration.wearer}", the parameter '
+                         f'"wearer" is "{wearer}": one person\'s calibration never guides another (set wearer to '
+                         f'the file\'s, or give {wearer}\'s own file)')

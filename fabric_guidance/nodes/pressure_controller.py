@@ -215,6 +215,7 @@ class PressureController(Gates, LiveParameters, ManagedNode):
             self.get_logger().warning(f'{exc}: no calibration; call start_calibration to calibrate '
                                       f'{self.wearer} (written to {self.cal_dir / (self.wearer + ".yaml")})')
             cal_file = ''
+        self.same_person(calibration, v['wearer'], cal_file)
         self.channel_map, self.calibration = channel_map, calibration
         self.setup = self.make_setup(calibration, v)
         self.zeros = np.zeros(len(channel_map.channels))
