@@ -10,6 +10,7 @@ nodes' view):
 - p_max_kpa lowered at run time, the controller killed and respawned: the operator's next
   enable guides under the lowered limit, and the diagnostics say it is held.
 """
+import contextlib
 import dataclasses
 from pathlib import Path
 import signal
@@ -245,9 +246,11 @@ def _guidance_values(diagnostics) -> dict:
     return {}
 
 
-def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
-    from rcl_interfaces.srv import SetParameters
-    from rclpy.parameter import Parameter
+@contextlib.contextmanager
+def lab_graph(tmp_path):
+    """The lab graph against the mock PLC, the controller disarmed at every start (the lab
+    launch's way) and respawned when it dies; the stub headset looks ahead, the target is 40 deg
+    left; a probe for the operator and the diagnostics; the registers read over Modbus."""
     plc_port, gaze_port = free_port(), free_port(socket.SOCK_DGRAM)
     graph = Graph(tmp_path / 'logs')
     files = ('params/guidance.yaml', 'params/sim.yaml')
@@ -258,7 +261,7 @@ def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
         graph.start('gaze_bridge', files, port=gaze_port)
         graph.start('target_selector', files, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
                     auto_advance=False)
-        # stall_timeout_s 0: the stub's gaze never moves; start_enabled false and respawn: the lab launch's way
+        # stall_timeout_s 0: the stub's gaze never moves
         graph.start('pressure_controller', files, calibration_file='config/calibrations/sim-wearer.yaml',
                     calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0, start_enabled=False)
         graph.supervise('pressure_controller')
@@ -266,17 +269,38 @@ def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
         reg = Registers(plc_port)
         probe = Probe(graph.domain_id, 'lab_operator')
         diagnostics = probe.subscribe(DiagnosticArray, interface.DIAGNOSTICS, 10)
+        yield graph, reg, probe, diagnostics
+    finally:
+        if probe is not None:
+            probe.close()
+        if hololens is not None:
+            hololens.close()
+        if reg is not None:
+            reg.close()
+        graph.stop_all()
 
-        def left(kpa):
-            r = reg.read()
-            return r is not None and all(abs(v - (kpa if n in ('L1', 'L2') else 0.0)) <= RESOLUTION_KPA
-                                         for n, v in zip(REGMAP.names, r))
-        assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True), attempts=3).success
-        wait_until(lambda: left(F_LEFT_40), 30.0, POLL_S, what=f'L1, L2 at f_left(40) = {F_LEFT_40:.0f} kPa')
+
+def left(reg, kpa) -> bool:
+    """L1, L2 at kpa and every other register at 0."""
+    r = reg.read()
+    return r is not None and all(abs(v - (kpa if n in ('L1', 'L2') else 0.0)) <= RESOLUTION_KPA
+                                 for n, v in zip(REGMAP.names, r))
+
+
+def enable(probe):
+    assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True), attempts=3).success
+
+
+def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    with lab_graph(tmp_path) as (graph, reg, probe, diagnostics):
+        enable(probe)
+        wait_until(lambda: left(reg, F_LEFT_40), 30.0, POLL_S, what=f'L1, L2 at f_left(40) = {F_LEFT_40:.0f} kPa')
         request = SetParameters.Request(parameters=[Parameter('p_max_kpa', value=100.0).to_parameter_msg()])
         (result,) = probe.call(SetParameters, '/pressure_controller/set_parameters', request).results
         assert result.successful, result.reason
-        wait_until(lambda: left(100.0), 5.0, POLL_S, what='L1, L2 at the lowered 100 kPa')
+        wait_until(lambda: left(reg, 100.0), 5.0, POLL_S, what='L1, L2 at the lowered 100 kPa')
         first = graph.processes['pressure_controller'].pid
         graph.processes['pressure_controller'].send_signal(signal.SIGKILL)
         wait_until(lambda: graph.restart_count('pressure_controller') == 1, 10.0, what='the controller respawned')
@@ -287,8 +311,8 @@ def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
                    what='the respawned controller active')
         status = _guidance_values(diagnostics[since:])
         reg.hold_zero(1.0, 'the respawned controller before the operator armed')
-        assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True), attempts=3).success
-        wait_until(lambda: left(100.0), 10.0, POLL_S, what='guidance under the held 100 kPa after the enable')
+        enable(probe)
+        wait_until(lambda: left(reg, 100.0), 10.0, POLL_S, what='guidance under the held 100 kPa after the enable')
         end, highest = time.monotonic() + 1.0, 0.0
         while time.monotonic() < end:
             r = reg.read()
@@ -298,11 +322,24 @@ def test_a_lowered_p_max_survives_a_respawn_of_the_controller(tmp_path):
         # and it said so from its start
         assert status.get('armed') == 'False' and status.get('p_max_kpa') == '100', status
         assert 'held limits: p_max_kpa 100 (parameter 375)' in status['message'], status
-    finally:
-        if probe is not None:
-            probe.close()
-        if hololens is not None:
-            hololens.close()
-        if reg is not None:
-            reg.close()
-        graph.stop_all()
+
+
+def test_a_second_controller_in_the_namespace_is_noticed_and_the_first_vents(tmp_path):
+    with lab_graph(tmp_path) as (graph, reg, probe, diagnostics):
+        enable(probe)
+        wait_until(lambda: left(reg, F_LEFT_40), 30.0, POLL_S, what=f'L1, L2 at f_left(40) = {F_LEFT_40:.0f} kPa')
+        # A second process named pressure_controller in the same namespace (a second launch, a
+        # stray terminal), started disarmed as the lab launch starts every controller.
+        graph.start('pressure_controller', ('params/guidance.yaml', 'params/sim.yaml'), as_name='second_controller',
+                    calibration_file='config/calibrations/sim-wearer.yaml', stall_timeout_s=0.0,
+                    start_enabled=False)
+        t0 = time.monotonic()
+        # (Until the first notices, the registers flicker between its pressure and the second's zeros.)
+        since = len(diagnostics)
+        wait_until(lambda: 'joined' in _guidance_values(diagnostics[since:]).get('message', ''), 20.0,
+                   what="the first's diagnostics naming the second")
+        wait_until(reg.zero, 1.0, POLL_S, what='every register at 0 once the first noticed the second')
+        noticed_s = time.monotonic() - t0
+        reg.hold_zero(2.0, 'two controllers in one namespace, the first disarmed')
+        print(f'\nsecond controller started -> first disarmed, registers at 0 in {noticed_s:.2f} s '
+              '(process start and graph discovery included)')

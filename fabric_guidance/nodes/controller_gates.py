@@ -13,6 +13,12 @@ guides as before.
 
 Every change of either is published on /diagnostics at once (`armed`, `trial_gate`, with
 `started`, the process's start time, so a client tells a restart from a vent).
+
+One controller per namespace: every second the node counts the processes of its name in its
+namespace on the ROS graph. One that was alone and sees another join drops the arm (it vents)
+and reports ERROR for as long as the other is listed; one that started beside another reports
+ERROR too (the graph lists a SIGKILLed process for about 20 s, so a respawn sees its dead
+predecessor: it is not refused, it starts disarmed in the lab launch anyway).
 """
 from __future__ import annotations
 
@@ -69,3 +75,29 @@ class Gates:
     def gates_changed(self) -> None:
         """Tell the graph now (not at the next diagnostics period): a session stops its trial on it."""
         self.publish_diagnostics()
+
+    def on_second(self) -> None:
+        """The diagnostics timer: the uniqueness check, then the diagnostics."""
+        self.check_unique()
+        self.publish_diagnostics()
+
+    def check_unique(self) -> None:
+        name, ns = self.get_name(), self.get_namespace()
+        n = sum(1 for other, other_ns in self.get_node_names_and_namespaces() if other == name and other_ns == ns)
+        if n == 1:
+            self.alone_seen = True
+        was, self.duplicate = self.duplicate, n > 1
+        if not self.duplicate:
+            return
+        where = f'{ns.rstrip("/")}/{name}'
+        if self.alone_seen:
+            self.duplicate_text = (f'another process named {where} joined: this one vents and stays disarmed (the '
+                                   'operator enables once one of them is gone)')
+            if self.enabled:
+                self.enabled = False
+                self.vent_all('another process of this name joined the namespace')
+        else:
+            self.duplicate_text = (f'another process named {where} is listed (live, or a killed predecessor the '
+                                   'graph still lists for about 20 s)')
+        if not was:
+            self.get_logger().error(self.duplicate_text)

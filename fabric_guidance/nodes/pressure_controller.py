@@ -143,7 +143,9 @@ class PressureController(Gates, LiveParameters, ManagedNode):
         self.create_service(Trigger, VENT, self.on_vent)
         self.create_service(SetBool, TRIAL_GATE, self.on_trial_gate)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0, self.publish_diagnostics, clock=self.steady)
+        self.alone_seen = self.duplicate = False   # controller_gates.check_unique
+        self.duplicate_text = ''
+        self.create_timer(1.0, self.on_second, clock=self.steady)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     # ---- the values in force
@@ -521,6 +523,8 @@ class PressureController(Gates, LiveParameters, ManagedNode):
     def publish_diagnostics(self) -> None:
         if self.configure_error:
             level, message = DiagnosticStatus.ERROR, f'unconfigured: {self.configure_error}'
+        elif self.duplicate:
+            level, message = DiagnosticStatus.ERROR, self.duplicate_text
         elif not self.active:
             level, message = DiagnosticStatus.WARN, f'{self.state_label}: not guiding (vented)'
         elif self.procedure is not None:
