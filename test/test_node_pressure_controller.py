@@ -92,8 +92,10 @@ def guide_to_left40(upstream, probe, what='guiding') -> float:
 def controller(tmp_path, request):
     params = getattr(request, 'param', {})
     graph = Graph(tmp_path / 'logs')
+    # target_publisher: the test's probe plays target_selector (FakeUpstream)
     settings = dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
-                    calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S)
+                    calibration_dir=str(tmp_path / 'calibrations'), gaze_timeout_s=GAZE_TIMEOUT_S,
+                    target_publisher='test_probe')
     settings.update(params)
     graph.start('pressure_controller', ('params/guidance.yaml',), **settings)
     probe = Probe(graph.domain_id)
@@ -135,7 +137,8 @@ def test_the_arrays_name_their_values_in_the_configured_order(tmp_path):
     graph = Graph(tmp_path / 'logs')
     graph.start('pressure_controller', ('params/guidance.yaml',),
                 calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
-                calibration_dir=str(tmp_path / 'calibrations'), channel_map_file=str(channel_map_file))
+                calibration_dir=str(tmp_path / 'calibrations'), channel_map_file=str(channel_map_file),
+                target_publisher='test_probe')
     probe = Probe(graph.domain_id)
     upstream = FakeUpstream(probe)
     try:

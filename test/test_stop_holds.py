@@ -247,7 +247,7 @@ def _guidance_values(diagnostics) -> dict:
 
 
 @contextlib.contextmanager
-def lab_graph(tmp_path):
+def lab_graph(tmp_path, selector=None):
     """The lab graph against the mock PLC, the controller disarmed at every start (the lab
     launch's way) and respawned when it dies; the stub headset looks ahead, the target is 40 deg
     left; a probe for the operator and the diagnostics; the registers read over Modbus."""
@@ -260,7 +260,7 @@ def lab_graph(tmp_path):
         graph.start('plc_output', files, plc_port=plc_port)
         graph.start('gaze_bridge', files, port=gaze_port)
         graph.start('target_selector', files, target_names=['left40'], target_positions=[1.5321, 1.2856, 1.2],
-                    auto_advance=False)
+                    auto_advance=False, **(selector or {}))
         # stall_timeout_s 0: the stub's gaze never moves
         graph.start('pressure_controller', files, calibration_file='config/calibrations/sim-wearer.yaml',
                     calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0, start_enabled=False)
@@ -343,3 +343,29 @@ def test_a_second_controller_in_the_namespace_is_noticed_and_the_first_vents(tmp
         reg.hold_zero(2.0, 'two controllers in one namespace, the first disarmed')
         print(f'\nsecond controller started -> first disarmed, registers at 0 in {noticed_s:.2f} s '
               '(process start and graph discovery included)')
+
+
+def test_a_target_from_another_node_never_moves_the_suit(tmp_path):
+    from geometry_msgs.msg import PointStamped
+    from std_msgs.msg import String
+    from fabric_guidance.nodes import qos
+    # target_selector waits for next_target: the controller is armed with no active target.
+    with lab_graph(tmp_path, selector={'autostart': False}) as (graph, reg, probe, diagnostics):
+        enable(probe)
+        # A bag played onto the live graph, a stray script: another node publishes both topics.
+        with Probe(graph.domain_id, 'rosbag2_player') as foreign:
+            name_pub = foreign.node.create_publisher(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS)
+            point_pub = foreign.node.create_publisher(PointStamped, interface.TARGET, qos.LATCHED_QOS)
+            point = PointStamped()
+            point.header.frame_id = interface.IMMERSIVE_FRAME
+            point.point.x, point.point.y, point.point.z = 1.5321, 1.2856, 1.2    # 40 deg left
+            wait_until(lambda: point_pub.get_subscription_count() >= 1, 20.0, what='the controller hearing the target')
+            name_pub.publish(String(data='recorded_target'))
+            end, reads = time.monotonic() + 3.0, 0
+            while time.monotonic() < end:
+                point_pub.publish(point)
+                reads += reg.hold_zero(0.1, 'a target published by another node')
+            assert reads > 50
+        since = len(diagnostics)
+        status = wait_until(lambda: _guidance_values(diagnostics[since:]) or None, 5.0, what='diagnostics')
+        assert int(status['refused_inputs']) > 0 and 'rosbag2_player' in status['last_input_refusal'], status

@@ -151,6 +151,8 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
               "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
               "paper's rate; false: the timer alone)", read_only=True),
+    Parameter('target_publisher', 'target_selector', 'the node whose target and active_target the controller takes '
+              '(in its namespace); every other publisher is refused (docs/safety.md)', read_only=True),
     Parameter('state_dir', '', "where the limits tightened at run time are held across restarts "
               "(<state_dir>/<namespace>/pressure_controller_limits.yaml, docs/safety.md); '' = "
               '$FABRIC_GUIDANCE_STATE_DIR, else ~/.fabric_guidance/state', read_only=True),

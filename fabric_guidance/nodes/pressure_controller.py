@@ -1,7 +1,8 @@
 """pressure_controller: the feedback law (Eq. 5) on live gaze and target, the four conditions,
 and Algorithm 1 run live with the wearer.
 
-Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String)
+Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String); the last two only
+            from this namespace's target_selector, a target no older than 1 s (control_inputs.py)
 Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `channels` parameter),
             controller_input (Float64MultiArray, every step right before its command: the exact
             inputs the step used, layout in bag/controller_io.py), controller_parameters (String,
@@ -68,12 +69,12 @@ from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
 from ..core.control_step import RESET_KEEP_STALL, RESET_VENT, ControllerSetup, StepInput, guidance_step, safe_command
-from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
-                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
-                         TRIAL_GATE, VENT)
+from ..interface import (CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
+                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TRIAL_GATE, VENT)
 from ..paths import resolve
 from .array_layout import named_layout
 from .diagnostics import publish_diagnostics, status
+from .control_inputs import ControlInputs
 from .controller_gates import Gates
 from .controller_settings import LiveParameters
 from .managed import ManagedNode
@@ -82,7 +83,7 @@ from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
 
-class PressureController(Gates, LiveParameters, ManagedNode):
+class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
     """Eq. 5 as a lifecycle node (nodes/managed.py): configure loads the channel map and the
     calibration; only while active does it step and guide; deactivate, cleanup, shutdown and
     error processing publish a vent. Topics and services exist in every state (the latched
@@ -136,8 +137,7 @@ class PressureController(Gates, LiveParameters, ManagedNode):
         self.saved = ('', '', '')   # file, fit report, error of the latest finish_calibration
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
-        self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
-        self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
+        self.subscribe_control_inputs()
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
         self.create_service(SetBool, ENABLE, self.on_enable)
         self.create_service(Trigger, VENT, self.on_vent)
@@ -333,6 +333,7 @@ class PressureController(Gates, LiveParameters, ManagedNode):
             self.step()
 
     def on_timer(self) -> None:
+        self.check_inputs_clean()
         # The minimum rate: skipped while gaze steps come at least this often.
         if self.active and self.now_s() - self.last_step_s >= 0.9 * self.period_s:
             self.step()
@@ -541,6 +542,7 @@ class PressureController(Gates, LiveParameters, ManagedNode):
             message += f'; held limits: {self.held_text}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
         values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
+                  'refused_inputs': self.refused_inputs, 'last_input_refusal': self.last_input_refusal,
                   'enabled': self.enabled, 'armed': self.enabled, 'trial_gate': 'open' if self.gate_open else 'closed',
                   'started': f'{self.started:.6f}', 'p_max_kpa': f'{self.p_max:g}',
                   'held_limits': (self.held_text or 'none') + (f'; {self.hold_error}' if self.hold_error else ''),
