@@ -189,3 +189,32 @@ def test_a_calibration_file_of_another_person_is_refused_at_run_time(tmp_path):
         # the default, unnamed wearer takes the file's
         assert rig.node.set_parameters_atomically([Parameter('wearer', value='wearer'),
                                                    Parameter('calibration_file', value=str(SIM_CAL_FILE))]).successful
+
+
+# ------------------------------------------------------------------------ control inputs
+def test_a_target_position_stamped_too_long_ago_is_refused(tmp_path):
+    from geometry_msgs.msg import PointStamped
+    from rclpy.time import Time
+    from std_msgs.msg import String
+    from fabric_guidance.interface import ACTIVE_TARGET, TARGET
+    from fabric_guidance.nodes.command_source import Publisher
+    from fabric_guidance.nodes.control_inputs import TARGET_MAX_AGE_S
+    from test_controller_latch import EYE, direction
+    with controller(tmp_path, ros_time=True) as rig:
+        node = rig.node
+        for source in node.input_sources.values():   # the graph: target_selector alone publishes both
+            source._publishers = lambda: [Publisher('target_selector', '/', b'selector')]
+        rig.gazes(0.2)
+
+        def position(age_s):
+            msg = PointStamped()
+            msg.header.stamp = Time(nanoseconds=int((rig.clock - age_s) * 1e9)).to_msg()
+            msg.point.x, msg.point.y, msg.point.z = EYE + 2.0 * direction(40.0)
+            return msg
+        node.on_control_input(ACTIVE_TARGET, String(data='t1'))
+        node.on_control_input(TARGET, position(TARGET_MAX_AGE_S + 0.5))
+        rig.gazes(0.3)
+        assert node.target is None and rig.vented() and 'older than' in node.last_input_refusal
+        node.on_control_input(TARGET, position(0.05))
+        rig.gazes(0.2)
+        assert rig.last()['L1'] == pytest.approx(F40)

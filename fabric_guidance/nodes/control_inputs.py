@@ -52,21 +52,22 @@ class ControlInputs:
         self.input_subs[topic] = self.create_subscription(
             TYPES[topic], topic, lambda msg, t=topic: self.on_control_input(t, msg), LATCHED_QOS)
 
-    def input_refusal(self, topic: str, msg) -> str:
-        """'' when the message may steer the controller, else why not."""
+    def input_refusal(self, topic: str, msg) -> tuple[str, bool]:
+        """('', False) when the message may steer the controller, else why not and whether only
+        for its age (the topic itself is clean)."""
         source = self.input_sources[topic]
         why = source.check(None)
         if why or topic != TARGET:
-            return why
+            return why, False
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         now_ns = self.get_clock().now().nanoseconds
         age_s = (now_ns - stamp_ns) * 1e-9 if stamp_ns > 0 and now_ns > 0 else 0.0
         if age_s > TARGET_MAX_AGE_S:
-            return source.refuse('stale', f'stamped {age_s:.1f} s ago (older than {TARGET_MAX_AGE_S:g} s)')
-        return ''
+            return source.refuse('stale', f'stamped {age_s:.1f} s ago (older than {TARGET_MAX_AGE_S:g} s)'), True
+        return '', False
 
     def on_control_input(self, topic: str, msg) -> None:
-        why = self.input_refusal(topic, msg)
+        why, stale = self.input_refusal(topic, msg)
         if not why:
             (self.on_active_target if topic == ACTIVE_TARGET else self.on_target)(msg)
             return
@@ -74,7 +75,7 @@ class ControlInputs:
         self.last_input_refusal = f'{topic} {why}'
         if self.input_log.due(topic):
             self.get_logger().warning(f'refusing {topic} {why}: only {self.input_owner} steers this controller')
-        if 'stale' in why and topic == TARGET:
+        if stale:      # the next position, 0.1 s later, will do
             return
         # Inputs that cannot be trusted: no target (vent) until target_selector's is heard again.
         self.inputs_missed = True
