@@ -23,6 +23,10 @@ predecessor: it is not refused, it starts disarmed in the lab launch anyway).
 from __future__ import annotations
 
 
+#: Checks (one a second) alone in the namespace before a process counts as the first.
+ALONE_CHECKS = 3
+
+
 class Gates:
     """Mixin of PressureController: the enable, vent and trial_gate services."""
 
@@ -84,7 +88,10 @@ class Gates:
     def check_unique(self) -> None:
         name, ns = self.get_name(), self.get_namespace()
         n = sum(1 for other, other_ns in self.get_node_names_and_namespaces() if other == name and other_ns == ns)
-        if n == 1:
+        # Alone for ALONE_CHECKS checks in a row: a process that has not discovered an older one
+        # yet does not take itself for the first.
+        self.alone_checks = self.alone_checks + 1 if n == 1 else 0
+        if self.alone_checks >= ALONE_CHECKS:
             self.alone_seen = True
         was, self.duplicate = self.duplicate, n > 1
         if not self.duplicate:
