@@ -43,6 +43,7 @@ STUDY_DISPLAY = 'study_display'
 START_CALIBRATION = '~/start_calibration'
 ENABLE = '~/enable'
 VENT = '~/vent'
+TRIAL_GATE = '~/trial_gate'
 NEXT_TARGET = '~/next_target'
 RESET_SEQUENCE = '~/reset_sequence'
 
@@ -210,9 +211,15 @@ SERVICES: tuple[Service, ...] = (
             '`<calibration_dir>/<wearer>.yaml` only if every direction fits; progress on '
             '`calibration_status`; a stale gaze aborts it vented'),
     Service(ENABLE, 'std_srvs/srv/SetBool', 'pressure_controller',
-            'guide (true) or vent and hold (false)'),
+            "the operator's arm: true arms (a person's act; it starts nothing by itself), false vents and "
+            'holds until the next `enable true`; off at every start with `start_enabled false` '
+            '([safety.md](safety.md#latches-and-limits))'),
     Service(VENT, 'std_srvs/srv/Trigger', 'pressure_controller',
-            'vent at once and stop guiding until `enable`'),
+            "vent at once and drop the operator's arm: nothing guides until `enable`"),
+    Service(TRIAL_GATE, 'std_srvs/srv/SetBool', 'pressure_controller',
+            "the study session's gate for its rests (false: vents) and trials (true); pressure flows only "
+            "while the operator's arm and this gate are both open; opening it never arms (its answer is "
+            "not successful while the arm is off); open at every start"),
     Service(NEXT_TARGET, 'std_srvs/srv/Trigger', 'target_selector',
             'activate the next target of the sequence'),
     Service(RESET_SEQUENCE, 'std_srvs/srv/Trigger', 'target_selector', 'back to the first target'),

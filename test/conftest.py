@@ -10,6 +10,10 @@
   defects that the fixed CI examples do not reach.
 HYPOTHESIS_PROFILE selects one explicitly when CI is not set.
 
+Every test holds its safety limits (pressure_controller's held limits, nodes/held_limits.py) in
+a folder of its own (`held_limits_apart` below): a limit one test tightens is never in force in
+another's controller. A process graph keeps its own folder too (process_graph.Graph).
+
 `make test` runs pytest on two pytest-xdist workers (whole files to a worker). A test marked
 `serial` claims something of a quiet machine (a soak run that loses nothing): while it runs, the
 other worker runs no test (the `serial_lock` fixture below).
@@ -59,3 +63,9 @@ def serial_lock(request, tmp_path_factory):
             yield
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+@pytest.fixture(autouse=True)
+def held_limits_apart(tmp_path, monkeypatch):
+    """This test's own state folder for the limits its controllers hold across restarts."""
+    monkeypatch.setenv('FABRIC_GUIDANCE_STATE_DIR', str(tmp_path / 'held_limits'))

@@ -245,7 +245,8 @@ def test_a_killed_recorder_leaves_a_bag_that_replays_up_to_the_kill(tmp_path):
     graph = Graph(tmp_path / 'logs')
     graph.start('bag_recorder', (), output=str(bag), flush_period_s=0.2)
     graph.start('pressure_controller', ('params/guidance.yaml',),
-                calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'))
+                calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+                target_publisher='test_probe')   # the probe plays target_selector
     probe = Probe(graph.domain_id)
     eye = np.array([0.0, 0.0, 1.2])
 

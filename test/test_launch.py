@@ -345,7 +345,7 @@ def test_lab_launch_respawns_a_killed_controller_vented_and_disabled_until_enabl
         wait_until(lambda: _state(probe, 'pressure_controller') == 'active', RESPAWN_DEADLINE_S,
                    what='the respawned controller active')
         status = wait_until(lambda: _active_status(diagnostics, since), 10.0, what='its diagnostics, active')
-        assert status[1]['enabled'] == 'False' and status[0] == 'vented: disabled', status
+        assert status[1]['enabled'] == 'False' and status[0].startswith("vented: the operator's arm is off"), status
         assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True)).success
         since = len(diagnostics)
         wait_until(lambda: (_guidance_status(diagnostics, since) or ('', {}))[1].get('enabled') == 'True', 10.0,
@@ -583,7 +583,8 @@ def _short_accuracy_study(out, domain_id):
     try:
         wait_until(lambda: op.has_gaze() and op.controller_condition, STUDY_DEADLINE_S,
                    what='gaze and the controller on the launched graph')
-        op.enable(False)
+        op.trial_gate(False)
+        op.enable(True)     # the test is the operator: it arms the controller once (the session never does)
 
         def set_condition(cond):
             op.set_condition(cond, extra_nodes=('wearer_sim',))

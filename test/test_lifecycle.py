@@ -224,7 +224,8 @@ def test_an_operators_vent_holds_through_deactivate_and_activate(tmp_path):
     probe = upstream = None
     try:
         graph.start('pressure_controller', PARAMS_FILES, calibration_file='config/calibrations/sim-wearer.yaml',
-                    calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0)
+                    calibration_dir=str(tmp_path / 'cal'), stall_timeout_s=0.0,
+                    target_publisher='test_probe')   # the probe plays target_selector (FakeUpstream)
         probe = Probe(graph.domain_id)
         commands = probe.subscribe(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
         upstream = FakeUpstream(probe)

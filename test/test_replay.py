@@ -60,7 +60,8 @@ def turning_session(tmp_path_factory):
     bag = tmp / 'bag'
     graph = Graph(tmp / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05)
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05,
+                target_publisher='test_probe')   # the probe plays target_selector
     probe = Probe(graph.domain_id)
     try:
         node = probe.node
@@ -121,7 +122,9 @@ def test_looping_graph_replay_runs_on_bag_time_without_a_spike(turning_session, 
     bag = tmp_path / 'looped'
     graph = Graph(tmp_path / 'logs')
     graph.start('bag_recorder', (), output=str(bag))
-    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True)
+    # target_publisher: the replay's player (bag_player) plays target_selector here
+    graph.start('pressure_controller', ('params/guidance.yaml',), calibration_file=CAL, gain=0.05, use_sim_time=True,
+                target_publisher='bag_player')
     probe = Probe(graph.domain_id)
     try:
         wait_until(lambda: recorder_ready(probe) and probe.node.count_publishers('controller_input'), 15.0,

@@ -1,5 +1,5 @@
 """SessionDriver without a graph: a fake operator records what the driver asks of the graph, in
-order, so the order of the trial's preparation against its enable can be checked."""
+order, so the order of the trial's preparation against its gate's opening can be checked."""
 from collections import deque
 import threading
 import time
@@ -19,8 +19,14 @@ class FakeOperator:
     def drain_presses(self):
         return []
 
-    def enable(self, on):
-        self.log.append(('enable', on, time.monotonic()))
+    controller_started = '1'
+
+    def trial_gate(self, on):
+        self.log.append(('gate', on, time.monotonic()))
+        return ''
+
+    def arm_dropped(self, started):
+        return ''
 
     def show_target(self, yaw, pitch, wait=True):
         self.log.append(('show', (yaw, pitch), time.monotonic()))
@@ -54,7 +60,7 @@ def test_the_next_trial_is_prepared_in_the_rest_before_it_not_at_its_start():
             # the trial's preparation came before its target, and at least most of a rest before
             prep = max(j for j in range(i) if log[j][0] == 'prepare')
             assert t - log[prep][2] >= 0.1, log
-            assert not any(log[j][0] == 'enable' and log[j][1] for j in range(prep, i)), log
+            assert not any(log[j][0] == 'gate' and log[j][1] for j in range(prep, i)), log
     # each block's trials with its own condition, repetitions in order
     assert [v for k, v, _ in log if k == 'prepare'] == [(c, r) for c in
                                                         [b.condition for b in participant_blocks(design, '01', 0)]

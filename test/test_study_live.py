@@ -1,11 +1,13 @@
 """A live session with a first-time participant on a graph that is already running, as a lab
 runs it (`fabric-guidance study --participant ID` against `ros2 launch ...`): here the simulated
 graph in a namespace, wearer_sim as the person (pressing confirm), no calibration file of the
-participant anywhere. The session registers them, calibrates them from the running graph,
-runs their block and writes what `analyze` reads."""
+participant anywhere. The controller starts disarmed, as the lab launch starts it; the session
+waits for the operator's arm (the test plays the operator once), calibrates them from the
+running graph, runs their block and writes what `analyze` reads."""
 import io
 import os
 from pathlib import Path
+import threading
 
 import pytest
 import yaml
@@ -18,6 +20,7 @@ from fabric_guidance.live_study.simulated import graph_overrides
 from fabric_guidance.live_study.study_command import main as study_main
 from fabric_guidance.sim.scene import load_scene, scene_path
 from fabric_guidance.study.store import read_tsv
+from rosgraph import wait_until
 
 NAMESPACE = 'suit_live'
 
@@ -55,9 +58,21 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
     def wearer_sim_trial(op, condition, repetition):
         # wearer_sim is the person: its streams follow the trial, as in study --simulated
         op.set_parameters('wearer_sim', condition=condition, repetition=repetition)
+    from std_srvs.srv import SetBool
+    from fabric_guidance import interface
+    from fabric_guidance.graph.process_graph import Probe
     try:
         start_nodes(graph, lab, FILES)
         out = tmp_path / 'study'
+
+        def operator_arms():
+            # The person at the console arms the controller once the session waits for it.
+            wait_until(lambda: any("the operator's arm is off" in line for line in lines), 60.0,
+                       what='the session asking for the arm')
+            with Probe(domain_id, 'lab_operator', NAMESPACE) as probe:
+                assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True), attempts=3).success
+        arming = threading.Thread(target=operator_arms, daemon=True)
+        arming.start()
         code = run_live_session(scene, 'P01', 1, out, lines.append, namespace=NAMESPACE, keyboard=False,
                                 again=lambda reason: refused.append(reason) or len(refused) < 3,
                                 before_trial=wearer_sim_trial)
@@ -65,6 +80,8 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
         graph.stop_all()
     assert code == 0, '\n'.join(lines)
     text = '\n'.join(lines)
+    # it asked for the operator's arm before calibrating, and armed nothing itself
+    assert text.index("the operator's arm is off") < text.index('calibration of P01 written'), text
     assert 'P01: no calibration yet; calibrating now' in text
     assert (cal_dir / 'P01.yaml').is_file(), text           # written by the graph's controller, as <id>.yaml
     header, rows = read_tsv(out / 'sub-P01' / 'ses-1' / 'beh' / 'sub-P01_ses-1_task-speed_beh.tsv')
@@ -77,12 +94,12 @@ def test_a_first_time_participant_is_calibrated_on_the_running_graph_and_runs_th
 
 
 def test_the_operators_keys_reach_the_session_as_its_commands():
-    """p c r s q become the session's pause, resume, repeat, skip and stop (in that order), and the
-    confirm keys a press; the driver takes any of its commands and refuses others."""
+    """p c r s e q become the session's pause, resume, repeat, skip, arm and stop (in that order), and
+    the confirm keys a press; the driver takes any of its commands and refuses others."""
     got, presses = [], []
-    src = KeyboardSource(lambda: presses.append(1), got.append, io.StringIO('p c r s x \nq'))
+    src = KeyboardSource(lambda: presses.append(1), got.append, io.StringIO('p c r s x e \nq'))
     src.start().join(5)
-    assert got == ['pause', 'resume', 'repeat', 'skip', 'stop'] and len(presses) == 6   # 5 spaces, a newline; x ignored
+    assert got == ['pause', 'resume', 'repeat', 'skip', 'arm', 'stop'] and len(presses) == 7   # spaces, a newline
     assert set(got) == set(OPERATOR_COMMANDS)
 
     class Recorder:
@@ -94,7 +111,13 @@ def test_the_operators_keys_reach_the_session_as_its_commands():
                 'refused': None, 'presses': [], 'actions': [], 'rows': [], 'amended': [], 'blocks': [],
                 'ignored': None})()
     session = Recorder()
-    driver = SessionDriver(op=None, session=session, store=None)
+
+    class ArmedOp:      # the controller armed: the session may take `arm`
+        controller_started = '1'
+
+        def arm_dropped(self, started):
+            return ''
+    driver = SessionDriver(op=ArmedOp(), session=session, store=None)
     for name in got:
         driver.command(name)
     with pytest.raises(ValueError, match='unknown session command'):
@@ -159,6 +182,10 @@ def test_q_vents_from_the_keys_thread_before_the_stop_reaches_the_session():
     log = []
 
     class Op:
+        def trial_gate(self, on):
+            log.append(('gate', on))
+            return ''
+
         def enable(self, on):
             log.append(('enable', on))
 
@@ -168,4 +195,8 @@ def test_q_vents_from_the_keys_thread_before_the_stop_reaches_the_session():
     keys = operator_keys(Op(), Driver(), log.append)
     keys('pause')
     keys('stop')
-    assert log == [('session', 'pause'), ('enable', False), ('session', 'stop')]
+    assert log == [('session', 'pause'), ('gate', False), ('session', 'stop')]
+    # e: the operator's arm, the only enable the session's terminal sends: gate closed, enable, then resume
+    log.clear()
+    keys('arm')
+    assert log == [('gate', False), ('enable', True), '  operator: armed (enable)', ('session', 'arm')]

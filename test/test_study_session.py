@@ -51,7 +51,7 @@ def test_blocks_in_the_participants_order_and_trials_of_exactly_trial_s():
 
 
 def test_guidance_is_off_between_trials():
-    """After a trial's end, nothing enables the suit until the next trial starts rest_s later."""
+    """After a trial's end, nothing opens the trial gate until the next trial starts rest_s later."""
     s = speed_session()
     steps = []
     drive(s, on_step=steps.append)
@@ -61,7 +61,7 @@ def test_guidance_is_off_between_trials():
     for a in actions:
         if a.kind == 'vent':
             on, last_vent = False, a.t
-        elif a.kind == 'enable':
+        elif a.kind == 'open_gate':
             assert not on
             assert a.t - last_vent >= s.design.rest_s - 1e-9
             on = True

@@ -173,6 +173,7 @@ class PackageGraph:
         g.start('gaze_bridge', FILES, port=self.gaze_port, **o.get('gaze_bridge', {}))
         g.start('pressure_controller', FILES, calibration_file=str(SIM_CALIBRATION), condition=2,
                 follow_moving_target=True, calibration_dir=str(self.work / 'calibrations'),
+                target_publisher='bench_target',   # this bench's probe plays target_selector
                 **o.get('pressure_controller', {}))
         self.probe = Probe(g.domain_id, 'bench_target')
         self._publish_target()

@@ -75,6 +75,8 @@ class Parameter:
 _STEP = ('vents; the next step runs Eq. 5 with it (controller_parameters republished); refused during a '
          'calibration')
 _NEXT_CAL = 'the next calibration; refused during one'
+_LIMIT = ('a safety limit (shortened only; raising it, or stall_timeout_s to 0, is refused; the value is held across '
+          'restarts in state_dir): ')
 
 #: Every pressure_controller parameter, in the node's declaration order.
 PARAMETERS: tuple[Parameter, ...] = (
@@ -86,13 +88,13 @@ PARAMETERS: tuple[Parameter, ...] = (
               setup=True, scene=True, live=_STEP),
     Parameter('p_max_kpa', PAPER_P_MAX, 'no command above this leaves the node (the paper: 375 kPa)', 'kPa',
               0.0, 1000.0, low_open=True, setup=True, scene=True,
-              live='the very next command is clamped to it; never above the value the node started with (its '
-              'ceiling); lowering ends a running calibration, raising is refused during one'),
+              live='a safety limit (lowered only): the very next command is clamped to it and the value is held '
+              'across restarts (state_dir); raising is refused; lowering ends a running calibration'),
     Parameter('control_rate_hz', 30.0, 'Eq. 5 steps per second without gaze steps; with step_on_gaze the '
               'least: the timer steps whenever no step ran for a period (it vents on a stale gaze)', 'Hz',
               1.0, 1000.0, setup=True, scene=True, live='the timer restarts at the new rate; ' + _STEP),
     Parameter('gaze_timeout_s', 0.3, 'vent when no valid gaze arrived for this long', 's', 0.01, 10.0,
-              setup=True, scene=True, live=_STEP),
+              setup=True, scene=True, live=_LIMIT + _STEP),
     Parameter('rate_deadband_dps', 0.0, 'rate_estimator sign only: de/dt must exceed this to count as '
               'growing (0: the paper)', 'deg/s', 0.0, 1000.0, setup=True, scene=True, live=_STEP),
     Parameter('guidance_frame', REST, "origin of Eq. 5's angles: rest (the calibration's rest gaze) or "
@@ -108,14 +110,16 @@ PARAMETERS: tuple[Parameter, ...] = (
               legacy=RATE_THRESHOLD_DPS, live=_STEP),
     Parameter('stall_timeout_s', STALL_TIMEOUT_S, 'vent when the gaze made no progress toward the target '
               'for this long; 0 = never', 's', 0.0, 3600.0, setup=True, legacy=None, zero_is_none=True,
-              live=_STEP),
+              live=_LIMIT + _STEP),
     Parameter('calibration_file', '', "the wearer's calibration file (YAML); '' = none: no guidance until "
               'calibrated (a file that does not exist at configure: none, with one line)',
               live='loaded and used from the next step (vents), or refused with the reason; refused during a '
               'calibration'),
     Parameter('calibration_dir', '', "where start_calibration writes <wearer>.yaml; "
               "'' = ~/.fabric_guidance/calibrations", live=_NEXT_CAL),
-    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path)",
+    Parameter('wearer', 'wearer', "name of the wearer (the calibration file's name; a file name, no path); a "
+              'calibration_file of another person is refused (the default `wearer` names nobody: the file\'s '
+              'wearer is taken)',
               live='checked as a file name; another wearer vents and drops the calibration in use, loading '
               '<calibration_dir>/<wearer>.yaml if it exists (else no guidance until calibrated); refused '
               'during a calibration'),
@@ -147,6 +151,11 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter('step_on_gaze', True, 'run a control step on every valid gaze sample, so a sample reaches the '
               "suit without waiting for the timer; Eq. 5 adds G once per step (at the HoloLens' 30 Hz the "
               "paper's rate; false: the timer alone)", read_only=True),
+    Parameter('target_publisher', 'target_selector', 'the node whose target and active_target the controller takes '
+              '(in its namespace); every other publisher is refused (docs/safety.md)', read_only=True),
+    Parameter('state_dir', '', "where the limits tightened at run time are held across restarts "
+              "(<state_dir>/<namespace>/pressure_controller_limits.yaml, docs/safety.md); '' = "
+              '$FABRIC_GUIDANCE_STATE_DIR, else ~/.fabric_guidance/state', read_only=True),
     # Its default is the channel map's channel order, known only at start-up (declare_table's values).
     Parameter('channels', [], 'order of pressure_command (as ros2_controllers '
               'joints)', read_only=True),
@@ -159,6 +168,32 @@ CALIBRATION: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.live == _N
 SETUP: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.setup)
 SCENE: tuple[Parameter, ...] = tuple(p for p in PARAMETERS if p.scene)
 _OLD = {old: p.name for p in PARAMETERS for old in p.old_names}
+
+#: The safety limits: a smaller value is tighter (stall_timeout_s 0 means never: the loosest).
+#: At run time they only tighten, and a tightening is held across restarts (docs/safety.md).
+LIMITS: tuple[str, ...] = ('p_max_kpa', 'gaze_timeout_s', 'stall_timeout_s')
+#: rclpy's parameters that must not change at run time (the reason each is refused).
+FIXED_AT_RUN_TIME: dict[str, str] = {
+    'use_sim_time': "use_sim_time is fixed while the node runs: Eq. 5's time would follow whoever publishes "
+                    '/clock; set it at start',
+}
+
+
+def _tightness(name: str, value: float) -> float:
+    """value on a scale where smaller is tighter (stall_timeout_s 0, never, is infinite)."""
+    if name == 'stall_timeout_s' and not value:
+        return math.inf
+    return float(value)
+
+
+def loosens(name: str, old: Any, new: Any) -> bool:
+    """Whether setting safety limit `name` from old to new loosens it."""
+    return _tightness(name, new) > _tightness(name, old)
+
+
+def tightest(name: str, a: Any, b: Any) -> Any:
+    """The tighter of two values of safety limit `name`."""
+    return a if _tightness(name, a) <= _tightness(name, b) else b
 
 
 def default(name: str) -> Any:
@@ -229,8 +264,9 @@ def main(argv: list[str] | None = None) -> int:
     return markdown_main('fabric_guidance.core.controller_parameters', markdown, argv)
 
 
-__all__ = ['BY_NAME', 'CALIBRATION', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP', 'check', 'default', 'markdown',
-           'renamed']
+__all__ = ['BY_NAME', 'CALIBRATION', 'FIXED_AT_RUN_TIME', 'LIMITS', 'PARAMETERS', 'Parameter', 'SCENE', 'SETUP',
+           'check', 'default', 'markdown',
+           'loosens', 'renamed', 'tightest']
 
 if __name__ == '__main__':
     sys.exit(main())

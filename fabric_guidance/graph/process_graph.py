@@ -156,6 +156,9 @@ class Graph:
         self.token = f'{os.getpid()}-{self.domain_id}-{next(_counter)}-{time.monotonic_ns()}'
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1',
                         RCUTILS_COLORIZED_OUTPUT='0', **{GRAPH_TOKEN: self.token}, **loopback_dds_env())
+        # The limits its controller holds across restarts (nodes/held_limits.py) are this graph's
+        # own: every restart within it finds them, no other graph does.
+        self.env['FABRIC_GUIDANCE_STATE_DIR'] = str(self.log_dir / 'held_limits')
         for name in PROFILE_VARIABLES:   # an inherited other name would win over the loopback profile
             if name != profile_variable():
                 self.env.pop(name, None)

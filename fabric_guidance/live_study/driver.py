@@ -7,6 +7,12 @@ on this machine; the headset's clock was mapped to the PC clock by gaze_bridge a
 
 Gaze is fed as it arrives (each sample once, in capture order), presses as they arrive, and
 tick() whenever the Session's next deadline has come; the loop sleeps at most 2 ms in between.
+
+The session's vents and trials go through the controller's trial gate; it never arms the
+controller. The loop watches the operator's arm (Operator.arm_dropped: an outside vent, a
+restart, a lost controller; an opening of the gate refused for it too): the running trial ends,
+recorded 'vented', one line tells the operator, and the session holds until the operator's key
+`e` has armed the controller (live_session.operator_keys) and the `arm` command reaches it.
 """
 from __future__ import annotations
 
@@ -18,12 +24,12 @@ import time
 from typing import Callable
 
 from ..core.geometry import azimuth_deg, elevation_deg
-from .operator import Operator
+from .operator import Operator, OperatorError
 
 #: The loop's sleep between polls [s].
 POLL_S = 0.002
 #: The session's commands an operator may give while it runs (Session's methods of these names).
-OPERATOR_COMMANDS = ('pause', 'resume', 'repeat', 'skip', 'stop')
+OPERATOR_COMMANDS = ('pause', 'resume', 'repeat', 'skip', 'stop', 'arm')
 #: How often on_status gets the session's status [s].
 STATUS_S = 0.25
 
@@ -34,7 +40,7 @@ class DriverTiming:
     press_sources: list[str] = field(default_factory=list)       # each of those presses' source, in step
     timer_error_s: list[float] = field(default_factory=list)     # speed trial end: acted on - deadline
     vented_from_ns: int | None = None                             # monotonic ns of the last vent
-    vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next enable) monotonic ns
+    vented: list[tuple[int, int]] = field(default_factory=list)   # (vent, next gate opening) monotonic ns
     # The phases of a speed target on the graph [s, steady clock], one tuple per event:
     # ('target' | 'front' | 'vent', decided, carried out) and ('press', stamp, resolved, accepted).
     events: list[tuple] = field(default_factory=list)
@@ -81,7 +87,7 @@ class SessionDriver:
     hooks: before_trial(condition, repetition) for the next trial (the simulated graph sets
     wearer_sim's streams there), called as the rest before it begins, so that the wearer side
     starts afresh facing front while vented (the headless trial's warm-up) and the trial's start
-    does not wait for it (at the latest before the trial's enable); set_condition(condition) for
+    does not wait for it (at the latest before the trial's gate opens); set_condition(condition) for
     a switch (default: the Operator's set_condition)."""
 
     def __init__(self, op: Operator, session, store, say: Callable[[str], None] = lambda s: None,
@@ -105,9 +111,12 @@ class SessionDriver:
         self._ignored: Counter[str] = Counter()    # sources of the running trial's ignored presses
         # target_selector's calls sent without waiting: (index of their event, PendingCall), in order
         self._calls: deque = deque()
+        self._started: str | None = None    # the controller process the operator armed (its `started`)
+        self._disarmed: str | None = None   # an opening of the trial gate refused: why
 
     def command(self, name: str) -> None:
-        """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip' or 'stop'."""
+        """An operator's command for the session: 'pause', 'resume', 'repeat', 'skip', 'stop' or
+        'arm' (sent once the operator's key has armed the controller)."""
         if name not in OPERATOR_COMMANDS:
             raise ValueError(f'unknown session command {name!r}; one of {", ".join(OPERATOR_COMMANDS)}')
         self._commands.put(name)
@@ -118,6 +127,12 @@ class SessionDriver:
                 name = self._commands.get_nowait()
             except queue.Empty:
                 return
+            if name == 'arm':
+                why = self.op.arm_dropped(None)
+                if why:
+                    self.say(f'  operator: arm refused: {why}')
+                    continue
+                self._started = self.op.controller_started
             step = getattr(self.session, name)(now)
             self.say(f'  operator: {name}' + (f' refused: {step.refused}' if step.refused else ''))
             self.handle(step)
@@ -132,10 +147,12 @@ class SessionDriver:
         with op.lock:
             self._gaze_seen = op.gaze_total
         op.drain_presses()
+        self._started = op.controller_started
         self.handle(self.session.start(time.monotonic()))
         while self.session.phase not in ('done', 'stopped'):
             self._check_calls()
             self._apply_commands(time.monotonic())
+            self.watch_arm()
             if self.on_status is not None and time.monotonic() >= self._status_due:
                 self._status_due = time.monotonic() + STATUS_S
                 self.on_status(self.session.status(time.monotonic()))
@@ -151,6 +168,26 @@ class SessionDriver:
                 time.sleep(POLL_S)
         self._check_calls(wait=True)
         return self.rows
+
+    def watch_arm(self) -> None:
+        """The operator's arm dropped (or a gate opening was refused for it): the session holds."""
+        why, self._disarmed = self._disarmed or self.op.arm_dropped(self._started), None
+        if not why or self.session.phase in ('held', 'idle', 'stopped', 'done'):
+            return
+        self.say(f'  STOPPED: {why}; the suit is vented and the trial will be run again. Check the suit, then '
+                 'press e to arm (enable) and resume, or q to stop')
+        self.handle(self.session.disarmed(time.monotonic(), why))
+
+    def gate(self, on: bool) -> None:
+        """The controller's trial gate. Refused (the operator's arm is off), or not answered (the
+        controller lost: a restart's first seconds, a dead process): the session holds, once this
+        step's actions are done (watch_arm)."""
+        try:
+            refused = self.op.trial_gate(on)
+        except OperatorError as exc:
+            refused = f'pressure_controller did not answer ({exc})'
+        if refused:
+            self._disarmed = refused
 
     def _check_calls(self, wait: bool = False) -> None:
         """The target's and the front's calls on target_selector that were sent without waiting
@@ -237,15 +274,15 @@ class SessionDriver:
         op, kind = self.op, action.kind
         if kind == 'set_condition':
             self.set_condition(action.condition)
-        elif kind == 'enable':
+        elif kind == 'open_gate':
             self.prepare_trial()
             self._prepared = None       # a repeat of this trial starts afresh too
             if self.timing.vented_from_ns is not None:
                 self.timing.vented.append((self.timing.vented_from_ns, time.monotonic_ns()))
                 self.timing.vented_from_ns = None
-            op.enable(True)
+            self.gate(True)
         elif kind == 'vent':
-            op.enable(False)
+            self.gate(False)
             self.timing.vented_from_ns = time.monotonic_ns()
         elif kind == 'show_target':
             visible = action.visible is not False

@@ -3,6 +3,7 @@
 
   space or Enter  confirm (published on `confirm`, frame_id 'keyboard', stamped when read)
   p  pause    r  repeat    s  skip    q  stop (vents at once)    c  resume
+  e  arm: the operator's enable, then the session goes on (after a vent or a restart held it)
 
 KeyboardSource(press, command, stream) reads `stream` (default stdin) on a thread: press() for a
 confirm key, command(name) for the others; any other key is ignored.
@@ -16,7 +17,7 @@ import threading
 from typing import Callable, TextIO
 
 CONFIRM_KEYS = (' ', '\n', '\r')
-COMMANDS = {'p': 'pause', 'r': 'repeat', 's': 'skip', 'q': 'stop', 'c': 'resume'}
+COMMANDS = {'p': 'pause', 'r': 'repeat', 's': 'skip', 'q': 'stop', 'c': 'resume', 'e': 'arm'}
 
 
 @contextlib.contextmanager

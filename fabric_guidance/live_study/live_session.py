@@ -9,11 +9,17 @@ calibration of theirs (pressure_controller `wearer` set to the id: a returning p
 terminal, and a refused calibration says why and is repeated or ends the session), then their
 blocks through study/session.py's Session (driver.SessionDriver), one bag per block
 (block_bag.BlockBags), every finished trial written at once (study/store.py). The suit is vented
-between trials, on any error, on Ctrl-C and at the end.
+(the session's trial gate closed) between trials, on any error, on Ctrl-C and at the end.
+
+The session never arms the controller: the operator does, with the key e (it calls `enable`) or
+`ros2 service call .../enable`, before the calibration and whenever the arm dropped (an outside
+vent, a controller restart, a lost controller: the session stops the trial, says so in one line
+and waits; e arms and resumes). docs/study.md, "When the session stops for the arm".
 
 The operator's keys (keyboard.py): space or Enter presses confirm when the keyboard is a press
-source; p pause, c resume, r repeat, s skip, q stop (vents at once). The terminal shows one
-status line (participant, condition, block, trial, phase, time left, identified, last result).
+source; e arm (enable) and resume, p pause, c resume, r repeat, s skip, q stop (vents at once).
+The terminal shows one status line (participant, condition, block, trial, phase, time left,
+identified, last result, why it holds).
 """
 from __future__ import annotations
 
@@ -43,6 +49,8 @@ GRAPH_TIMEOUT_S = 30.0
 CALIBRATION_TIMEOUT_S = 600.0
 #: Calibration attempts when nobody is at the keyboard to decide (a refused one is repeated).
 UNATTENDED_ATTEMPTS = 3
+#: How long the session waits for the operator to arm the controller before it gives up [s].
+ARM_WAIT_S = 900.0
 
 
 class LiveStudyError(RuntimeError):
@@ -60,20 +68,46 @@ def status_line(st: dict) -> str:
         parts.append(f"identified {st['identified']}")
     if st.get('last_result'):
         parts.append(f"last: {st['last_result']}")
+    if st.get('hold'):
+        parts.append(f"HELD: {st['hold']}: e arms and resumes")
     return ' | '.join(p for p in parts if p)
 
 
 def operator_keys(op, driver, say: Callable[[str], None]) -> Callable[[str], None]:
-    """The keyboard's command callback: the command to the session's loop; `stop` vents first,
-    from the key's own thread, so the suit does not wait for a call the loop may be in."""
+    """The keyboard's command callback: the command to the session's loop (`driver` None: no
+    session loop yet, the calibration's wait for the arm). `stop` closes the trial gate first,
+    from the key's own thread, so the suit does not wait for a call the loop may be in. `arm` is
+    the operator's act: the trial gate closed first (a restarted controller's is open), then
+    `enable`, then the session resumes."""
     def command(name: str) -> None:
         if name == 'stop':
             try:
-                op.enable(False)
+                op.trial_gate(False)
             except OperatorError as exc:      # the loop's stop vents again
                 say(f'  stop: {exc}')
-        driver.command(name)
+        if name == 'arm':
+            try:
+                op.trial_gate(False)
+                op.enable(True)
+                say('  operator: armed (enable)')
+            except OperatorError as exc:
+                say(f'  arm: {exc}')
+                return
+        if driver is not None:
+            driver.command(name)
     return command
+
+
+def wait_for_arm(op: Operator, say: Callable[[str], None], timeout_s: float = ARM_WAIT_S) -> None:
+    """Until the operator has armed the controller (LiveStudyError after timeout_s)."""
+    if op.arm_dropped(None) == '' and op.armed:
+        return
+    say("  the operator's arm is off: check the suit, then press e to arm (it calls enable)")
+    try:
+        wait_until(lambda: op.armed is True, timeout_s, 0.05, what="the operator's arm")
+    except AssertionError:
+        raise LiveStudyError(f'the operator did not arm the controller within {timeout_s:.0f} s; the session '
+                             'did not go on') from None
 
 
 def calibration_path(op: Operator, participant: str) -> Path | None:
@@ -86,14 +120,17 @@ def calibration_path(op: Operator, participant: str) -> Path | None:
 def calibrate(op: Operator, participant: str, say: Callable[[str], None], again: Callable[[str], bool],
               timeout_s: float = CALIBRATION_TIMEOUT_S) -> None:
     """Calibrate `participant` (pressure_controller's wearer already) on the running graph, until
-    a calibration is written or `again(reason)` says to give up (LiveStudyError)."""
+    a calibration is written or `again(reason)` says to give up (LiveStudyError). Each attempt
+    waits for the operator's arm, then opens the trial gate for it and closes it after."""
     from std_srvs.srv import Trigger
     from .. import interface
     while True:
         op.calibration_state = None            # only what this attempt publishes counts
-        op.enable(True)
-        response = op.call(Trigger, interface.START_CALIBRATION, Trigger.Request())
-        reason = None if response.success else response.message
+        wait_for_arm(op, say)
+        reason = op.trial_gate(True) or None
+        if reason is None:
+            response = op.call(Trigger, interface.START_CALIBRATION, Trigger.Request())
+            reason = None if response.success else response.message
         shown = None
         deadline = time.monotonic() + timeout_s
         while reason is None:
@@ -112,7 +149,7 @@ def calibrate(op: Operator, participant: str, say: Callable[[str], None], again:
                 reason = f'no end of the calibration within {timeout_s:.0f} s'
                 break
             time.sleep(0.05)
-        op.enable(False)
+        op.trial_gate(False)
         if reason is None:
             wait_until(lambda: op.controller_calibration == participant, 10.0,
                        what=f"pressure_controller guiding with {participant}'s calibration")
@@ -175,7 +212,11 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
             raise LiveStudyError(f"no pressure_controller answers in namespace '/{op.namespace}' on ROS_DOMAIN_ID "
                                  f"{os.environ.get('ROS_DOMAIN_ID', '0')} within {GRAPH_TIMEOUT_S:.0f} s: "
                                  'launch the graph first (docs/study.md)') from None
-        op.enable(False)
+        op.trial_gate(False)     # the session's gate: closed until a calibration or a trial opens it
+        keys = {'driver': None}
+        if keyboard:
+            KeyboardSource(lambda: op.press_key('keyboard'),
+                           lambda name: operator_keys(op, keys['driver'], say)(name), stream).start()
         op.set_parameters('pressure_controller', wearer=participant)
         wait_until(lambda: op.controller_wearer == participant, 10.0, what=f'pressure_controller wearer {participant}')
         if op.controller_calibration == participant:
@@ -201,16 +242,17 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
             session.set_context(clock_state=op.clock_state())
             if before_trial is not None:
                 before_trial(op, cond, repetition)
+        wait_for_arm(op, say)
         driver = SessionDriver(op, session, bags, say, set_condition, prepare_trial)
+        keys['driver'] = driver
         tty = hasattr(sys.stdout, 'isatty') and sys.stdout.isatty()
         if tty:
             driver.on_status = lambda st: (sys.stdout.write('\r' + status_line(st)[:150].ljust(150)),
                                            sys.stdout.flush())
         if keyboard:
-            KeyboardSource(lambda: op.press_key('keyboard'), operator_keys(op, driver, say), stream).start()
             say('  keys: space/Enter confirm' + ('' if design.judges('keyboard') else
                                                  ' (not judged: the keyboard is not a press source)') +
-                ', p pause, c resume, r repeat, s skip, q stop (vents)')
+                ', e arm (enable) and resume, p pause, c resume, r repeat, s skip, q stop (vents)')
         try:
             driver.run()
         except KeyboardInterrupt:
@@ -218,7 +260,7 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
             return 1
         finally:
             bags.close()
-            op.enable(False)
+            op.trial_gate(False)
         if session.phase == 'stopped':
             say(f'sub-{participant}: stopped by the operator, vented; run the same command again to resume')
             return 1
@@ -229,10 +271,11 @@ def run_live_session(scene, participant: str, session_no: int, out: Path, say: C
     finally:
         if op.controller_condition is not None:     # a controller was there: leave it vented
             try:
-                op.enable(False)
+                op.trial_gate(False)
             except Exception:   # noqa: BLE001 - closing anyway: the error that brought us here is reported
                 pass
         op.close()
 
 
-__all__ = ['LiveStudyError', 'ask_operator', 'calibrate', 'operator_keys', 'run_live_session', 'status_line']
+__all__ = ['LiveStudyError', 'ask_operator', 'calibrate', 'operator_keys', 'run_live_session', 'status_line',
+           'wait_for_arm']

@@ -5,8 +5,12 @@ Operator(domain_id) is an rclpy node in its own context, spun on a background th
 the last GAZE_HISTORY_S of gaze (stamped at capture by gaze_bridge) for the session's driver,
 which judges a key press on the gaze at the press's stamp (study.session); it queues the
 presses of every `confirm` source; it places the session's target (target_selector's target_positions and
-active_target in one atomic call), brings it back to the front, enables or vents guidance,
-switches the condition, and sends prompts and the `done` event to the headset (study_display).
+active_target in one atomic call), brings it back to the front, opens or closes the controller's
+trial gate, switches the condition, and sends prompts and the `done` event to the headset
+(study_display). It watches the operator's arm on the controller's diagnostics (`armed`, and
+`started`: a restart) and how long ago the controller was heard (arm_dropped). enable() is the
+operator's act alone: only the operator's key (live_session.operator_keys) and the simulated
+operator (simulated.py, standing for a person) call it; the session never does.
 
 Every blocking call has a deadline (OperatorError naming what did not answer). The guidance
 nodes never call back into it: a stalled session leaves the graph as a stalled operator would
@@ -33,6 +37,9 @@ STUDY_TARGET = 'study'
 TARGET_DISTANCE_M = 2.0
 #: How long a service or parameter call may take before the operator says so [s].
 CALL_TIMEOUT_S = 5.0
+#: The controller publishes its diagnostics every second (and at once on an arm change); not
+#: heard for this long, it counts as lost [s].
+CONTROLLER_LOST_S = 3.5
 
 
 class OperatorError(RuntimeError):
@@ -113,6 +120,9 @@ class Operator:
         self.controller_condition: int | None = None
         self.controller_wearer: str | None = None            # pressure_controller's `wearer`
         self.controller_calibration: str | None = None       # the wearer of its loaded calibration ('' none)
+        self.armed: bool | None = None                       # the operator's arm on the controller
+        self.controller_started: str | None = None           # its process's start (a restart changes it)
+        self.controller_heard: float | None = None           # monotonic time of its last status
         self.calibration_state = None                        # core.calibration_state.CalibrationState
         self.headset_clock: str | None = None                # gaze_bridge's clock_state
         self._header_type, self._string_type = Header, String
@@ -175,7 +185,12 @@ class Operator:
                     if kv.key == 'clock_state':
                         self.headset_clock = kv.value
             if node == mine or (not self.namespace and st.name.startswith('pressure_controller')):
+                self.controller_heard = time.monotonic()
                 for kv in st.values:
+                    if kv.key == 'armed':
+                        self.armed = kv.value == 'True'
+                    elif kv.key == 'started':
+                        self.controller_started = kv.value
                     if kv.key == 'condition':
                         self.controller_condition = int(kv.value)
                     elif kv.key == 'wearer':
@@ -256,10 +271,47 @@ class Operator:
         return [parameter_value_to_python(v) if v.type else None for v in response.values]
 
     def enable(self, on: bool) -> None:
+        """The operator's arm (a person's act: never the session's). Arming returns once the
+        controller's diagnostics say so (its `started` is then the process that was armed)."""
         from std_srvs.srv import SetBool
+        if on:
+            self.armed = None
         response = self.call(SetBool, interface.ENABLE, SetBool.Request(data=bool(on)))
         if not response.success:
             raise OperatorError(f'{interface.ENABLE}: {response.message}')
+        if on:
+            deadline = time.monotonic() + CALL_TIMEOUT_S
+            while self.armed is not True:
+                if time.monotonic() > deadline:
+                    raise OperatorError(f'{interface.ENABLE}: armed, but its diagnostics did not say so within '
+                                        f'{CALL_TIMEOUT_S:.0f} s')
+                time.sleep(0.01)
+
+    def trial_gate(self, on: bool) -> str:
+        """The session's trial gate (closed: vented). '' done; else why pressure cannot flow
+        (opening it while the operator's arm is off: the gate is open, nothing flows)."""
+        from std_srvs.srv import SetBool
+        response = self.call(SetBool, interface.TRIAL_GATE, SetBool.Request(data=bool(on)))
+        if response.success:
+            return ''
+        if on:
+            self.armed = False
+        return response.message
+
+    def arm_dropped(self, started: str | None) -> str:
+        """Why the operator's arm is no longer as it was armed ('' it is): dropped (a vent,
+        enable false), a restart of the controller (another `started` than `started`, when
+        given), or no status from it for CONTROLLER_LOST_S."""
+        heard = self.controller_heard
+        if heard is None:      # not heard yet: a call to it says whether it is there
+            return ''
+        if time.monotonic() - heard > CONTROLLER_LOST_S:
+            return f'pressure_controller not heard for {CONTROLLER_LOST_S:g} s (lost)'
+        if started is not None and self.controller_started not in (None, started):
+            return 'pressure_controller restarted (it waits for the operator)'
+        if self.armed is False:
+            return "the operator's arm dropped (a vent or enable false)"
+        return ''
 
     def vent(self) -> None:
         from std_srvs.srv import Trigger

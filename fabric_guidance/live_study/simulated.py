@@ -13,6 +13,12 @@ so the live and the headless study meet the same targets.
 
 A condition is switched within the graph by the live `condition` parameters of
 pressure_controller and wearer_sim (no restart).
+
+The controller starts disarmed (start_enabled false, as the lab launch starts it). The
+simulated operator arms it once at start, standing for the person at the lab's console who
+calls `enable`; the session never does, it only opens and closes its trial gate. Should the arm
+drop later (a vent from elsewhere, a restart), the session holds until someone arms it again:
+nobody does here unless a test plays that person (live_session.operator_keys).
 """
 from __future__ import annotations
 
@@ -51,7 +57,7 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
     # paper's game. A person's graph keeps guidance.yaml's 10 s (docs/study.md: what it costs).
     ov['pressure_controller'].update(calibration_file=str(calibration_file), wearer=f'sub{subject + 1:02d}',
                                      **dataclasses.asdict(scene.controller), step_on_gaze=False, condition=cond,
-                                     stall_timeout_s=0.0)
+                                     stall_timeout_s=0.0, start_enabled=False)
     speed = scene.protocol.kind == 'speed'
     ov['target_selector'].update(target_names=[STUDY_TARGET], target_positions=target_position(0.0, 0.0, 1.2),
                                  found_by_dwell=False, return_to_front=False, auto_advance=False)
@@ -85,7 +91,10 @@ class SimulatedParticipant:
         if not outcome.ok:
             raise ValueError(f'calibration of {wearer.name} refused: {outcome.error}')
         log_dir.mkdir(parents=True, exist_ok=True)
-        self.calibration_file = outcome.calibration.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
+        # The file names the participant the controller guides (wearer `subNN`): one person's
+        # calibration never guides another.
+        named = dataclasses.replace(outcome.calibration, wearer=f'sub{subject + 1:02d}')
+        self.calibration_file = named.save(log_dir / f'sub{subject + 1:02d}.yaml').resolve()
         cond = condition_of(first_condition)
         self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
         self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
@@ -104,7 +113,10 @@ class SimulatedParticipant:
         self.op = Operator(self.graph.domain_id)
         wait_until(lambda: self.op.has_gaze() and self.op.controller_condition,
                    STARTUP_S, what='gaze and the controller on the study graph')
-        self.op.enable(False)     # vented until the first trial
+        self.op.trial_gate(False)     # the session's gate: vented until the first trial
+        # The simulated operator arms the controller once: this call stands for the person at
+        # the console (the session itself never calls enable).
+        self.op.enable(True)
 
     def switch(self, cond: int) -> None:
         """The condition for the next block, within the running graph: the `condition` parameter
@@ -120,7 +132,7 @@ class SimulatedParticipant:
         try:
             if self.op is not None:
                 try:
-                    self.op.enable(False)
+                    self.op.trial_gate(False)
                 except Exception:   # noqa: BLE001 - closing anyway; the controller vents on shutdown
                     pass
                 self.op.close()

@@ -1,23 +1,26 @@
 """pressure_controller: the feedback law (Eq. 5) on live gaze and target, the four conditions,
 and Algorithm 1 run live with the wearer.
 
-Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String)
+Subscribes  gaze (PoseStamped), target (PointStamped), active_target (String); the last two only
+            from this namespace's target_selector, a target no older than 1 s (control_inputs.py)
 Publishes   pressure_command (Float64MultiArray, kPa, in the order of the `channels` parameter),
             controller_input (Float64MultiArray, every step right before its command: the exact
             inputs the step used, layout in bag/controller_io.py), controller_parameters (String,
             YAML, latched: parameters, calibration and channel map; again after a live calibration),
             speech (String, condition 4), calibration_status (String), /diagnostics
-Services    start_calibration (Trigger), enable (SetBool), vent (Trigger)
+Services    start_calibration (Trigger), enable (SetBool), vent (Trigger), trial_gate (SetBool)
 
-The enable latch: `enable false` and `vent` stop every pressure the node sends, a running
-calibration included (it ends, failed, and the suit vents at once), and only `enable true` lifts
-the latch. No lifecycle transition, parameter, new calibration or start_calibration does (a
-disabled controller refuses to calibrate); start_enabled is the latch's value when the process
-starts (the lab launch with respawn: false, so a restarted controller waits for the operator).
+Two gates (controller_gates.py): the operator's arm, the enable latch (`enable false` and `vent`
+stop every pressure the node sends, a running calibration included, and only `enable true`
+lifts it; no lifecycle transition, parameter, new calibration, start_calibration or trial gate
+does; start_enabled is its value when the process starts: false in the lab launch, so a
+restarted controller waits for the operator), and the study session's trial gate. Pressure
+flows only while both are open.
 
 Parameters set at run time take effect at once or are refused with the reason (the table in
 core/controller_parameters.py says which and what each does; on_set_parameters applies them).
-p_max_kpa can be lowered at any time and raised no higher than the value the node started with.
+The safety limits (p_max_kpa, gaze_timeout_s, stall_timeout_s) only tighten, and a tightening
+is held across restarts (held_limits.py); use_sim_time is fixed while the node runs.
 
 It publishes a command every control step, all zeros whenever it must not guide: disabled,
 vented, no calibration, no active target, or no valid gaze for gaze_timeout_s.
@@ -66,12 +69,13 @@ from ..core.safe_input import check_wearer
 from ..core.geometry import DIRECTIONS
 from ..bag.controller_io import FIELDS, encode_input, setup_to_dict
 from ..core.control_step import RESET_KEEP_STALL, RESET_VENT, ControllerSetup, StepInput, guidance_step, safe_command
-from ..interface import (ACTIVE_TARGET, CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
-                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TARGET,
-                         VENT)
+from ..interface import (CALIBRATION_STATE, CALIBRATION_STATUS, CONTROLLER_INPUT, CONTROLLER_PARAMETERS,
+                         DIAGNOSTICS, ENABLE, GAZE, PRESSURE_COMMAND, SPEECH, START_CALIBRATION, TRIAL_GATE, VENT)
 from ..paths import resolve
 from .array_layout import named_layout
 from .diagnostics import publish_diagnostics, status
+from .control_inputs import ControlInputs
+from .controller_gates import Gates
 from .controller_settings import LiveParameters
 from .managed import ManagedNode
 from .parameters import declare_table
@@ -79,7 +83,7 @@ from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
 from .spin import run
 
 
-class PressureController(LiveParameters, ManagedNode):
+class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
     """Eq. 5 as a lifecycle node (nodes/managed.py): configure loads the channel map and the
     calibration; only while active does it step and guide; deactivate, cleanup, shutdown and
     error processing publish a vent. Topics and services exist in every state (the latched
@@ -93,16 +97,18 @@ class PressureController(LiveParameters, ManagedNode):
         self.v = v = declare_table(self, PARAMETERS[:-1])
         check_wearer(v['wearer'], 'parameter "wearer"')
         condition(v['condition'])
-        #: The hardware ceiling: p_max_kpa as the node started (the lab's params file); at run
-        #: time it can be lowered and raised back, never above this.
-        self.ceiling_kpa = v['p_max_kpa']
+        self.hold_error = ''
+        self.load_held_limits()   # a limit tightened before a restart is in force again
+        self.started = time.time()   # tells a restart from a vent (diagnostics `started`)
         self.channel_map = self.calibration = self.setup = self.controller = None
         self.zeros = np.zeros(0)
         self.control_timer = None
         self._declaring = False
 
-        #: The enable latch (module doc): only enable and vent move it after this.
+        #: The operator's arm, the enable latch (module doc): only enable and vent move it after this.
         self.enabled = v['start_enabled']
+        #: The study session's trial gate (controller_gates.py): open unless a session closes it.
+        self.gate_open = True
         self.gaze_origin = self.gaze_direction = None
         self.gaze_received = -float('inf')   # self.now_s(): the steady clock
         self.step_count = 0
@@ -131,13 +137,16 @@ class PressureController(LiveParameters, ManagedNode):
         self.saved = ('', '', '')   # file, fit report, error of the latest finish_calibration
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         self.create_subscription(PoseStamped, GAZE, self.on_gaze, SENSOR_QOS)
-        self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
-        self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
+        self.subscribe_control_inputs()
         self.create_service(Trigger, START_CALIBRATION, self.on_start_calibration)
         self.create_service(SetBool, ENABLE, self.on_enable)
         self.create_service(Trigger, VENT, self.on_vent)
+        self.create_service(SetBool, TRIAL_GATE, self.on_trial_gate)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0, self.publish_diagnostics, clock=self.steady)
+        self.alone_seen = self.duplicate = False   # controller_gates.check_unique
+        self.alone_checks = 0
+        self.duplicate_text = ''
+        self.create_timer(1.0, self.on_second, clock=self.steady)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     # ---- the values in force
@@ -209,6 +218,7 @@ class PressureController(LiveParameters, ManagedNode):
             self.get_logger().warning(f'{exc}: no calibration; call start_calibration to calibrate '
                                       f'{self.wearer} (written to {self.cal_dir / (self.wearer + ".yaml")})')
             cal_file = ''
+        self.same_person(calibration, v['wearer'], cal_file)
         self.channel_map, self.calibration = channel_map, calibration
         self.setup = self.make_setup(calibration, v)
         self.zeros = np.zeros(len(channel_map.channels))
@@ -324,6 +334,7 @@ class PressureController(LiveParameters, ManagedNode):
             self.step()
 
     def on_timer(self) -> None:
+        self.check_inputs_clean()
         # The minimum rate: skipped while gaze steps come at least this often.
         if self.active and self.now_s() - self.last_step_s >= 0.9 * self.period_s:
             self.step()
@@ -359,7 +370,11 @@ class PressureController(LiveParameters, ManagedNode):
             return response
         if not self.enabled:
             response.success = False
-            response.message = 'cannot calibrate: guidance disabled (enable false or vent): call enable first'
+            response.message = ("cannot calibrate: the operator's arm is off (enable false, vent or a restart): "
+                                'the operator must call enable first')
+            return response
+        if not self.gate_open:
+            response.success, response.message = False, "cannot calibrate: the study session's trial gate is closed"
             return response
         if self.now_s() - self.gaze_received > self.gaze_timeout:
             response.success = False
@@ -382,27 +397,6 @@ class PressureController(LiveParameters, ManagedNode):
         self.get_logger().info(response.message)
         return response
 
-    def on_enable(self, request, response):
-        if request.data and not self.active:
-            response.success = False
-            response.message = f'cannot enable: the node is {self.state_label} (activate it first)'
-            return response
-        self.enabled = bool(request.data)
-        if self.enabled:   # enabling starts afresh (and forgets a no-progress stop)
-            self.vent_controller()
-            response.success, response.message = True, 'guidance enabled'
-            return response
-        # Disabling is a latch like vent: a running calibration ends and the suit vents now.
-        self.vent_all('disabled by request (enable false)')
-        response.success, response.message = True, 'guidance disabled (vented); call enable to guide again'
-        return response
-
-    def on_vent(self, request, response):
-        self.enabled = False
-        self.vent_all('vented by request')
-        response.success, response.message = True, 'vented; call enable to guide again'
-        return response
-
     # ---- the control step
     def publish(self, channels: np.ndarray) -> None:
         # Last line of defence: nothing above P_MAX and nothing non-finite leaves this node.
@@ -417,9 +411,9 @@ class PressureController(LiveParameters, ManagedNode):
         t = self.get_clock().now().nanoseconds * 1e-9   # ROS time: sim time in a replay
         fresh = self.now_s() - self.gaze_received <= self.gaze_timeout
         clock = self.now_s()   # the steady clock: the stall watch and the calibration's schedule
-        if self.procedure is not None and not self.enabled:   # no pressure past the latch, whatever set it
-            self.end_calibration('guidance disabled')
-        inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.enabled,
+        if self.procedure is not None and not self.flowing:   # no pressure past a gate, whatever closed it
+            self.end_calibration('guidance disabled' if not self.enabled else 'trial gate closed')
+        inp = StepInput(t, self.gaze_origin, self.gaze_direction, self.target, fresh, self.flowing,
                         bool(self.target_name) and self.target is not None, self.reset_pending,
                         self.procedure is not None, self.condition.number, self.step_count, self.command_count,
                         clock)
@@ -531,17 +525,29 @@ class PressureController(LiveParameters, ManagedNode):
     def publish_diagnostics(self) -> None:
         if self.configure_error:
             level, message = DiagnosticStatus.ERROR, f'unconfigured: {self.configure_error}'
+        elif self.duplicate:
+            level, message = DiagnosticStatus.ERROR, self.duplicate_text
         elif not self.active:
             level, message = DiagnosticStatus.WARN, f'{self.state_label}: not guiding (vented)'
         elif self.procedure is not None:
             level, message = DiagnosticStatus.OK, f'calibrating: {self.last_status}'
+        elif self.vent_reason == 'disabled' or not self.flowing:
+            level, message = DiagnosticStatus.WARN, (
+                "vented: the operator's arm is off (enable false, vent or a restart): nothing guides until enable"
+                if not self.enabled else "vented: the study session's trial gate is closed")
         elif self.vent_reason:
             level, message = DiagnosticStatus.WARN, f'vented: {self.vent_reason}'
         else:
             level, message = DiagnosticStatus.OK, f'guiding to {self.target_name}'
+        if self.held_text:
+            message += f'; held limits: {self.held_text}'
         pressures = self.controller.pressures if self.controller is not None else np.zeros(len(DIRECTIONS))
         values = {'condition': self.condition.number, 'target': self.target_name, 'invalid_inputs': self.invalid_inputs,
-                  'enabled': self.enabled, 'wearer': self.wearer,
+                  'refused_inputs': self.refused_inputs, 'last_input_refusal': self.last_input_refusal,
+                  'enabled': self.enabled, 'armed': self.enabled, 'trial_gate': 'open' if self.gate_open else 'closed',
+                  'started': f'{self.started:.6f}', 'p_max_kpa': f'{self.p_max:g}',
+                  'held_limits': (self.held_text or 'none') + (f'; {self.hold_error}' if self.hold_error else ''),
+                  'wearer': self.wearer,
                   # whose calibration guides ('' none): a study session sees a first-time participant
                   'calibration': self.calibration.wearer if self.calibration is not None else '',
                   **self.lifecycle_values()}

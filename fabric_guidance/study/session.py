@@ -1,8 +1,10 @@
 """A study session as a pure state machine: events in (each with an explicit steady-clock
 timestamp in seconds), actions and finished trials out. No threads, no ROS, no clock of its
 own: the operator layer calls the event methods as things happen and carries out the actions
-(the suit vented, the guidance enabled, a target shown, a prompt for the wearer); a test drives
-it with a fake clock.
+(the trial gate closed or opened, a target shown, a prompt for the wearer); a test drives it
+with a fake clock. The session never arms the controller: pressure flows only while the
+operator's arm is on as well (a person's `enable`); when it drops (disarmed) the session holds
+until the operator has armed again (arm).
 
 Every event method returns a Step: the actions to carry out (in order), the trial rows finished
 by this event (to be written at once, store.SessionStore.append), the blocks finished, and for
@@ -10,7 +12,7 @@ a refused press or command the reason (one line).
 
 Phases: 'idle' (before start), 'rest' (between trials, suit vented), 'target' (a trial runs,
 the target is shown), 'front' (speed: the target is back at the front, waiting for the gaze),
-'paused', 'stopped', 'done'.
+'paused', 'held' (the operator's arm dropped: waits for the operator), 'stopped', 'done'.
 """
 from __future__ import annotations
 
@@ -27,8 +29,8 @@ from .trial_columns import CONTEXT_COLUMNS, RECORD_COLUMNS, SESSION_COLUMNS
 #: What an Action asks of the operator layer.
 ACTION_KINDS = (
     'set_condition',   # condition: switch the graph to it (layout, feedback mode, speech)
-    'enable',          # guidance on (after the vent hold): the trial starts
-    'vent',            # suit vented, guidance held off until the next 'enable'
+    'open_gate',       # the trial gate opens (after the rest): the trial starts
+    'vent',            # the trial gate closes (suit vented) until the next 'open_gate'
     'show_target',     # target (azimuth, elevation) [deg], visible, target_id, dummy_set
     'show_front',      # speed: the target is back at the front (0, 0)
     'hide',            # no target shown
@@ -52,7 +54,7 @@ MAX_GAZE_SAMPLES = 2000
 EARLY_SHARE = 0.75
 FRAME_SAMPLES = 32
 #: A trial row's status: only 'ok' rows enter the analysis.
-STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted')
+STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted', 'vented')
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,7 @@ class Session:
         self._last_result = ''
         self._dummy_set = 0
         self._trial: dict | None = None
+        self._hold: str | None = None      # why the session holds for the operator's arm
 
     def set_context(self, **values) -> None:
         """Change what the next rows carry (e.g. the clock state as it changes); ValueError for a
@@ -134,7 +137,7 @@ class Session:
     # -- state -----------------------------------------------------------------------------
     @property
     def phase(self) -> str:
-        """'idle', 'rest', 'target', 'front', 'paused', 'stopped' or 'done'."""
+        """'idle', 'rest', 'target', 'front', 'paused', 'held', 'stopped' or 'done'."""
         return self._phase
 
     @property
@@ -156,7 +159,7 @@ class Session:
                 'condition': b.condition if b else None, 'block': f'{self._bi + 1}/{len(self.blocks)}',
                 'trial': f'{min(self._ti + 1, len(b.trials))}/{len(b.trials)}' if b else None,
                 'time_left_s': left, 'identified': self._trial['identified'] if self._trial else None,
-                'last_result': self._last_result}
+                'last_result': self._last_result, 'hold': self._hold}
 
     def next_deadline(self) -> float | None:
         """The steady-clock time [s] the next tick must come by (trial end, rest end, a pending
@@ -285,6 +288,9 @@ class Session:
     def resume(self, t: float) -> Step:
         """From 'paused' (or held between blocks): rest, then the next trial."""
         step = Step()
+        if self._phase == 'held':
+            step.refused = f"resume: the operator's arm is off ({self._hold}): the operator arms first (key e)"
+            return step
         if self._phase != 'paused':
             step.refused = f'resume: the session is not paused (phase {self._phase})'
             return step
@@ -327,6 +333,33 @@ class Session:
             return step
         self._last_result = f'trial {self._ti + 1} skipped'
         self._next_trial(t, step)
+        return step
+
+    def disarmed(self, t: float, why: str) -> Step:
+        """The operator's arm dropped (an outside vent, a controller restart, a lost controller):
+        the running trial ends now, recorded 'vented', and the session holds until arm()."""
+        step = Step()
+        if self._phase in ('idle', 'held', 'stopped', 'done'):
+            self._hold = why if self._phase == 'held' else self._hold
+            return step
+        if self._trial is not None:
+            self._abandon(t, 'vented', step)
+        else:
+            step.actions.append(Action('vent', t))
+        step.actions.append(Action('prompt', t, text='Paused: please wait'))
+        self._phase, self._rest_end, self._hold = 'held', None, why
+        self._last_result = f'held: {why}'
+        return step
+
+    def arm(self, t: float) -> Step:
+        """The operator has armed the controller again (their key called enable): a held session
+        rests, then runs its next trial (a trial cut off is run again)."""
+        step = Step()
+        if self._phase != 'held':
+            step.refused = f'arm: the session is not waiting for the arm (phase {self._phase})'
+            return step
+        self._hold = None
+        self._rest(t, step)
         return step
 
     def stop(self, t: float) -> Step:
@@ -395,7 +428,7 @@ class Session:
             tr['target'] = spec.target
             step.actions.append(Action('show_target', t, target=spec.target, target_id='target', visible=False))
             text = 'Follow the suit and press when you think you are there'
-        step.actions.append(Action('enable', t))
+        step.actions.append(Action('open_gate', t))
         step.actions.append(Action('prompt', t, text=f'Trial {self._ti + 1} of {len(b.trials)}: {text}'))
         self._trial = tr
         self._phase = 'target'

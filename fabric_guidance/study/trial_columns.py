@@ -40,9 +40,11 @@ assert list(RECORD_COLUMNS) == [f.name for f in fields(TrialRecord)], 'RECORD_CO
 SESSION_COLUMNS: dict[str, tuple[str, str]] = {
     'session': ('-', 'BIDS session number (ses-<n>)'),
     'status': ('-', "'ok' (analysed), 'repeated' (the operator repeated it), 'skipped', 'stopped' "
-                    "(the session was stopped during it), 'interrupted' (its block was cut off by a crash)"),
+                    "(the session was stopped during it), 'interrupted' (its block was cut off by a crash), "
+                    "'vented' (the operator's arm dropped during it: an outside vent, a controller restart or a "
+                    "lost controller; run again once the operator re-arms)"),
     'block': ('-', 'the block: task, position and condition (one bag per block)'),
-    'trial_start_s': ('s', 'steady clock when the trial started (guidance enabled, target set)'),
+    'trial_start_s': ('s', 'steady clock when the trial started (trial gate opened, target set)'),
     'trial_end_s': ('s', 'steady clock when the trial ended (speed: trial_start_s + trial_s exactly)'),
     'press_s': ('s', 'steady clock capture time of the press that ended an accuracy trial, or of the '
                      'last accepted press of a speed trial; empty if none'),
