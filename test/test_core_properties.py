@@ -46,6 +46,7 @@ def floating_point_errors_raise():
     with np.errstate(over='raise', invalid='raise', divide='raise', under='ignore'):
         yield
 
+
 FAST = settings(max_examples=100, deadline=None, suppress_health_check=_SLOW_OK)
 FITS = settings(max_examples=50, deadline=None, suppress_health_check=_SLOW_OK)
 SLOW = settings(max_examples=25, deadline=None, suppress_health_check=_SLOW_OK)
