@@ -32,6 +32,7 @@ from .feedback import FRONT, PAPER_P_MAX
 from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, got, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
+from .power_law_fit import FIT_B_MAX, FIT_B_MIN
 
 SCHEMA_VERSION = 1
 #: The paper's 10 steps per direction.
@@ -77,15 +78,22 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
 class Acceptance:
     """When a direction's fit is good enough to guide with: useless ones are refused.
 
-    min_r2 [-]: the fit explains this share of the pressure variance: 0.8 refuses a plateau
-    (the issue's R^2 0.77) and anything worse than the mean, and accepts the simulated paper
-    population with suit hysteresis and tracker noise (lowest R^2 0.87 over 30 wearers).
-    min_span_deg [deg]: the angles reached span at least this: at 5 deg (the paper's
-    acceptance angle, 3x the tracker's 1.5 deg) the wearer visibly moved with the pressure.
-    max_reversal_deg [deg]: monotonicity: no angle falls more than this below a larger angle
-    reached at a lower pressure (2 deg: above tracker noise, far below a real reversal).
-    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (375 kPa / 10 =
-    37.5 kPa): a worse fit cannot tell neighbouring steps apart.
+    The thresholds and why they are where they are: docs/calibration.md, "Acceptance".
+    min_r2 [-]: the fit explains this share of the pressure variance (0.8).
+    min_span_deg [deg]: the angles reached span at least this (5 deg, the paper's acceptance).
+    max_reversal_deg [deg]: no angle falls more than this below an earlier one (2 deg).
+    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (37.5 kPa).
+    min_b, max_b [-]: the exponent lies well inside the solver's bounds
+    (power_law_fit.FIT_B_MIN 0.05, FIT_B_MAX 10): a fit at or near a bound is not a power law
+    of these points (a logarithm in disguise at the lower one).
+    max_abs_c_fraction [-]: |c| <= this * P_MAX; beyond it the law is the difference of two
+    large terms. max_negative_c_fraction [-]: c >= -this * P_MAX: without pressure the wearer
+    is at rest, so the law may command nothing only over a few degrees.
+    max_dead_zone_deg [deg]: the law commands less than the first step's pressure over at most
+    this many degrees beyond the smallest angle measured (where that pressure already moved
+    the wearer).
+    max_band_steps [-]: the 95 % band of the fitted pressure at every measured angle is within
+    this many pressure steps (the schedule's spacing).
     None disables a threshold.
     """
 
@@ -93,9 +101,16 @@ class Acceptance:
     min_span_deg: float | None = 5.0
     max_reversal_deg: float | None = 2.0
     max_rmse_kpa: float | None = 37.5
+    min_b: float | None = 0.2
+    max_b: float | None = 5.0
+    max_abs_c_fraction: float | None = 0.25
+    max_negative_c_fraction: float | None = 0.1
+    max_dead_zone_deg: float | None = 3.0
+    max_band_steps: float | None = 1.0
 
     def __post_init__(self):
-        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa'):
+        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa', 'min_b', 'max_b',
+                     'max_abs_c_fraction', 'max_negative_c_fraction', 'max_dead_zone_deg', 'max_band_steps'):
             v = getattr(self, name)
             if v is not None and not math.isfinite(v):
                 raise ValueError(f'calibration acceptance {name} must be finite or None, got {v}')
@@ -115,11 +130,52 @@ class Acceptance:
             return f'R^2 {report.r2:.3f} < min_r2 {self.min_r2:g}'
         if self.max_rmse_kpa is not None and not report.rmse <= self.max_rmse_kpa:
             return f'RMSE {report.rmse:.3g} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
+        return self.shape_refusal(t, report)
+
+    def shape_refusal(self, angles: np.ndarray, report: FitReport) -> str:
+        """The law's shape: exponent, offset, dead zone, and how well the points determine it."""
+        law, p, p_max = report.law, np.asarray(report.pressure, dtype=float), report.p_max
+        if self.min_b is not None and not law.b >= self.min_b:
+            return (f'exponent b {law.b:.3g} < min_b {self.min_b:g} (the fit sits at or near its lower '
+                    f'bound {FIT_B_MIN:g}: not a power law of these points)')
+        if self.max_b is not None and not law.b <= self.max_b:
+            return (f'exponent b {law.b:.3g} > max_b {self.max_b:g} (the fit sits at or near its upper '
+                    f'bound {FIT_B_MAX:g})')
+        if not (p.size and math.isfinite(p_max)):
+            return ''   # a report without its points: nothing more to check
+        if self.max_abs_c_fraction is not None and not abs(law.c) <= self.max_abs_c_fraction * p_max:
+            return (f'offset |c| {abs(law.c):.4g} kPa > max_abs_c_fraction {self.max_abs_c_fraction:g} '
+                    f'* P_MAX ({self.max_abs_c_fraction * p_max:.4g} kPa)')
+        step = float(np.median(np.diff(p))) if p.size >= 2 else p_max
+        if self.max_negative_c_fraction is not None and not law.c >= -self.max_negative_c_fraction * p_max:
+            return (f'offset c {law.c:.4g} kPa < -max_negative_c_fraction {self.max_negative_c_fraction:g} '
+                    f'* P_MAX ({-self.max_negative_c_fraction * p_max:.4g} kPa): the law commands nothing up to '
+                    f'{float(law.theta(0.0, p_max)):.3g} deg, where the wearer was at rest without pressure')
+        if self.max_dead_zone_deg is not None and angles.size:
+            # Less than the first step by more than half a step: a law near P_1 at small angles
+            # (a wearer who did not move at P_1, large b) is not a dead zone, whatever its angle.
+            floor = float(p[0]) - DEAD_ZONE_SLACK_STEPS * step
+            start = max(float(np.min(angles)), 0.0)
+            dead = float(law.theta(floor, p_max)) - start
+            if dead > self.max_dead_zone_deg:
+                return (f'dead zone: the law commands less than {floor:.4g} kPa (the first step '
+                        f'{p[0]:.4g} kPa - {DEAD_ZONE_SLACK_STEPS:g} step) up to {start + dead:.3g} deg, '
+                        f'{dead:.3g} deg beyond the smallest angle measured > max_dead_zone_deg '
+                        f'{self.max_dead_zone_deg:g} deg')
+        band = report.max_band_at_points_kpa
+        if self.max_band_steps is not None and band is not None and p.size >= 2:
+            if not band <= self.max_band_steps * step:
+                return (f'uncertain: the 95 % band of the fitted pressure reaches +-{band:.3g} kPa at a '
+                        f'measured angle > max_band_steps {self.max_band_steps:g} * step {step:.3g} kPa')
         return ''
 
 
+#: How far below the first step's pressure the law must command to count as a dead zone, in
+#: pressure steps (Acceptance.max_dead_zone_deg).
+DEAD_ZONE_SLACK_STEPS = 0.5
+
 #: Accept every fit the solver produced (the behaviour before fits were checked; for experiments).
-ACCEPT_ALL = Acceptance(None, None, None, None)
+ACCEPT_ALL = Acceptance(*[None] * 10)
 
 
 @dataclass(frozen=True)

@@ -192,7 +192,10 @@ def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     if np.max(t) > THETA_MAX:
         raise CalibrationFitError(f'angle {np.max(t):g} deg exceeds {THETA_MAX:g} deg')
     from scipy import stats   # here, not at import: only a fit needs scipy (docs/benchmarks.md, RSS)
-    rho = stats.spearmanr(p, t).statistic
+    # Spearman's rho: Pearson's r of the ranks (ties share their mean rank).
+    rp, rt = stats.rankdata(p), stats.rankdata(t)
+    rp, rt = rp - rp.mean(), rt - rt.mean()
+    rho = float(rp @ rt) / math.sqrt(float(rp @ rp) * float(rt @ rt))
     if not rho > 0:
         raise CalibrationFitError(
             f'angles do not increase with pressure (Spearman rho = {rho:.2f}): the power law cannot fit them')

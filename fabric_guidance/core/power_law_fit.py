@@ -19,6 +19,7 @@ Everything here is plain numpy; the solver call and the checks are in power_law.
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -88,20 +89,30 @@ def jacobian(x: np.ndarray, lu: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 def start(lu: np.ndarray, pos: np.ndarray, y: np.ndarray) -> np.ndarray:
     """A deliberate start: for each b of a grid, q and g by linear least squares (the model is
-    linear in them); the b with the smallest squared error and a rising curve (g > 0)."""
-    best, best_sse = None, math.inf
-    for b in START_GRID:
-        h, _ = basis(float(b), lu, pos)
-        design = np.column_stack([np.ones_like(h), h])
-        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
-        if not (np.all(np.isfinite(coef)) and coef[1] > 0.0):
-            continue
-        sse = float(np.sum((design @ coef - y) ** 2))
-        if sse < best_sse:
-            best, best_sse = np.array([coef[0], coef[1], float(b)]), sse
-    if best is None:  # no rising line at any b: start flat-ish at b = 1 and let the fit say
-        best = np.array([float(np.mean(y)), 1e-3, 1.0])
-    return best
+    linear in them: a straight line of y against h); the b with the smallest squared error and
+    a rising curve (g > 0). All b at once, one row each."""
+    b = START_GRID[:, None]
+    h = np.where(pos, np.expm1(np.minimum(b * lu, MAX_B_LOG_U)) / b, -1.0 / b)
+    hm = h.mean(axis=1, keepdims=True)
+    hc = h - hm
+    yc = y - y.mean()
+    shh = np.einsum('ij,ij->i', hc, hc)
+    ok = shh > 0.0
+    g = np.where(ok, hc @ yc / np.where(ok, shh, 1.0), 0.0)
+    q = y.mean() - g * hm[:, 0]
+    sse = np.einsum('ij,ij->i', q[:, None] + g[:, None] * h - y, q[:, None] + g[:, None] * h - y)
+    sse = np.where(ok & (g > 0.0) & np.isfinite(sse), sse, np.inf)
+    k = int(np.argmin(sse))
+    if not math.isfinite(sse[k]):  # no rising line at any b: start flat-ish at b = 1
+        return np.array([float(np.mean(y)), 1e-3, 1.0])
+    return np.array([float(q[k]), float(g[k]), float(START_GRID[k])])
+
+
+@functools.lru_cache(maxsize=64)
+def t_quantile(dof: int) -> float:
+    """The two-sided BAND_COVERAGE quantile of Student's t with dof degrees of freedom."""
+    from scipy import stats  # only a fit or a report needs it
+    return float(stats.t.ppf(0.5 + BAND_COVERAGE / 2.0, dof))
 
 
 def to_abc(x: np.ndarray, sc: Scaled) -> tuple[float, float, float] | None:
@@ -155,8 +166,7 @@ def uncertainty(x: np.ndarray, sc: Scaled, theta: np.ndarray, y: np.ndarray,
     # cov(q, g, b) = m @ m.T with m = V / sv * sqrt(s2): a variance is a squared norm of
     # grad @ m, whose entries stay far from overflow even when the fit is barely identified.
     m = vt.T / sv * math.sqrt(s2)
-    from scipy import stats  # only a fit or a report needs it
-    k = float(stats.t.ppf(0.5 + BAND_COVERAGE / 2.0, dof))
+    k = t_quantile(dof)
 
     def half_width(th: np.ndarray) -> np.ndarray:
         grad = jacobian(x, *log_u(th, sc.theta_r))
