@@ -87,13 +87,14 @@ class Acceptance:
     (power_law_fit.FIT_B_MIN 0.05, FIT_B_MAX 10): a fit at or near a bound is not a power law
     of these points (a logarithm in disguise at the lower one).
     max_abs_c_fraction [-]: |c| <= this * P_MAX; beyond it the law is the difference of two
-    large terms. max_negative_c_fraction [-]: c >= -this * P_MAX: without pressure the wearer
-    is at rest, so the law may command nothing only over a few degrees.
+    large terms.
+    max_negative_c_fraction [-]: a c below -this * P_MAX is refused when the law then commands
+    nothing over more than max_dead_zone_deg from rest (without pressure the wearer was at rest).
     max_dead_zone_deg [deg]: the law commands less than the first step's pressure over at most
     this many degrees beyond the smallest angle measured (where that pressure already moved
     the wearer).
-    max_band_steps [-]: the 95 % band of the fitted pressure at every measured angle is within
-    this many pressure steps (the schedule's spacing).
+    max_se_steps [-]: the standard error of the fitted pressure at every measured angle is
+    within this many pressure steps (the schedule's spacing).
     None disables a threshold.
     """
 
@@ -106,11 +107,11 @@ class Acceptance:
     max_abs_c_fraction: float | None = 0.25
     max_negative_c_fraction: float | None = 0.1
     max_dead_zone_deg: float | None = 3.0
-    max_band_steps: float | None = 1.0
+    max_se_steps: float | None = 1.0
 
     def __post_init__(self):
         for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa', 'min_b', 'max_b',
-                     'max_abs_c_fraction', 'max_negative_c_fraction', 'max_dead_zone_deg', 'max_band_steps'):
+                     'max_abs_c_fraction', 'max_negative_c_fraction', 'max_dead_zone_deg', 'max_se_steps'):
             v = getattr(self, name)
             if v is not None and not math.isfinite(v):
                 raise ValueError(f'calibration acceptance {name} must be finite or None, got {v}')
@@ -147,10 +148,6 @@ class Acceptance:
             return (f'offset |c| {abs(law.c):.4g} kPa > max_abs_c_fraction {self.max_abs_c_fraction:g} '
                     f'* P_MAX ({self.max_abs_c_fraction * p_max:.4g} kPa)')
         step = float(np.median(np.diff(p))) if p.size >= 2 else p_max
-        if self.max_negative_c_fraction is not None and not law.c >= -self.max_negative_c_fraction * p_max:
-            return (f'offset c {law.c:.4g} kPa < -max_negative_c_fraction {self.max_negative_c_fraction:g} '
-                    f'* P_MAX ({-self.max_negative_c_fraction * p_max:.4g} kPa): the law commands nothing up to '
-                    f'{float(law.theta(0.0, p_max)):.3g} deg, where the wearer was at rest without pressure')
         if self.max_dead_zone_deg is not None and angles.size:
             # Less than the first step by more than half a step: a law near P_1 at small angles
             # (a wearer who did not move at P_1, large b) is not a dead zone, whatever its angle.
@@ -162,11 +159,21 @@ class Acceptance:
                         f'{p[0]:.4g} kPa - {DEAD_ZONE_SLACK_STEPS:g} step) up to {start + dead:.3g} deg, '
                         f'{dead:.3g} deg beyond the smallest angle measured > max_dead_zone_deg '
                         f'{self.max_dead_zone_deg:g} deg')
-        band = report.max_band_at_points_kpa
-        if self.max_band_steps is not None and band is not None and p.size >= 2:
-            if not band <= self.max_band_steps * step:
-                return (f'uncertain: the 95 % band of the fitted pressure reaches +-{band:.3g} kPa at a '
-                        f'measured angle > max_band_steps {self.max_band_steps:g} * step {step:.3g} kPa')
+        if (self.max_negative_c_fraction is not None and self.max_dead_zone_deg is not None
+                and law.c < -self.max_negative_c_fraction * p_max):
+            # Without pressure the wearer is at rest: a law that commands nothing over more than
+            # a few degrees fitted something else (a rest offset). A small b reaches 0 within a
+            # fraction of a degree even with such a c: that is no dead zone.
+            zero = float(law.theta(0.0, p_max))
+            if zero > self.max_dead_zone_deg:
+                return (f'dead zone from rest: offset c {law.c:.4g} kPa < -max_negative_c_fraction '
+                        f'{self.max_negative_c_fraction:g} * P_MAX and the law commands nothing up to '
+                        f'{zero:.3g} deg > max_dead_zone_deg {self.max_dead_zone_deg:g} deg')
+        se = report.max_se_at_points_kpa
+        if self.max_se_steps is not None and se is not None and p.size >= 2:
+            if not se <= self.max_se_steps * step:
+                return (f'uncertain: the fitted pressure at a measured angle has a standard error of '
+                        f'{se:.3g} kPa > max_se_steps {self.max_se_steps:g} * step {step:.3g} kPa')
         return ''
 
 

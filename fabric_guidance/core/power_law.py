@@ -144,8 +144,8 @@ class FitReport:
     std_errors: dict = field(default_factory=dict)
     #: angle (deg) -> (fitted pressure, half-width of the 95 % band), kPa, at BAND_ANGLES_DEG.
     band_kpa: dict = field(default_factory=dict)
-    #: The widest 95 % band of the fitted pressure at the measured angles, kPa (None: n = 3).
-    max_band_at_points_kpa: float | None = None
+    #: The largest standard error of the fitted pressure at the measured angles, kPa (None: n = 3).
+    max_se_at_points_kpa: float | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -161,7 +161,7 @@ class FitReport:
             'std_errors': {k: _finite_or_none(v) for k, v in self.std_errors.items()},
             'pressure_band_kpa': {float(t): [_finite_or_none(p), _finite_or_none(w)]
                                   for t, (p, w) in self.band_kpa.items()},
-            'max_band_at_points_kpa': _finite_or_none(self.max_band_at_points_kpa),
+            'max_se_at_points_kpa': _finite_or_none(self.max_se_at_points_kpa),
         }
 
 
@@ -257,7 +257,7 @@ def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     return FitReport(law=law, initial_guess=guess, residuals=res, rmse=rmse, r2=r2, n_points=int(t.size),
                      nfev=int(result.nfev), message=str(result.message), theta=t, pressure=p,
                      p_max=float(p_max), reference_angle=sc.theta_r, std_errors=unc.std_errors,
-                     band_kpa=unc.band_kpa, max_band_at_points_kpa=unc.max_band_at_points_kpa)
+                     band_kpa=unc.band_kpa, max_se_at_points_kpa=unc.max_se_at_points_kpa)
 
 
 def law_uncertainty(law: PowerLaw, theta: Sequence[float], pressure: Sequence[float],

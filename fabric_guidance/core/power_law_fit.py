@@ -138,13 +138,14 @@ class Uncertainty(NamedTuple):
     dof: int                    # n - 3
     std_errors: dict            # {'a', 'b', 'c'} -> standard error, or None (not estimable)
     band_kpa: dict              # angle (deg) -> (fitted P, half-width of the band) in kPa
-    max_band_at_points_kpa: float | None   # the widest band at the measured angles
+    max_se_at_points_kpa: float | None     # the largest standard error at the measured angles
 
 
 def uncertainty(x: np.ndarray, sc: Scaled, theta: np.ndarray, y: np.ndarray,
                 angles=BAND_ANGLES_DEG) -> Uncertainty:
-    """Standard errors of a, b, c and the BAND_COVERAGE band of the fitted pressure, from the
-    Jacobian at x and the residual variance (n - 3 degrees of freedom). With n = 3 nothing can
+    """Standard errors of a, b, c, of the fitted pressure at the measured angles, and the
+    BAND_COVERAGE band of the fitted pressure at `angles`, from the Jacobian at x and the
+    residual variance (n - 3 degrees of freedom). With n = 3 nothing can
     be estimated (None); a singular Jacobian gives an infinite band (not identified)."""
     lu, pos = log_u(theta, sc.theta_r)
     n = theta.size
@@ -168,9 +169,9 @@ def uncertainty(x: np.ndarray, sc: Scaled, theta: np.ndarray, y: np.ndarray,
     m = vt.T / sv * math.sqrt(s2)
     k = t_quantile(dof)
 
-    def half_width(th: np.ndarray) -> np.ndarray:
+    def std_error(th: np.ndarray) -> np.ndarray:
         grad = jacobian(x, *log_u(th, sc.theta_r))
-        return k * sc.s * np.linalg.norm(grad @ m, axis=1)
+        return sc.s * np.linalg.norm(grad @ m, axis=1)
 
     a, b, c = abc
     q, g, _ = x
@@ -188,5 +189,5 @@ def uncertainty(x: np.ndarray, sc: Scaled, theta: np.ndarray, y: np.ndarray,
     se = {'a': se_a, 'b': se_b, 'c': se_c}
     grid = np.asarray(angles, dtype=float)
     fitted = model(x, *log_u(grid, sc.theta_r)) * sc.s
-    band = {float(t): (float(p), float(w)) for t, p, w in zip(grid, fitted, half_width(grid))}
-    return Uncertainty(dof, se, band, float(np.max(half_width(np.maximum(theta, 0.0)))))
+    band = {float(t): (float(p), k * float(w)) for t, p, w in zip(grid, fitted, std_error(grid))}
+    return Uncertainty(dof, se, band, float(np.max(std_error(np.maximum(theta, 0.0)))))
