@@ -261,10 +261,10 @@ def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: floa
 
 
 def law_uncertainty(law: PowerLaw, theta: Sequence[float], pressure: Sequence[float],
-                    p_max: float) -> plf.Uncertainty:
-    """Standard errors and pressure band of `law` given the points it was fitted to (e.g. read
-    back from a calibration file): the same computation as the fit's."""
+                    p_max: float, angles: Sequence[float] = plf.BAND_ANGLES_DEG) -> plf.Uncertainty:
+    """Standard errors of `law` and its pressure band at `angles`, given the points it was
+    fitted to (e.g. read back from a calibration file): the same computation as the fit's."""
     t = np.clip(np.asarray(theta, dtype=float), 0.0, THETA_MAX)
     sc = plf.Scaled(plf.reference_angle(t), float(p_max))
     return plf.uncertainty(plf.from_abc(law.a, law.b, law.c, sc), sc, t,
-                           np.asarray(pressure, dtype=float) / sc.s)
+                           np.asarray(pressure, dtype=float) / sc.s, angles)
