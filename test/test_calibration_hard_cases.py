@@ -180,3 +180,42 @@ def test_three_points_fit_exactly_and_report_no_uncertainty():
     assert report.std_errors == {'a': None, 'b': None, 'c': None}
     assert report.max_se_at_points_kpa is None
     assert Acceptance(min_span_deg=None).shape_refusal(np.array([1.0, 8.0, 27.0]), report) == ''
+
+
+def _rest_run(offset_s, **kwargs):
+    """Algorithm 1 on one wearer ('left' then 'right') whose gaze stays 8 deg to the left for
+    the first offset_s of the rest before 'right' (still coming back), then at the rest."""
+    from fabric_guidance.core.calibration import CalibrationProcedure
+    law = PowerLaw(20.0, 0.65, 25.0)
+    proc = CalibrationProcedure('w', dwell_s=0.2, rest_s=0.2, record_window_s=0.1, directions=['left', 'right'],
+                                **kwargs)
+    t, began = 0.0, None
+    while proc.phase not in ('done', 'failed') and t < 100.0:
+        if proc.phase == 'rest':
+            if proc.direction == 'right' and began is None:
+                began = t
+            a = 8.0 if began is not None and t - began < offset_s else 0.0
+        else:
+            a = float(law.theta(proc.schedule[proc._step - 1], P_MAX)) * (1 if proc.direction == 'left' else -1)
+        proc.tick(t, (math.cos(math.radians(a)), math.sin(math.radians(a)), 0.0))
+        t += 0.02
+    return proc, t
+
+
+def test_steps_start_only_when_the_gaze_is_back_at_rest():
+    # The rest before 'right' ends with the gaze 8 deg from the rest gaze: it is rested again,
+    # and the points are measured from the rest, not from the offset.
+    proc, _ = _rest_run(0.5, rest_tolerance_deg=3.0)
+    assert proc.phase == 'done', proc.error
+    right = np.asarray(proc.points['right'][1])
+    # (within the tolerance: the last rest window may still hold a sample of the way back)
+    np.testing.assert_allclose(right, PowerLaw(20.0, 0.65, 25.0).theta(SCHEDULE, P_MAX), atol=3.0)
+    # Without the check the offset feeds the fit: every right angle is 8 deg too large.
+    proc, _ = _rest_run(0.5)
+    assert np.min(np.asarray(proc.points['right'][1])) > 7.9
+
+
+def test_a_gaze_that_never_comes_back_to_rest_fails_the_calibration_in_one_line():
+    proc, t = _rest_run(1000.0, rest_tolerance_deg=3.0, max_rest_s=5.0)
+    assert proc.phase == 'failed' and t < 10.0
+    assert proc.error.startswith('right: the gaze did not come back to rest within 5 s (8 deg from the rest gaze')

@@ -1,11 +1,14 @@
 """Algorithm 1 of the paper as a state machine that needs no ROS, and the calibration file.
 
 For each direction k (left, right, down, up): vent and let the wearer face front (rest), take
-the initial gaze g0, then apply n increasing pressures up to P_MAX, each for a dwell; at the end
-of each dwell record the angle reached from g0 in direction k (the median over a short window,
-so one noisy gaze sample does not become a calibration point). After the last step fit
-P = a*theta^b + c by Levenberg-Marquardt. Any direction that cannot be fitted fails the whole
-procedure with its reason; nothing is written then.
+the initial gaze g0 (with rest_tolerance_deg: only once the gaze is steady and back at the rest
+gaze, else rest again, so a wearer still coming back from the last direction does not feed the
+fit a rest offset), then
+apply n increasing pressures up to P_MAX, each for a dwell; at the end of each dwell record the
+angle reached from g0 in direction k (the median over a short window, so one noisy gaze sample
+does not become a calibration point). After the last step fit P = a*theta^b + c by least
+squares (core.power_law) and judge the fit (Acceptance). Any direction that cannot be fitted,
+or is refused, fails the whole procedure with its reason; nothing is written then.
 
 The caller drives it: tick(t, gaze) with the latest gaze direction (REP 103) returns the
 pressure to apply to which direction now. It is the same code in a node, in the headless
@@ -332,6 +335,20 @@ class Calibration:
         return cls.from_dict(load_yaml(path, 'calibration file', CalibrationFileError), source=str(path))
 
 
+#: CalibrationProcedure(rest_tolerance_deg=...): a direction's steps start only when the gaze at
+#: the end of its rest is steady and within this of the first direction's rest gaze (deg; 2x
+#: the HoloLens 2's 1.5 deg accuracy); otherwise the rest is repeated, up to MAX_REST_S in all,
+#: and then the calibration fails. Off by default (None) until the node and wearer_sim use it:
+#: wearer_sim's wearer does not come back to within it between directions (docs/calibration.md).
+REST_TOLERANCE_DEG = 3.0
+MAX_REST_S = 30.0
+
+
+def _angle_deg(u: np.ndarray, v: np.ndarray) -> float:
+    """The angle between two directions (any length), degrees; 0 for a zero vector."""
+    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(u, v))), float(np.dot(u, v))))
+
+
 # Phases of the procedure.
 REST = 'rest'      # vented, wearer returns to face front; g0 is taken at its end
 APPLY = 'apply'    # a pressure step is applied for a dwell; the angle is recorded at its end
@@ -357,8 +374,10 @@ class CalibrationProcedure:
                  dwell_s: float = 3.0, rest_s: float = 3.0, record_window_s: float = 0.5,
                  directions: Sequence[str] = DIRECTIONS, first_pressure: float | None = None,
                  fit_tolerance: float = 1e-10, min_r2: float | None = None,
-                 acceptance: Acceptance = Acceptance()):
-        for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s)):
+                 acceptance: Acceptance = Acceptance(), rest_tolerance_deg: float | None = None,
+                 max_rest_s: float = MAX_REST_S):
+        for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s),
+                            ('max_rest_s', max_rest_s), ('rest_tolerance_deg', rest_tolerance_deg or 0.0)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'{name} must be finite and >= 0 s, got {value}')
         if record_window_s > dwell_s or record_window_s > rest_s:
@@ -373,6 +392,8 @@ class CalibrationProcedure:
         self.directions = list(directions)
         self.fit_tolerance, self.min_r2 = fit_tolerance, min_r2
         self.acceptance = acceptance
+        self.rest_tolerance_deg, self.max_rest_s = rest_tolerance_deg, max_rest_s
+        self._rest_began: float | None = None   # when this direction's rest began (repeats included)
         self.fits: dict[str, FitReport] = {}
         #: direction -> why its fit was refused (the fit itself stays in `fits` for the report)
         self.refused: dict[str, str] = {}
@@ -435,6 +456,8 @@ class CalibrationProcedure:
         self._last_t = t
         if self._phase_start is None:
             self._phase_start = t
+        if self._rest_began is None:
+            self._rest_began = t
         if gaze is not None:
             try:
                 self._window.append((t, unit_vector(gaze, 'gaze')))
@@ -452,8 +475,18 @@ class CalibrationProcedure:
         try:
             if self._phase == REST:
                 # Mean of unit vectors: a wearer looking about wildly at rest has no mean direction.
-                g0 = np.mean([g for _, g in self._window], axis=0)
+                samples = [g for _, g in self._window]
+                g0 = np.mean(samples, axis=0)
                 angles_between(g0, g0)
+                away = self._away_from_rest(samples, g0)
+                if away:
+                    # Not back at rest: rest again rather than feed the fit a rest offset.
+                    if t - self._rest_began + self.rest_s > self.max_rest_s:
+                        return self.fail(f'{self.directions[self._dir_index]}: the gaze did not come back to '
+                                         f'rest within {self.max_rest_s:g} s ({away})')
+                    self._window = []
+                    self._phase_start = t
+                    return self._command(t)
                 self._g0 = g0
                 self._rests.append(g0)
                 self._angles = []
@@ -472,6 +505,23 @@ class CalibrationProcedure:
             return self._command(t)
         return self._finish_direction(t)
 
+    def _away_from_rest(self, samples: list, g0: np.ndarray) -> str:
+        """'' when the rest window's gaze is steady and (after the first direction) within
+        rest_tolerance_deg of the first direction's rest gaze; else how far it is."""
+        tol = self.rest_tolerance_deg
+        if tol is None:
+            return ''
+        half = len(samples) // 2
+        if half:
+            moved = _angle_deg(np.mean(samples[:half], axis=0), np.mean(samples[half:], axis=0))
+            if moved > tol:
+                return f'still moving: {moved:.3g} deg within the rest window > {tol:g} deg'
+        if self._rests:
+            off = _angle_deg(g0, self._rests[0])
+            if off > tol:
+                return f'{off:.3g} deg from the rest gaze > {tol:g} deg'
+        return ''
+
     def _finish_direction(self, t: float) -> CalibrationCommand:
         direction = self.directions[self._dir_index]
         angles = np.array(self._angles)
@@ -489,6 +539,7 @@ class CalibrationProcedure:
             return self.fail(f'{direction}: fit refused: {why}')
         self._dir_index += 1
         self._step = 0
+        self._rest_began = t
         if self._dir_index == len(self.directions):
             self._phase = DONE
         else:
