@@ -67,7 +67,15 @@ def test_text_report_has_coefficients_fit_quality_and_every_residual(noisy):
         assert worst == pytest.approx(np.max(np.abs(report.residuals)), abs=1e-3)
         # The section: the equation, then one row per point with its residual (measured - fitted).
         start = lines.index(next(line for line in lines if line.startswith(f'{d} (') and 'P =' in line))
-        rows = [_numbers(line) for line in lines[start + 4:start + 14]]
+        header = next(i for i in range(start, len(lines)) if lines[i].lstrip().startswith('step '))
+        rows = [_numbers(line) for line in lines[header + 1:header + 11]]
+        # The standard errors and the 95 % band at 10, 20 and 30 deg, as the fit gave them.
+        se_line = next(line for line in lines[start:header] if 'standard errors' in line)
+        for k in 'abc':
+            assert f'{k} {report.std_errors[k]:.3g}' in se_line, se_line
+        band_line = next(line for line in lines[start:header] if 'band' in line)
+        for angle, (p, w) in report.band_kpa.items():
+            assert f'{angle:g} deg {p:.1f} +- {w:.1f} kPa' in band_line, band_line
         assert [int(r[0]) for r in rows] == list(range(1, 11))
         np.testing.assert_allclose([r[1] for r in rows], cal.directions[d].pressures, atol=0.005)
         np.testing.assert_allclose([r[2] for r in rows], cal.directions[d].angles, atol=0.005)
@@ -98,6 +106,15 @@ def test_png_has_four_direction_panels_with_points_curve_and_residuals(noisy, tm
         curve = next(line for line in ax.get_lines() if line.get_linestyle() == '-')
         cx, cy = curve.get_data()
         np.testing.assert_allclose(cy, cal.directions[d].law.pressure(cx), rtol=1e-9)
+        # The 95 % band of the fit around the curve, as wide as law_uncertainty says at 20 deg.
+        band = next(col for col in ax.collections if 'band' in str(col.get_label()))
+        verts = band.get_paths()[0].vertices
+        near = verts[np.argmin(np.abs(verts[:, 0] - 20.0))][0]
+        from fabric_guidance.core.power_law import law_uncertainty
+        _, half = law_uncertainty(cal.directions[d].law, cal.directions[d].angles, cal.directions[d].pressures,
+                                  cal.p_max, angles=[near]).band_kpa[near]
+        at = verts[np.isclose(verts[:, 0], near)][:, 1]
+        assert half > 0 and at.max() - at.min() == pytest.approx(2 * half, rel=1e-6)
         rx, ry = next(line.get_data() for line in strip.get_lines() if line.get_marker() == 'o')
         np.testing.assert_allclose(ry, np.asarray(cal.directions[d].pressures) - cal.directions[d].law.pressure(rx))
 

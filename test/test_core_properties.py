@@ -37,6 +37,16 @@ P_MAX = PAPER_P_MAX
 CHANNEL_MAP = Path(__file__).resolve().parents[1] / 'config' / 'hardware/channel_map.yaml'
 
 _SLOW_OK = [HealthCheck.too_slow, HealthCheck.filter_too_much]
+
+
+@pytest.fixture(autouse=True)
+def floating_point_errors_raise():
+    """Every property runs with numpy raising on overflow, invalid and divide (underflow may
+    pass): the core handles its hard cases rather than letting a warning through."""
+    with np.errstate(over='raise', invalid='raise', divide='raise', under='ignore'):
+        yield
+
+
 FAST = settings(max_examples=100, deadline=None, suppress_health_check=_SLOW_OK)
 FITS = settings(max_examples=50, deadline=None, suppress_health_check=_SLOW_OK)
 SLOW = settings(max_examples=25, deadline=None, suppress_health_check=_SLOW_OK)

@@ -1,11 +1,14 @@
 """Algorithm 1 of the paper as a state machine that needs no ROS, and the calibration file.
 
 For each direction k (left, right, down, up): vent and let the wearer face front (rest), take
-the initial gaze g0, then apply n increasing pressures up to P_MAX, each for a dwell; at the end
-of each dwell record the angle reached from g0 in direction k (the median over a short window,
-so one noisy gaze sample does not become a calibration point). After the last step fit
-P = a*theta^b + c by Levenberg-Marquardt. Any direction that cannot be fitted fails the whole
-procedure with its reason; nothing is written then.
+the initial gaze g0 (with rest_tolerance_deg: only once the gaze is steady and back at the rest
+gaze, else rest again, so a wearer still coming back from the last direction does not feed the
+fit a rest offset), then
+apply n increasing pressures up to P_MAX, each for a dwell; at the end of each dwell record the
+angle reached from g0 in direction k (the median over a short window, so one noisy gaze sample
+does not become a calibration point). After the last step fit P = a*theta^b + c by least
+squares (core.power_law) and judge the fit (Acceptance). Any direction that cannot be fitted,
+or is refused, fails the whole procedure with its reason; nothing is written then.
 
 The caller drives it: tick(t, gaze) with the latest gaze direction (REP 103) returns the
 pressure to apply to which direction now. It is the same code in a node, in the headless
@@ -32,6 +35,7 @@ from .feedback import FRONT, PAPER_P_MAX
 from .safe_input import WEARER_PATTERN, WEARER_RULE, excerpt, got, load_yaml
 from .geometry import DIRECTIONS, GeometryError, angles_between, unit_vector
 from .power_law import CalibrationFitError, FitReport, PowerLaw, fit_power_law
+from .power_law_fit import FIT_B_MAX, FIT_B_MIN
 
 SCHEMA_VERSION = 1
 #: The paper's 10 steps per direction.
@@ -77,15 +81,23 @@ def pressure_schedule(p_max: float = PAPER_P_MAX, steps: int = PAPER_STEPS, firs
 class Acceptance:
     """When a direction's fit is good enough to guide with: useless ones are refused.
 
-    min_r2 [-]: the fit explains this share of the pressure variance: 0.8 refuses a plateau
-    (the issue's R^2 0.77) and anything worse than the mean, and accepts the simulated paper
-    population with suit hysteresis and tracker noise (lowest R^2 0.87 over 30 wearers).
-    min_span_deg [deg]: the angles reached span at least this: at 5 deg (the paper's
-    acceptance angle, 3x the tracker's 1.5 deg) the wearer visibly moved with the pressure.
-    max_reversal_deg [deg]: monotonicity: no angle falls more than this below a larger angle
-    reached at a lower pressure (2 deg: above tracker noise, far below a real reversal).
-    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (375 kPa / 10 =
-    37.5 kPa): a worse fit cannot tell neighbouring steps apart.
+    The thresholds and why they are where they are: docs/calibration.md, "Acceptance".
+    min_r2 [-]: the fit explains this share of the pressure variance (0.8).
+    min_span_deg [deg]: the angles reached span at least this (5 deg, the paper's acceptance).
+    max_reversal_deg [deg]: no angle falls more than this below an earlier one (2 deg).
+    max_rmse_kpa [kPa]: residuals within one of the paper's pressure steps (37.5 kPa).
+    min_b, max_b [-]: the exponent lies well inside the solver's bounds
+    (power_law_fit.FIT_B_MIN 0.05, FIT_B_MAX 10): a fit at or near a bound is not a power law
+    of these points (a logarithm in disguise at the lower one).
+    max_abs_c_fraction [-]: |c| <= this * P_MAX; beyond it the law is the difference of two
+    large terms.
+    max_negative_c_fraction [-]: a c below -this * P_MAX is refused when the law then commands
+    nothing over more than max_dead_zone_deg from rest (without pressure the wearer was at rest).
+    max_dead_zone_deg [deg]: the law commands less than the first step's pressure over at most
+    this many degrees beyond the smallest angle measured (where that pressure already moved
+    the wearer).
+    max_se_steps [-]: the standard error of the fitted pressure at every measured angle is
+    within this many pressure steps (the schedule's spacing).
     None disables a threshold.
     """
 
@@ -93,9 +105,16 @@ class Acceptance:
     min_span_deg: float | None = 5.0
     max_reversal_deg: float | None = 2.0
     max_rmse_kpa: float | None = 37.5
+    min_b: float | None = 0.2
+    max_b: float | None = 5.0
+    max_abs_c_fraction: float | None = 0.25
+    max_negative_c_fraction: float | None = 0.1
+    max_dead_zone_deg: float | None = 3.0
+    max_se_steps: float | None = 1.0
 
     def __post_init__(self):
-        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa'):
+        for name in ('min_r2', 'min_span_deg', 'max_reversal_deg', 'max_rmse_kpa', 'min_b', 'max_b',
+                     'max_abs_c_fraction', 'max_negative_c_fraction', 'max_dead_zone_deg', 'max_se_steps'):
             v = getattr(self, name)
             if v is not None and not math.isfinite(v):
                 raise ValueError(f'calibration acceptance {name} must be finite or None, got {v}')
@@ -115,11 +134,58 @@ class Acceptance:
             return f'R^2 {report.r2:.3f} < min_r2 {self.min_r2:g}'
         if self.max_rmse_kpa is not None and not report.rmse <= self.max_rmse_kpa:
             return f'RMSE {report.rmse:.3g} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
+        return self.shape_refusal(t, report)
+
+    def shape_refusal(self, angles: np.ndarray, report: FitReport) -> str:
+        """The law's shape: exponent, offset, dead zone, and how well the points determine it."""
+        law, p, p_max = report.law, np.asarray(report.pressure, dtype=float), report.p_max
+        if self.min_b is not None and not law.b >= self.min_b:
+            return (f'exponent b {law.b:.3g} < min_b {self.min_b:g} (the fit sits at or near its lower '
+                    f'bound {FIT_B_MIN:g}: not a power law of these points)')
+        if self.max_b is not None and not law.b <= self.max_b:
+            return (f'exponent b {law.b:.3g} > max_b {self.max_b:g} (the fit sits at or near its upper '
+                    f'bound {FIT_B_MAX:g})')
+        if not (p.size and math.isfinite(p_max)):
+            return ''   # a report without its points: nothing more to check
+        if self.max_abs_c_fraction is not None and not abs(law.c) <= self.max_abs_c_fraction * p_max:
+            return (f'offset |c| {abs(law.c):.4g} kPa > max_abs_c_fraction {self.max_abs_c_fraction:g} '
+                    f'* P_MAX ({self.max_abs_c_fraction * p_max:.4g} kPa)')
+        step = float(np.median(np.diff(p))) if p.size >= 2 else p_max
+        if self.max_dead_zone_deg is not None and angles.size:
+            # Less than the first step by more than half a step: a law near P_1 at small angles
+            # (a wearer who did not move at P_1, large b) is not a dead zone, whatever its angle.
+            floor = float(p[0]) - DEAD_ZONE_SLACK_STEPS * step
+            start = max(float(np.min(angles)), 0.0)
+            dead = float(law.theta(floor, p_max)) - start
+            if dead > self.max_dead_zone_deg:
+                return (f'dead zone: the law commands less than {floor:.4g} kPa (the first step '
+                        f'{p[0]:.4g} kPa - {DEAD_ZONE_SLACK_STEPS:g} step) up to {start + dead:.3g} deg, '
+                        f'{dead:.3g} deg beyond the smallest angle measured > max_dead_zone_deg '
+                        f'{self.max_dead_zone_deg:g} deg')
+        if (self.max_negative_c_fraction is not None and self.max_dead_zone_deg is not None
+                and law.c < -self.max_negative_c_fraction * p_max):
+            # Without pressure the wearer is at rest: a law that commands nothing over more than
+            # a few degrees fitted something else (a rest offset). A small b reaches 0 within a
+            # fraction of a degree even with such a c: that is no dead zone.
+            zero = float(law.theta(0.0, p_max))
+            if zero > self.max_dead_zone_deg:
+                return (f'dead zone from rest: offset c {law.c:.4g} kPa < -max_negative_c_fraction '
+                        f'{self.max_negative_c_fraction:g} * P_MAX and the law commands nothing up to '
+                        f'{zero:.3g} deg > max_dead_zone_deg {self.max_dead_zone_deg:g} deg')
+        se = report.max_se_at_points_kpa
+        if self.max_se_steps is not None and se is not None and p.size >= 2:
+            if not se <= self.max_se_steps * step:
+                return (f'uncertain: the fitted pressure at a measured angle has a standard error of '
+                        f'{se:.3g} kPa > max_se_steps {self.max_se_steps:g} * step {step:.3g} kPa')
         return ''
 
 
+#: How far below the first step's pressure the law must command to count as a dead zone, in
+#: pressure steps (Acceptance.max_dead_zone_deg).
+DEAD_ZONE_SLACK_STEPS = 0.5
+
 #: Accept every fit the solver produced (the behaviour before fits were checked; for experiments).
-ACCEPT_ALL = Acceptance(None, None, None, None)
+ACCEPT_ALL = Acceptance(*[None] * 10)
 
 
 @dataclass(frozen=True)
@@ -269,6 +335,20 @@ class Calibration:
         return cls.from_dict(load_yaml(path, 'calibration file', CalibrationFileError), source=str(path))
 
 
+#: CalibrationProcedure(rest_tolerance_deg=...): a direction's steps start only when the gaze at
+#: the end of its rest is steady and within this of the first direction's rest gaze (deg; 2x
+#: the HoloLens 2's 1.5 deg accuracy); otherwise the rest is repeated, up to MAX_REST_S in all,
+#: and then the calibration fails. Off by default (None) until the node and wearer_sim use it:
+#: wearer_sim's wearer does not come back to within it between directions (docs/calibration.md).
+REST_TOLERANCE_DEG = 3.0
+MAX_REST_S = 30.0
+
+
+def _angle_deg(u: np.ndarray, v: np.ndarray) -> float:
+    """The angle between two directions (any length), degrees; 0 for a zero vector."""
+    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(u, v))), float(np.dot(u, v))))
+
+
 # Phases of the procedure.
 REST = 'rest'      # vented, wearer returns to face front; g0 is taken at its end
 APPLY = 'apply'    # a pressure step is applied for a dwell; the angle is recorded at its end
@@ -294,8 +374,10 @@ class CalibrationProcedure:
                  dwell_s: float = 3.0, rest_s: float = 3.0, record_window_s: float = 0.5,
                  directions: Sequence[str] = DIRECTIONS, first_pressure: float | None = None,
                  fit_tolerance: float = 1e-10, min_r2: float | None = None,
-                 acceptance: Acceptance = Acceptance()):
-        for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s)):
+                 acceptance: Acceptance = Acceptance(), rest_tolerance_deg: float | None = None,
+                 max_rest_s: float = MAX_REST_S):
+        for name, value in (('dwell_s', dwell_s), ('rest_s', rest_s), ('record_window_s', record_window_s),
+                            ('max_rest_s', max_rest_s), ('rest_tolerance_deg', rest_tolerance_deg or 0.0)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'{name} must be finite and >= 0 s, got {value}')
         if record_window_s > dwell_s or record_window_s > rest_s:
@@ -310,6 +392,8 @@ class CalibrationProcedure:
         self.directions = list(directions)
         self.fit_tolerance, self.min_r2 = fit_tolerance, min_r2
         self.acceptance = acceptance
+        self.rest_tolerance_deg, self.max_rest_s = rest_tolerance_deg, max_rest_s
+        self._rest_began: float | None = None   # when this direction's rest began (repeats included)
         self.fits: dict[str, FitReport] = {}
         #: direction -> why its fit was refused (the fit itself stays in `fits` for the report)
         self.refused: dict[str, str] = {}
@@ -372,6 +456,8 @@ class CalibrationProcedure:
         self._last_t = t
         if self._phase_start is None:
             self._phase_start = t
+        if self._rest_began is None:
+            self._rest_began = t
         if gaze is not None:
             try:
                 self._window.append((t, unit_vector(gaze, 'gaze')))
@@ -389,8 +475,18 @@ class CalibrationProcedure:
         try:
             if self._phase == REST:
                 # Mean of unit vectors: a wearer looking about wildly at rest has no mean direction.
-                g0 = np.mean([g for _, g in self._window], axis=0)
+                samples = [g for _, g in self._window]
+                g0 = np.mean(samples, axis=0)
                 angles_between(g0, g0)
+                away = self._away_from_rest(samples, g0)
+                if away:
+                    # Not back at rest: rest again rather than feed the fit a rest offset.
+                    if t - self._rest_began + self.rest_s > self.max_rest_s:
+                        return self.fail(f'{self.directions[self._dir_index]}: the gaze did not come back to '
+                                         f'rest within {self.max_rest_s:g} s ({away})')
+                    self._window = []
+                    self._phase_start = t
+                    return self._command(t)
                 self._g0 = g0
                 self._rests.append(g0)
                 self._angles = []
@@ -409,6 +505,23 @@ class CalibrationProcedure:
             return self._command(t)
         return self._finish_direction(t)
 
+    def _away_from_rest(self, samples: list, g0: np.ndarray) -> str:
+        """'' when the rest window's gaze is steady and (after the first direction) within
+        rest_tolerance_deg of the first direction's rest gaze; else how far it is."""
+        tol = self.rest_tolerance_deg
+        if tol is None:
+            return ''
+        half = len(samples) // 2
+        if half:
+            moved = _angle_deg(np.mean(samples[:half], axis=0), np.mean(samples[half:], axis=0))
+            if moved > tol:
+                return f'still moving: {moved:.3g} deg within the rest window > {tol:g} deg'
+        if self._rests:
+            off = _angle_deg(g0, self._rests[0])
+            if off > tol:
+                return f'{off:.3g} deg from the rest gaze > {tol:g} deg'
+        return ''
+
     def _finish_direction(self, t: float) -> CalibrationCommand:
         direction = self.directions[self._dir_index]
         angles = np.array(self._angles)
@@ -426,6 +539,7 @@ class CalibrationProcedure:
             return self.fail(f'{direction}: fit refused: {why}')
         self._dir_index += 1
         self._step = 0
+        self._rest_began = t
         if self._dir_index == len(self.directions):
             self._phase = DONE
         else:

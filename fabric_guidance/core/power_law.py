@@ -4,10 +4,13 @@ Units: pressure in kPa, angle in degrees. The model is defined for every angle: 
 angle (the wearer moved the other way) counts as 0, so f(theta <= 0) = c. Coefficients are
 kept in a range where f is finite for every angle up to 180 degrees: a > 0, 0 < b <= B_MAX.
 
-The fit is Algorithm 1's least-squares step (Eq. 3-4): scipy.optimize.least_squares with
-method='lm' (MINPACK's Levenberg-Marquardt). LM is unconstrained, so a and b are fitted as
-logarithms (a = exp(alpha), b = exp(beta)): the solver cannot leave a > 0, b > 0, where the
-model is increasing as the paper requires.
+The fit is Algorithm 1's least-squares step (Eq. 3-4), solved in a well-conditioned form of
+the same law (core/power_law_fit.py: the pressure and slope at a reference angle inside the
+measured range, and b; angles and pressures scaled) by scipy.optimize.least_squares with
+method='trf' and its analytic Jacobian. The paper names Levenberg-Marquardt; 'trf' is the
+trust-region form of the same Gauss-Newton step that also takes bounds, and two bounds are
+physical: the pressure rises with the angle (slope >= 0, b > 0) and b stays where f is finite
+(docs/calibration.md). At an interior minimum both solvers find the same least-squares point.
 """
 from __future__ import annotations
 
@@ -16,6 +19,8 @@ import math
 from typing import Sequence
 
 import numpy as np
+
+from . import power_law_fit as plf
 
 #: Largest exponent accepted; 180**20 * a stays far from float overflow for any sane a.
 B_MAX = 20.0
@@ -88,7 +93,10 @@ class PowerLaw:
         if np.any(np.isnan(p)):
             raise ValueError('pressure is NaN')
         p = np.minimum(p, p_max)
-        ratio = np.maximum(p - self.c, 0.0) / self.a
+        # p - c is capped at a*THETA_MAX**b (finite by the constructor) before the division
+        # and the power: ((p - c) / a)**(1/b) then stays <= ~THETA_MAX, where a tiny a or b
+        # would overflow it. (p - c cannot overflow: |c| <= exp(LOG_F_MAX).)
+        ratio = np.minimum(np.maximum(p - self.c, 0.0), self.a * THETA_MAX ** self.b) / self.a
         out = np.minimum(np.power(ratio, 1.0 / self.b), THETA_MAX)
         return float(out) if np.ndim(out) == 0 else out
 
@@ -110,9 +118,13 @@ class PowerLaw:
         return {'a': self.a, 'b': self.b, 'c': self.c}
 
 
+def _finite_or_none(v):
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
 @dataclass(frozen=True)
 class FitReport:
-    """What the fit found and how well it explains the points."""
+    """What the fit found, how well it explains the points and how well they determine it."""
 
     law: PowerLaw
     initial_guess: PowerLaw
@@ -122,6 +134,18 @@ class FitReport:
     n_points: int
     nfev: int
     message: str
+    #: The points as fitted (angles clipped to [0, THETA_MAX]) and the pressure range.
+    theta: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    pressure: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    p_max: float = math.nan
+    #: The fit's reference angle theta_r, deg (core/power_law_fit.py).
+    reference_angle: float = math.nan
+    #: Standard errors of a, b, c (None: not estimable with n = 3; inf: not identified).
+    std_errors: dict = field(default_factory=dict)
+    #: angle (deg) -> (fitted pressure, half-width of the 95 % band), kPa, at BAND_ANGLES_DEG.
+    band_kpa: dict = field(default_factory=dict)
+    #: The largest standard error of the fitted pressure at the measured angles, kPa (None: n = 3).
+    max_se_at_points_kpa: float | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -132,6 +156,12 @@ class FitReport:
             'initial_guess': self.initial_guess.as_dict(),
             'function_evaluations': self.nfev,
             'solver_message': self.message,
+            'reference_angle_deg': self.reference_angle,
+            # None: not estimable (n = 3) or not identified (infinite); plain floats for YAML.
+            'std_errors': {k: _finite_or_none(v) for k, v in self.std_errors.items()},
+            'pressure_band_kpa': {float(t): [_finite_or_none(p), _finite_or_none(w)]
+                                  for t, (p, w) in self.band_kpa.items()},
+            'max_se_at_points_kpa': _finite_or_none(self.max_se_at_points_kpa),
         }
 
 
@@ -162,7 +192,10 @@ def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     if np.max(t) > THETA_MAX:
         raise CalibrationFitError(f'angle {np.max(t):g} deg exceeds {THETA_MAX:g} deg')
     from scipy import stats   # here, not at import: only a fit needs scipy (docs/benchmarks.md, RSS)
-    rho = stats.spearmanr(p, t).statistic
+    # Spearman's rho: Pearson's r of the ranks (ties share their mean rank).
+    rp, rt = stats.rankdata(p), stats.rankdata(t)
+    rp, rt = rp - rp.mean(), rt - rt.mean()
+    rho = float(rp @ rt) / math.sqrt(float(rp @ rp) * float(rt @ rt))
     if not rho > 0:
         raise CalibrationFitError(
             f'angles do not increase with pressure (Spearman rho = {rho:.2f}): the power law cannot fit them')
@@ -175,73 +208,43 @@ def load_fit_libraries() -> None:
     from scipy import optimize, stats  # noqa: F401
 
 
-def initial_guess(theta: np.ndarray, pressure: np.ndarray) -> PowerLaw:
-    """A deliberate start for LM: c a little below the smallest pressure, then a and b from
-    a straight-line fit of log(P - c) against log(theta) over the positive angles."""
-    span = float(pressure.max() - pressure.min()) or 1.0
-    c0 = float(pressure.min()) - 0.1 * span
-    pos = theta > THETA_EPS
-    b0, a0 = 1.0, max(span / max(float(theta.max()), 1.0), 1e-12)
-    if np.count_nonzero(pos) >= 2 and np.unique(theta[pos]).size >= 2:
-        slope, intercept = np.polyfit(np.log(theta[pos]), np.log(pressure[pos] - c0), 1)
-        if math.isfinite(slope) and slope > 0:
-            b0 = float(np.clip(slope, 0.05, 5.0))
-            a0 = float(math.exp(np.clip(intercept, -50.0, 50.0)))
-    return PowerLaw(a0, b0, c0)
-
-
 def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: float,
                   xtol: float = 1e-10, ftol: float = 1e-10, min_r2: float | None = None) -> FitReport:
-    """Fit P = a*theta**b + c to calibration points by Levenberg-Marquardt (Algorithm 1).
+    """Fit P = a*theta**b + c to calibration points by least squares (Algorithm 1, Eq. 4).
 
     theta: angles reached at each step, degrees; pressure: the step pressures, kPa, strictly
     increasing within [0, p_max]. xtol/ftol: the solver's stopping tolerances (a knob of the
     accuracy/time trade-off). min_r2: refuse a fit that explains less than this.
 
-    Raises CalibrationFitError with the reason for data it cannot fit.
+    Solved as y = q + g*(u**b - 1)/b (u = theta/theta_r, y = P/p_max; power_law_fit.py), so
+    the same points give the same law whatever their order of magnitude. Raises
+    CalibrationFitError with the reason for data it cannot fit.
     """
     t, p = _check_points(theta, pressure, p_max)
-    try:
-        guess = initial_guess(t, p)
-    except ValueError as exc:
-        raise CalibrationFitError(f'no usable starting point for the fit: {exc}') from None
-    log_t = np.log(np.maximum(t, np.finfo(float).tiny))
-    zero = t <= 0.0
-
-    def powers(beta):
-        # LM may try wild steps; clipping keeps exp() finite, and the result is validated after.
-        b = math.exp(min(max(beta, -30.0), 5.0))
-        # exp(b*log t) with the exponent clipped: never overflows; t = 0 gives exactly 0.
-        tb = np.exp(np.clip(b * log_t, -745.0, 700.0))
-        tb[zero] = 0.0
-        return b, tb
-
-    def residuals(x):
-        alpha, beta, c = x
-        _, tb = powers(beta)
-        return math.exp(min(alpha, 700.0)) * tb + c - p
-
-    def jacobian(x):
-        alpha, beta, _ = x
-        b, tb = powers(beta)
-        a = math.exp(min(alpha, 700.0))
-        d_alpha = a * tb
-        # d/dbeta of a*t**exp(beta) = a * t**b * log(t) * b; the limit at t = 0 is 0.
-        d_beta = np.where(zero, 0.0, a * tb * log_t * b)
-        return np.column_stack([d_alpha, d_beta, np.ones_like(t)])
-
-    x0 = np.array([math.log(guess.a), math.log(guess.b), guess.c])
-    with np.errstate(over='ignore', invalid='ignore'):
-        from scipy import optimize   # (as above)
-        result = optimize.least_squares(residuals, x0, jac=jacobian, method='lm', xtol=xtol, ftol=ftol,
-                                        max_nfev=2000)
-    alpha, beta, c = result.x
-    if not (np.all(np.isfinite(result.x)) and alpha < 700.0 and beta < 5.0):
+    from scipy import optimize   # here, not at import: only a fit needs scipy
+    sc = plf.Scaled(plf.reference_angle(t), float(p_max))
+    lu, pos = plf.log_u(t, sc.theta_r)
+    y = p / sc.s
+    x0 = plf.start(lu, pos, y)
+    result = optimize.least_squares(
+        lambda x: plf.model(x, lu, pos) - y, x0, jac=lambda x: plf.jacobian(x, lu, pos),
+        bounds=([-np.inf, 0.0, plf.FIT_B_MIN], [np.inf, np.inf, plf.FIT_B_MAX]),
+        method='trf', xtol=xtol, ftol=ftol, max_nfev=2000)
+    if not np.all(np.isfinite(result.x)):
         raise CalibrationFitError(f'the fit diverged ({result.message})')
+    abc = plf.to_abc(result.x, sc)
+    if abc is None:
+        raise CalibrationFitError('the fitted curve is flat (a = 0 or beyond a float): the angles do not '
+                                  'rise with the pressure as a power law does')
     try:
-        law = PowerLaw(math.exp(alpha), math.exp(beta), c)
+        law = PowerLaw(*abc)
     except ValueError as exc:
         raise CalibrationFitError(f'the fit left the model\'s valid range: {exc}') from None
+    start_abc = plf.to_abc(x0, sc)
+    try:
+        guess = PowerLaw(*start_abc) if start_abc is not None else law
+    except ValueError:
+        guess = law
     res = p - law.pressure(t)
     if not np.all(np.isfinite(res)):
         raise CalibrationFitError('the fitted curve is not finite at the measured angles')
@@ -250,5 +253,18 @@ def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     r2 = 1.0 - float(np.sum(res ** 2)) / ss_tot if ss_tot > 0 else 0.0
     if min_r2 is not None and not r2 >= min_r2:
         raise CalibrationFitError(f'fit too poor: R^2 = {r2:.3f} < {min_r2:.3f} (RMSE {rmse:.1f} kPa)')
+    unc = plf.uncertainty(result.x, sc, t, y)
     return FitReport(law=law, initial_guess=guess, residuals=res, rmse=rmse, r2=r2, n_points=int(t.size),
-                     nfev=int(result.nfev), message=str(result.message))
+                     nfev=int(result.nfev), message=str(result.message), theta=t, pressure=p,
+                     p_max=float(p_max), reference_angle=sc.theta_r, std_errors=unc.std_errors,
+                     band_kpa=unc.band_kpa, max_se_at_points_kpa=unc.max_se_at_points_kpa)
+
+
+def law_uncertainty(law: PowerLaw, theta: Sequence[float], pressure: Sequence[float],
+                    p_max: float, angles: Sequence[float] = plf.BAND_ANGLES_DEG) -> plf.Uncertainty:
+    """Standard errors of `law` and its pressure band at `angles`, given the points it was
+    fitted to (e.g. read back from a calibration file): the same computation as the fit's."""
+    t = np.clip(np.asarray(theta, dtype=float), 0.0, THETA_MAX)
+    sc = plf.Scaled(plf.reference_angle(t), float(p_max))
+    return plf.uncertainty(plf.from_abc(law.a, law.b, law.c, sc), sc, t,
+                           np.asarray(pressure, dtype=float) / sc.s, angles)

@@ -3,13 +3,15 @@
 For each direction (left, right, down, up) Algorithm 1 measured n (pressure, angle) points and
 fitted P = a * theta^b + c by Levenberg-Marquardt. The report shows, per direction:
 
-- text (<wearer>-fit.txt): the coefficients, the number of points, RMSE and R^2 of the
-  fit, the solver's message, and every point with its fitted pressure and its residual
+- text (<wearer>-fit.txt): the coefficients with their standard errors, the number of
+  points, RMSE and R^2 of the fit, the fitted pressure at 10, 20 and 30 deg with its 95 %
+  band, the solver's message, and every point with its fitted pressure and its residual
   (measured minus fitted, kPa);
 - PNG (<wearer>-fit.png): four panels, one per direction, each with the measured points,
-  the fitted curve up to P_MAX and, in a strip below it, the residuals.
+  the fitted curve up to P_MAX with its 95 % band and, in a strip below it, the residuals.
 
-RMSE, R^2 and the residuals are recomputed from the points and the coefficients in the file
+RMSE, R^2, the residuals, the standard errors and the band are recomputed from the points and
+the coefficients in the file (core.power_law.law_uncertainty)
 (so a hand-edited file is reported as it is, not as it was fitted). A direction without points
 (coefficients given, e.g. Calibration.from_laws) is reported as not fitted.
 
@@ -33,7 +35,8 @@ from ..atomic import atomic_write, write_text
 from ..paths import share_dir
 from ..core.calibration import Calibration, CalibrationFileError
 from ..core.geometry import DIRECTIONS
-from ..core.power_law import THETA_MAX
+from ..core.power_law import PowerLaw, law_uncertainty
+from ..core.power_law_fit import BAND_COVERAGE
 from ..core.safe_input import check_wearer
 
 PROG = 'fabric-guidance calibration-report'
@@ -58,6 +61,10 @@ class DirectionFit:
     rmse: float             # kPa; NaN without points
     r2: float               # NaN without points
     solver_message: str
+    #: {'a', 'b', 'c'} -> standard error (None: not estimable from n = 3 points, inf: not identified)
+    std_errors: dict
+    #: angle (deg) -> (fitted pressure, half-width of the 95 % band) in kPa, at BAND_ANGLES_DEG
+    band_kpa: dict
 
     @property
     def has_points(self) -> bool:
@@ -73,6 +80,8 @@ def direction_fits(calibration: Calibration) -> list[DirectionFit]:
         p = np.asarray(entry.pressures, dtype=float)
         t = np.asarray(entry.angles, dtype=float)
         if p.size:
+            unc = law_uncertainty(law, t, p, calibration.p_max)
+            se, band = unc.std_errors, unc.band_kpa
             fitted = np.atleast_1d(law.pressure(t))
             res = p - fitted
             rmse = float(np.sqrt(np.mean(res ** 2)))
@@ -81,9 +90,24 @@ def direction_fits(calibration: Calibration) -> list[DirectionFit]:
         else:
             fitted = res = np.zeros(0)
             rmse = r2 = float('nan')
+            se, band = {'a': None, 'b': None, 'c': None}, {}
         out.append(DirectionFit(d, law.a, law.b, law.c, p, t, fitted, res, rmse, r2,
-                                str(entry.fit.get('solver_message', '')) if entry.fit else ''))
+                                str(entry.fit.get('solver_message', '')) if entry.fit else '', se, band))
     return out
+
+
+def _se(v) -> str:
+    return '-' if v is None else f'{v:.3g}'
+
+
+def band_curve(calibration: Calibration, f: DirectionFit, theta: np.ndarray) -> np.ndarray | None:
+    """Half-width of the 95 % band of the fitted pressure at `theta`, kPa; None when the points
+    cannot estimate it (n = 3)."""
+    unc = law_uncertainty(PowerLaw(f.a, f.b, f.c), f.angles, f.pressures, calibration.p_max, angles=theta)
+    widths = [w for _, w in unc.band_kpa.values()]
+    if not widths or any(w is None for w in widths):
+        return None
+    return np.asarray(widths, dtype=float)
 
 
 def format_fit_report(calibration: Calibration, source: str | None = None) -> str:
@@ -95,7 +119,7 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
         + (f'; own adjustment gain G {calibration.adjustment_gain:g}' if calibration.adjustment_gain is not None
            else ''),
         *([f'file {source}'] if source else []),
-        'model P = a * theta^b + c (Eq. 1), fitted by Levenberg-Marquardt (Algorithm 1);',
+        'model P = a * theta^b + c (Eq. 1), fitted by least squares (Algorithm 1, Eq. 4);',
         'P in kPa, theta in degrees from the gaze at rest; residual = measured - fitted pressure.',
         '',
         f'{"direction":<9} {"a":>10} {"b":>7} {"c":>8} {"points":>6} {"RMSE kPa":>9} {"R^2":>8} '
@@ -115,6 +139,12 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
         lines.append(f'  {f.pressures.size} points, RMSE {f.rmse:.3f} kPa, R^2 '
                      + (f'{f.r2:.5f}' if math.isfinite(f.r2) else '- (all pressures equal)')
                      + f'; P_MAX is reached at theta = {reach:.1f} deg')
+        lines.append(f'  standard errors: a {_se(f.std_errors["a"])}, b {_se(f.std_errors["b"])}, '
+                     f'c {_se(f.std_errors["c"])} kPa'
+                     + (' (3 points: none can be estimated)' if f.std_errors['a'] is None else ''))
+        if f.band_kpa and all(w is not None for _, w in f.band_kpa.values()):
+            lines.append(f'  fitted pressure, {BAND_COVERAGE:.0%} band: ' + '; '.join(
+                f'{t:g} deg {p:.1f} +- {w:.1f} kPa' for t, (p, w) in f.band_kpa.items()))
         refused = calibration.directions[f.direction].fit.get('refused')
         if refused:
             lines.append(f'  REFUSED (not used for guidance): {refused}')
@@ -127,10 +157,8 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
 
 
 def _reach(f: DirectionFit, p_max: float) -> float:
-    """The angle where the curve reaches p_max (THETA_MAX if it never does)."""
-    if p_max <= f.c:
-        return 0.0
-    return float(min(((p_max - f.c) / f.a) ** (1.0 / f.b), THETA_MAX))
+    """The angle where the curve reaches p_max (THETA_MAX if it never does; 0 below c)."""
+    return float(PowerLaw(f.a, f.b, f.c).theta(p_max, p_max))
 
 
 def draw_fit_figure(calibration: Calibration):
@@ -146,8 +174,13 @@ def draw_fit_figure(calibration: Calibration):
         ax_res = fig.add_subplot(inner[1], sharex=ax)
         top = max(_reach(f, calibration.p_max), float(np.max(f.angles)) if f.has_points else 0.0, 1.0)
         theta = np.linspace(0.0, top * 1.05, 300)
-        ax.plot(theta, f.a * theta ** f.b + f.c, color='tab:blue', lw=1.8,
+        curve = f.a * theta ** f.b + f.c
+        ax.plot(theta, curve, color='tab:blue', lw=1.8,
                 label=f'fit P = {f.a:.3g}·θ^{f.b:.3g} + {f.c:.3g}')
+        half = band_curve(calibration, f, theta) if f.has_points else None
+        if half is not None:
+            ax.fill_between(theta, curve - half, curve + half, color='tab:blue', alpha=0.18, lw=0,
+                            label=f'{BAND_COVERAGE:.0%} band of the fit')
         ax.axhline(calibration.p_max, color='0.5', ls=':', lw=1, label=f'P_MAX {calibration.p_max:g} kPa')
         if f.has_points:
             ax.vlines(f.angles, f.fitted, f.pressures, color='tab:red', lw=1)
