@@ -349,6 +349,11 @@ def test_calibration_is_refused_without_gaze(controller):
     graph, probe, upstream, _ = controller
     # Refusing is idempotent: ask again if the first response is lost to discovery.
     reply = probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request(), timeout=3.0, attempts=3)
+    # Only this test's silent publisher may be on the domain (another graph on the same domain id,
+    # e.g. another test run's on this machine, would be a gaze source the test does not control).
+    others = [i.node_name for i in probe.node.get_publishers_info_by_topic(interface.GAZE)
+              if i.node_name != probe.node.get_name()]
+    assert not others, f'gaze publishers of another graph on domain {graph.domain_id}: {others}'
     assert not reply.success
     assert 'no valid gaze' in reply.message
     wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')
