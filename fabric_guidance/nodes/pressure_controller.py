@@ -117,6 +117,8 @@ class PressureController(LiveParameters, ManagedNode):
         self.last_status = ''
         self.vent_reason = 'starting'
         self.invalid_inputs = 0
+        # Gaze samples taken, and those whose own step vented (/diagnostics: where samples go).
+        self.gaze_samples = self.gaze_vented = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
         self.command_msg = Float64MultiArray()   # its layout names the channels once configured
@@ -320,8 +322,10 @@ class PressureController(LiveParameters, ManagedNode):
         now_ns = self.get_clock().now().nanoseconds
         age_s = (now_ns - stamp_ns) * 1e-9 if stamp_ns > 0 and now_ns > 0 else 0.0
         self.gaze_received = self.now_s() - max(0.0, age_s)
+        self.gaze_samples += 1
         if self.v['step_on_gaze'] and self.active:
             self.step()
+            self.gaze_vented += bool(self.vent_reason)
 
     def on_timer(self) -> None:
         # The minimum rate: skipped while gaze steps come at least this often.
@@ -544,6 +548,7 @@ class PressureController(LiveParameters, ManagedNode):
                   'enabled': self.enabled, 'wearer': self.wearer,
                   # whose calibration guides ('' none): a study session sees a first-time participant
                   'calibration': self.calibration.wearer if self.calibration is not None else '',
+                  'gaze_samples': self.gaze_samples, 'gaze_vented': self.gaze_vented, 'commands': self.command_count,
                   **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
