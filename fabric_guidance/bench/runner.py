@@ -60,10 +60,12 @@ FULL = Plan()
 #: 2.5 s (200 samples after 0.3 s of warm-up) with the floor's between, 28 s in all and 11 s
 #: from the first block's end of the sweep's near-target levels to the fourth block's end: longer
 #: than the package's slowest timer (the controller's stall watch, 10 s), so samples that stop
-#: being applied after a while show in the test's applied share.
+#: being applied after a while show in the test's applied share. The C# headset's 270 frames
+#: (3 s) are held to the same floor: at load 15-20 1000 of them lost 2.3 %, and 60 would fail on
+#: 7 lost in 0.7 s.
 QUICK = Plan(e2e_90=800, e2e_1000=300, warmup_s=0.3, floor_90=60, floor_1000=300, steps=1000, parses=1000,
              fits=30, allocations=300, log_calls=1000, diagnostics=200,
-             modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=4, csharp_90=60,
+             modbus_writes=200, modbus_profile=200, replay_s=1.5, headless_repetitions=1, blocks=4, csharp_90=270,
              study_trial_s=4.0, study_keys=10)
 
 #: Goals, read off the figures (never asserted): the package's p99 within RATIO_GOAL of its
@@ -206,6 +208,8 @@ def run_all(plan: Plan, work: Path, say) -> dict:
     say('  ' + (f"skipped: {csharp['skipped']}" if 'skipped' in csharp else
                 _line(csharp) + f"; clock bound {csharp['clock_bound_ms']:.2f} ms"))
     if 'skipped' not in csharp:
+        if csharp['applied'] < csharp['sent']:
+            say('    lost (warm-up included) at: ' + stages.where_lost(csharp['stages']))
         failure = stages.shortfall(90.0, csharp['applied'], csharp['sent'], csharp.get('stages'),
                                    'the package behind the C# headset')
         if failure:

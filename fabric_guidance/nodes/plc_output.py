@@ -137,7 +137,7 @@ class PlcOutput(ManagedNode):
         self._write_timer = self._command_sub = None
         self._heartbeat = 0
         self._writes = self._invalid_commands = self._ignored_commands = 0
-        self._commands_received = 0   # every pressure_command delivered, before any check
+        self._commands_received = 0   # pressure_commands delivered that are not a vent, before any check
         self._source: CommandSource | None = None
         self._refused_reported = 0
         self._command_label = ''
@@ -234,7 +234,7 @@ class PlcOutput(ManagedNode):
 
     # ---------------------------------------------------------------- commands
     def _on_command(self, msg: Float64MultiArray, info) -> None:
-        self._commands_received += 1
+        self._commands_received += any(msg.data)
         if not self.active:
             self._ignored_commands += 1
             return
@@ -418,7 +418,7 @@ class PlcOutput(ManagedNode):
                   'reconnects': sum(link.reconnects for link in self._links),
                   'invalid commands': self._invalid_commands, 'command age s': age,
                   'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}',
-                  'commands received': self._commands_received,
+                  'commands received (not a vent)': self._commands_received,
                   'commands ignored while not active': self._ignored_commands,
                   'commands refused (not the controller\'s)': refused,
                   'refused by publisher': ' '.join(f'{k}={v}' for k, v in sorted(

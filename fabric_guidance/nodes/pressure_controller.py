@@ -117,8 +117,9 @@ class PressureController(LiveParameters, ManagedNode):
         self.last_status = ''
         self.vent_reason = 'starting'
         self.invalid_inputs = 0
-        # Gaze samples taken, and those whose own step vented (/diagnostics: where samples go).
-        self.gaze_samples = self.gaze_vented = 0
+        # Gaze samples taken, those whose own step vented, and steps that guided (not a vent):
+        # /diagnostics, where samples go.
+        self.gaze_samples = self.gaze_vented = self.guided_steps = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
         self.command_msg = Float64MultiArray()   # its layout names the channels once configured
@@ -444,6 +445,7 @@ class PressureController(LiveParameters, ManagedNode):
         if stalled and reason and reason != self.vent_reason:
             self.get_logger().warning(f'guidance to {self.target_name}: {reason}')
         self.vent_reason = reason
+        self.guided_steps += not reason
         self.invalid_inputs += invalid
         self.publish(channels)
 
@@ -548,7 +550,7 @@ class PressureController(LiveParameters, ManagedNode):
                   'enabled': self.enabled, 'wearer': self.wearer,
                   # whose calibration guides ('' none): a study session sees a first-time participant
                   'calibration': self.calibration.wearer if self.calibration is not None else '',
-                  'gaze_samples': self.gaze_samples, 'gaze_vented': self.gaze_vented, 'commands': self.command_count,
+                  'gaze_samples': self.gaze_samples, 'gaze_vented': self.gaze_vented, 'guided_steps': self.guided_steps,
                   **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])
