@@ -12,6 +12,7 @@ import pytest
 from fabric_guidance.bench.graphs import make_sweep
 from fabric_guidance.bench.latency import Write, landings, percentiles_ms
 from fabric_guidance.bench.gaze_sweep import check_sweep
+from fabric_guidance.bench.stages import APPLIED_FLOOR
 from rosgraph import ROOT
 
 
@@ -42,13 +43,51 @@ def test_a_landing_is_the_latest_sample_of_its_level_and_counted_once():
     assert percentiles_ms([2_000_000, 4_000_000])['max'] == pytest.approx(4.0)
 
 
+def test_a_shortfall_names_the_stage_that_lost_the_samples():
+    from fabric_guidance.bench.stages import BRIDGE, CONTROLLER, PLC_OUTPUT, account, pool, shortfall
+    before = {BRIDGE: {'published': '100', 'dropped_late': '0'},
+              CONTROLLER: {'gaze_samples': '90', 'gaze_vented': '0', 'guided_steps': '150'},
+              PLC_OUTPUT: {'commands received (not a vent)': '150', 'invalid commands': '0', 'link failures': '0'}}
+    # 1000 sent: 2 dropped late by the bridge, 3 superseded before the controller, 500 vented by
+    # its step, 1 superseded before plc_output, 4 not in the register log.
+    after = {BRIDGE: {'published': '1098', 'dropped_late': '2'},
+             CONTROLLER: {'gaze_samples': '1085', 'gaze_vented': '500', 'guided_steps': '735'},
+             PLC_OUTPUT: {'commands received (not a vent)': '734', 'invalid commands': '0', 'link failures': '0'}}
+    stall = 'vented: no progress toward the target for 10 s'
+    acc = account(before, after, 1000, 490, {CONTROLLER: [stall]})
+    assert acc['lost'] == {'bridge': 2, 'controller': 503, 'plc_output': 1, 'PLC': 4}, acc
+    line = shortfall(90.0, 450, 900, pool([acc]))
+    assert line.startswith('90 Hz: the package applied 450 of 900 samples (50.0 %), below the floor of 90 %')
+    assert 'at: controller 503 (superseded in its gaze queue 3; vented by its step 500; said "' + stall in line
+    assert line.index('controller 503') < line.index('PLC 4') < line.index('bridge 2') < line.index('plc_output 1')
+    assert shortfall(90.0, 810, 900, acc) is None and shortfall(1000.0, 100, 900, acc) is None
+    # A node that sent no status: named, not guessed.
+    silent = account(before, {**after, CONTROLLER: {}}, 1000, 0, {})
+    assert 'no counters from controller, plc_output' in shortfall(90.0, 0, 900, silent)
+
+
 def test_a_quick_bench_writes_every_key(tmp_path):
     out = tmp_path / 'results.json'
     run = subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', 'bench', '--quick', '--repeat', '2',
                           '--out', str(out), '--work', str(tmp_path / 'work')],
                          capture_output=True, text=True, timeout=480, cwd=ROOT)
-    assert run.returncode == 0, run.stdout + run.stderr
+    if not out.exists():
+        pytest.fail('the bench wrote no results:\n' + run.stdout[-3000:] + run.stderr[-3000:])
     r = json.loads(out.read_text())
+    # The package applies the 90 Hz samples: 1600 over 28 s, longer than any of its own timers
+    # (the controller's stall watch, 10 s, vented every later sample of the sweep). The floor (90 %,
+    # bench/stages.py) is the one the bench fails below: loaded 2 cores (load 4-21) lost 0-2.9 %
+    # of a run in the queues between the nodes, the stall watch more than half.
+    e = r['e2e_latency_ms']['90']
+    assert e['sent'] == 1600 and e['applied'] >= APPLIED_FLOOR[90.0] * e['sent'], \
+        (e['applied'], e['sent'], r['stages']['90'], r['failures'])
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert r['failures'] == []
+    # Every stage of the package graph counted (its /diagnostics) over every sample sent, warm-up too.
+    for rate in ('90', '1000'):
+        acc = r['stages'][rate]
+        assert acc['unknown'] == [] and set(acc['lost']) == {'bridge', 'controller', 'plc_output', 'PLC'}, acc
+        assert r['e2e_latency_ms'][rate]['sent'] < acc['sent'] and 0 < acc['landed'] <= acc['sent'], acc
 
     def finite(v):
         return isinstance(v, (int, float)) and math.isfinite(v)
@@ -102,6 +141,8 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     cs = r['capture_to_register_ms']
     if shutil.which('mono') and shutil.which('mcs'):
         assert cs.get('applied', 0) > 0, cs
+        # Its frames leave at the rate asked for (90 Hz), not as often as the harness's loop wakes.
+        assert cs['rate_hz_sent'] == pytest.approx(90.0, rel=0.1), cs
         assert 0 < cs['p50'] <= cs['p99'] <= cs['max'] < 1000 and finite(cs['clock_bound_ms'])
     else:
         assert 'mcs' in cs['skipped'] or 'mono' in cs['skipped']

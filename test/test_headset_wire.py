@@ -8,8 +8,8 @@ from hypothesis import given, settings, strategies as st
 import pytest
 
 from fabric_guidance.core import display_wire as dw
-from fabric_guidance.core.clock_sync import (MAX_DATAGRAM_BYTES, ClockEcho, ClockEstimator, answer_ping,
-                                             encode_ping, parse_ping, parse_uplink)
+from fabric_guidance.core.clock_sync import (MAX_CARRIED_S, MAX_DATAGRAM_BYTES, ClockEcho, ClockEstimator, answer_ping,
+                                             capture_delay, encode_ping, parse_ping, parse_uplink)
 from fabric_guidance.core.gaze_wire import Confirm, GazeSample, WireFormatError, encode_confirm, encode_datagram
 
 IDS = st.text(min_size=0, max_size=80)
@@ -149,6 +149,32 @@ def test_the_estimate_stays_within_the_bound_it_reports(offset, drift_ppm, up, d
     # Asymmetric paths shift the offset by half the difference, as the spec says, and no more.
     assert abs(e.offset_at(t4) - truth) <= abs(up - down) / 2 + jitter + 1e-4
     assert e.bound_at(t4) <= (up + down) / 2 + jitter + 3e-3
+
+
+def test_a_capture_is_not_believed_on_an_estimate_carried_too_long_without_echoes():
+    """Three exchanges (a settling estimate), then the headset stops answering pings: the drift
+    they fit is 2 % off, which 20 s on would stamp a sample captured 10 ms before its receipt
+    0.4 s old (the controller ages gaze from its stamp and vents at 0.3 s). The bridge stamps it on
+    receipt instead, and believes the capture again once echoes come back."""
+    est, offset = ClockEstimator(), 1000.0
+
+    def echo(k, t1, up, down):
+        t2 = t1 + up + offset
+        est.add(ClockEcho(k, t1, t2, t2 + 0.0002), t1 + up + 0.0002 + down)
+    for k, (up, down) in enumerate(((0.016, 0.024), (0.020, 0.020), (0.024, 0.016))):
+        echo(k, 0.2 * k, up, down)
+    e = est.estimate()
+    delay, why = capture_delay(e, 0.89 + offset, 0.9, 1.0)        # half a second on: believed
+    assert why == '' and delay == pytest.approx(0.01, abs=0.03)
+    assert e.carried_at(0.9) <= MAX_CARRIED_S
+    capture, received = 20.39 + offset, 20.4
+    assert received - e.to_bridge(capture, received) > 0.3           # the stamp it gave before
+    assert capture_delay(e, capture, received, 1.0) == (None, 'carried')
+    echo(3, 20.2, 0.02, 0.02)
+    delay, why = capture_delay(est.estimate(), capture, received, 1.0)
+    assert why == '' and delay == pytest.approx(0.01, abs=0.03)
+    # A capture after its own receipt, beyond the bound: the headset's clock jumped ahead.
+    assert capture_delay(est.estimate(), received + 1.0 + offset, received, 1.0) == (None, 'future')
 
 
 def test_a_restarted_headset_clock_starts_the_estimate_again():

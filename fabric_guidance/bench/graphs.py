@@ -18,6 +18,7 @@ from ..graph.process_graph import CONFIG, ROOT, Graph, Probe, free_port, wait_un
 from . import floor
 from .latency import Sender, WriteLog, landings, percentiles_ms
 from .gaze_sweep import Sweep
+from .stages import StageCounters
 
 FILES = ('params/guidance.yaml', 'params/sim.yaml')
 SIM_CALIBRATION = CONFIG / 'calibrations' / 'sim-wearer.yaml'
@@ -98,9 +99,14 @@ class Rig:
     """A running chain: its sender, its mock PLC's write log, and how a sample is encoded."""
 
     def __init__(self, graph: Graph, sweep: Sweep, gaze_port: int, log: WriteLog,
-                 encode: Callable[[int, float], bytes], say: Callable[[str], None]):
+                 encode: Callable[[int, float], bytes], say: Callable[[str], None],
+                 explain: Callable[[], str] | None = None):
         self.graph, self.sweep, self.log, self.encode, self.say = graph, sweep, log, encode, say
         self.sender = Sender(gaze_port)
+        self.explain = explain   # what the chain's nodes last said, for an error
+
+    def _why(self) -> str:
+        return f'; the nodes said: {self.explain()}' if self.explain else ''
 
     def _send(self, n: int, rate_hz: float) -> range:
         first = len(self.sender.sent_ns)
@@ -125,7 +131,7 @@ class Rig:
                 return
             self._check_alive()
             if time.monotonic() > deadline:
-                raise RuntimeError(f'no sample reached the mock PLC within {timeout_s:.0f} s '
+                raise RuntimeError(f'no sample reached the mock PLC within {timeout_s:.0f} s{self._why()} '
                                    f'(logs in {self.graph.log_dir})')
 
     def _check_alive(self) -> None:
@@ -138,6 +144,7 @@ class Rig:
         applied ones), how many were sent, and the CPU each process spent per sample sent."""
         warm = int(round(warmup_s * rate_hz))
         cpu0 = {name: cpu_s(p.pid) for name, p in self.graph.processes.items()}
+        t0 = time.monotonic()
         samples = self._send(warm + n, rate_hz)
         cpu1 = {name: cpu_s(p.pid) for name, p in self.graph.processes.items()}
         start_ns = self.sender.sent_ns[samples[0]]
@@ -146,7 +153,8 @@ class Rig:
         landed, sent = self._landed(start_ns), self.sender.sent_ns
         return {'latencies_ns': [landed[i] - sent[i] for i in samples[warm:] if i in landed], 'sent': n,
                 'cpu_s': {k: cpu1[k] - cpu0[k] for k in cpu0 if cpu0[k] is not None and cpu1[k] is not None},
-                'samples': len(samples)}
+                'samples': len(samples), 'landed_all': sum(1 for i in samples if i in landed),
+                'window': (t0, time.monotonic())}
 
     def measure(self, rate_hz: float, n: int, warmup_s: float) -> dict:
         """One block's figures (see combine)."""
@@ -171,13 +179,19 @@ class PackageGraph:
         g.start('mock_plc', FILES, port=self.plc_port, write_log_file=str(self.log.path), **o.get('mock_plc', {}))
         g.start('plc_output', FILES, plc_port=self.plc_port, **o.get('plc_output', {}))
         g.start('gaze_bridge', FILES, port=self.gaze_port, **o.get('gaze_bridge', {}))
+        # The sweep circles the target at one error and never comes closer: a person doing that
+        # is vented by the no-progress watch after stall_timeout_s, whatever gaps come between
+        # (it took every sample after the first 10 s). The bench measures the chain, so the
+        # watch is off, as in `study --simulated`; the rest of the parameters are the package's.
         g.start('pressure_controller', FILES, calibration_file=str(SIM_CALIBRATION), condition=2,
                 follow_moving_target=True, calibration_dir=str(self.work / 'calibrations'),
                 target_publisher='bench_target',   # this bench's probe plays target_selector
-                **o.get('pressure_controller', {}))
+                **{'stall_timeout_s': 0.0, **o.get('pressure_controller', {})})
         self.probe = Probe(g.domain_id, 'bench_target')
+        self.stages = StageCounters(self.probe)
         self._publish_target()
-        self.rig = Rig(g, self.sweep, self.gaze_port, self.log, self.sweep.datagram, say)
+        self.rig = Rig(g, self.sweep, self.gaze_port, self.log, self.sweep.datagram, say,
+                       explain=self.stages.latest_messages)
 
     def _publish_target(self) -> None:
         from geometry_msgs.msg import PointStamped

@@ -21,6 +21,7 @@ import numpy as np
 from ..graph.process_graph import free_port, wait_until
 from .build_lock import locked_run
 from .latency import landings, percentiles_ms
+from .stages import account
 
 HOLOLENS = Path(__file__).resolve().parents[2] / 'hololens'
 #: The harness's seq starts far from the priming sender's (a seq just behind would be stale).
@@ -64,6 +65,7 @@ def capture_to_register(work: Path, say, rate_hz: float, n: int, warmup_s: float
                         clock.append(v)
         pkg.probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10, on_diagnostics)
         pkg.rig.prime()
+        mark = pkg.stages.snapshot()
         sweep = pkg.sweep
         poses = work / 'sweep_poses.jsonl'
         with poses.open('w') as f:
@@ -75,11 +77,13 @@ def capture_to_register(work: Path, say, rate_hz: float, n: int, warmup_s: float
         frames = warm + n
         log = work / 'harness.log'
         # Synchronised before the measured frames: the bridge pings every 0.2 s.
+        t0 = time.monotonic()
         proc = subprocess.run(
             ['mono', str(HOLOLENS / 'build~' / 'HeadsetHarness.exe'), '--uplink', f'127.0.0.1:{pkg.gaze_port}',
              '--listen', f'127.0.0.1:{listen}', '--poses', str(poses), '--rate', str(rate_hz),
              '--frames', str(frames), '--duration', str(frames / rate_hz + 2.0), '--seq-start', str(SEQ_START),
              '--clock-offset', '0', '--log', str(log)], capture_output=True, text=True, timeout=frames / rate_hz + 60)
+        t1 = time.monotonic()
         if proc.returncode != 0:
             return {'skipped': f'the harness failed: {proc.stderr.strip()[-300:]}'}
         pkg.log.wait_drained(time.monotonic_ns() + int(SETTLE_S * 1e9))
@@ -88,9 +92,13 @@ def capture_to_register(work: Path, say, rate_hz: float, n: int, warmup_s: float
         bound_ms = max(float(v['clock_bound_ms']) for v in clock)
         stamps = [e['stamp'] for e in map(json.loads, log.read_text().splitlines()) if 'sent' in e]
         sent_ns = [int(round((s - offset) * 1e9)) for s in stamps]
-        landed = landings(sent_ns, pkg.log.writes(sent_ns[warm]), sweep.register, sweep.level_of, sweep.levels)
+        landed = landings(sent_ns, pkg.log.writes(sent_ns[0]), sweep.register, sweep.level_of, sweep.levels)
         latencies = [landed[i] - sent_ns[i] for i in range(warm, len(sent_ns)) if i in landed]
+        after = pkg.stages.snapshot()
+        acc = account(mark, after, len(sent_ns), len(landed), pkg.stages.warnings([(t0, t1)]))
         return {**percentiles_ms(latencies), 'applied': len(latencies), 'sent': len(sent_ns) - warm,
-                'clock_bound_ms': bound_ms, 'clock_offset_s': offset}
+                'clock_bound_ms': bound_ms, 'clock_offset_s': offset, 'stages': acc,
+                # The rate the headset's frames left at (their capture stamps), against rate_hz.
+                'rate_hz_sent': float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else None}
     finally:
         pkg.close()

@@ -44,6 +44,15 @@ ASSUMED_MAX_DRIFT_PPM = 500.0
 NEGATIVE_RTT_TOLERANCE_S = 1e-3
 #: Exchanges kept at most, whatever the ping rate (memory stays bounded).
 MAX_EXCHANGES = 4096
+#: A capture time is believed only while the error the estimate may have gathered since its
+#: newest exchange (carried with a drift known within drift_error) is within this [s]. The
+#: controller ages gaze from its stamp (gaze_timeout_s, 0.3 s by default): an estimate from its
+#: first exchanges (the drift barely seen) carried on after the headset stopped answering pings
+#: made fresh gaze stale within seconds. The path's own share of the bound (half the least round
+#: trip) is not counted: a slow path is stamped as it was.
+MAX_CARRIED_S = 0.1
+#: A capture this far beyond the bound after its receipt: the headset's clock jumped ahead [s].
+FUTURE_TOLERANCE_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -146,6 +155,11 @@ class ClockEstimate:
             best = min(best, abs(self.offset_at(t) - carried) + rtt / 2 + self.drift_error * abs(t - ta))
         return best
 
+    def carried_at(self, t: float) -> float:
+        """How far the offset may have drifted from the newest exchange by t [s], the drift
+        known within drift_error (the bound's growth while no exchange comes)."""
+        return self.drift_error * max(0.0, t - max(a[0] for a in self.anchors))
+
     def to_bridge(self, headset_t: float, now: float) -> float:
         """The bridge-clock time of a headset-clock time (the offset taken at `now`)."""
         return headset_t - self.offset_at(now)
@@ -244,3 +258,20 @@ class ClockEstimator:
             anchors += ((float(t[-1]), float(theta[-1]), float(rtt[-1])),)
         return ClockEstimate(float(theta0), float(drift), t_ref, float(rtt.min()), n, anchors,
                              float(drift_error))
+
+
+def capture_delay(estimate: ClockEstimate, capture: float, received: float,
+                  max_delay_s: float) -> tuple[float | None, str]:
+    """(the one-way delay from a capture, on the headset's clock, to its receipt at `received`,
+    on the bridge's [s], '') when the estimate can stand by it, else (None, why): 'future' (it
+    was captured after it arrived, beyond the bound: the headset's clock jumped ahead),
+    'carried' (the estimate has gone too long without an exchange for how well it knows the
+    drift: MAX_CARRIED_S), 'old' (above max_delay_s)."""
+    delay = received - estimate.to_bridge(capture, received)
+    if delay < -estimate.bound_at(received) - FUTURE_TOLERANCE_S:
+        return None, 'future'
+    if estimate.carried_at(received) > MAX_CARRIED_S:
+        return None, 'carried'
+    if delay > max_delay_s:
+        return None, 'old'
+    return max(delay, 0.0), ''   # within the bound of zero: no stamp in the future

@@ -21,7 +21,10 @@ feeds the clock_echo answers to core.clock_sync.ClockEstimator. Once that has an
 mapped to ROS time) instead of the receive time, and /diagnostics reports the one-way delay
 from capture to receipt. A headset clock that runs backwards, a sender restart or a capture
 time that cannot be (in the future, or older than MAX_DELAY_S) restarts the estimate or falls
-back to the receive time for that sample; nothing is published with a stamp it cannot stand by.
+back to the receive time for that sample, and so does an estimate carried on without clock echoes
+for longer than its drift allows (core.clock_sync.MAX_CARRIED_S: a headset that stopped answering
+pings, most quickly one whose estimate was still settling): nothing is published with a stamp it
+cannot stand by.
 
 A `confirm` datagram (the wearer's clicker or air tap) is published once per press on `confirm`
 (std_msgs/Header): the headset sends each press three times with one press_id, and the bridge
@@ -52,7 +55,8 @@ from std_msgs.msg import Header
 
 from rclpy.duration import Duration
 
-from fabric_guidance.core.clock_sync import ClockEcho, ClockEstimator, encode_ping, parse_uplink
+from fabric_guidance.core.clock_sync import (MAX_CARRIED_S, ClockEcho, ClockEstimator, capture_delay, encode_ping,
+                                             parse_uplink)
 from fabric_guidance.core.gaze_wire import REASONS, Confirm, SeqStatus, SequenceTracker, WireFormatError
 from fabric_guidance.core.geometry import GeometryError, ray_orientation
 from fabric_guidance.interface import CONFIRM, DIAGNOSTICS, GAZE, HEAD_POSE, IMMERSIVE_FRAME
@@ -326,17 +330,12 @@ class GazeBridge(Node):
         estimate = self._headset_clock.estimate()
         if estimate is None or self.stamp_source != 'capture':
             return now.to_msg()
-        delay = received_mono - estimate.to_bridge(capture_headset, received_mono)
-        bound = estimate.bound_at(received_mono)
-        if delay < -bound - 0.05:
-            # Captured well after it arrived: the headset's clock jumped ahead (a restarted app).
-            self._headset_clock.restart()
+        delay, why = capture_delay(estimate, capture_headset, received_mono, MAX_DELAY_S)
+        if delay is None:
+            if why == 'future':   # the headset's clock jumped ahead (a restarted app)
+                self._headset_clock.restart()
             self._stamp_fallbacks += 1
             return now.to_msg()
-        if delay > MAX_DELAY_S:
-            self._stamp_fallbacks += 1
-            return now.to_msg()
-        delay = max(delay, 0.0)   # within the bound of zero: no stamp in the future
         if record:
             if len(self._delays) < DELAY_BUFFER:
                 self._delays.append(delay)
@@ -419,10 +418,12 @@ class GazeBridge(Node):
             state = 'no headset_address'
         elif estimate is None:
             state = 'waiting for clock echoes' if not restarts else 'restarted, waiting for echoes'
+        elif estimate.carried_at(now) > MAX_CARRIED_S:
+            state = 'no recent clock echo: stamped on receipt'   # the headset stopped answering pings
         else:
             state = 'synchronised'
         values = {
-            'stamp_source': 'capture' if estimate is not None and self.stamp_source == 'capture' else 'receipt',
+            'stamp_source': 'capture' if state == 'synchronised' and self.stamp_source == 'capture' else 'receipt',
             'clock_state': state,
             'clock_echoes': echoes,
             'clock_restarts': restarts,

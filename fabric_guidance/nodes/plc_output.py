@@ -149,6 +149,7 @@ class PlcOutput(ManagedNode, VentLatch):
         self._write_timer = self._command_sub = None
         self._heartbeat = 0
         self._writes = self._invalid_commands = self._ignored_commands = 0
+        self._commands_received = 0   # pressure_commands delivered that are not a vent, before any check
         self._source: CommandSource | None = None
         self._refused_reported = 0
         self._command_label = ''
@@ -253,6 +254,7 @@ class PlcOutput(ManagedNode, VentLatch):
 
     # ---------------------------------------------------------------- commands
     def _on_command(self, msg: Float64MultiArray, info) -> None:
+        self._commands_received += any(msg.data)
         if not self.active:
             self._ignored_commands += 1
             return
@@ -459,6 +461,7 @@ class PlcOutput(ManagedNode, VentLatch):
                   'reconnects': sum(link.reconnects for link in self._links),
                   'invalid commands': self._invalid_commands, 'command age s': age,
                   'plc address': self.plc_address, 'p_max kPa': f'{self.p_max_kpa:g}',
+                  'commands received (not a vent)': self._commands_received,
                   'commands ignored while not active': self._ignored_commands,
                   'commands refused (not the controller\'s)': refused,
                   'refused by publisher': ' '.join(f'{k}={v}' for k, v in sorted(

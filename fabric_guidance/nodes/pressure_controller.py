@@ -123,6 +123,9 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
         self.last_status = ''
         self.vent_reason = 'starting'
         self.invalid_inputs = 0
+        # Gaze samples taken, those whose own step vented, and steps that guided (not a vent):
+        # /diagnostics, where samples go.
+        self.gaze_samples = self.gaze_vented = self.guided_steps = 0
 
         self.command_pub = self.create_publisher(Float64MultiArray, PRESSURE_COMMAND, COMMAND_QOS)
         self.command_msg = Float64MultiArray()   # its layout names the channels once configured
@@ -330,8 +333,10 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
         now_ns = self.get_clock().now().nanoseconds
         age_s = (now_ns - stamp_ns) * 1e-9 if stamp_ns > 0 and now_ns > 0 else 0.0
         self.gaze_received = self.now_s() - max(0.0, age_s)
+        self.gaze_samples += 1
         if self.v['step_on_gaze'] and self.active:
             self.step()
+            self.gaze_vented += bool(self.vent_reason)
 
     def on_timer(self) -> None:
         self.check_inputs_clean()
@@ -434,6 +439,7 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
         if stalled and reason and reason != self.vent_reason:
             self.get_logger().warning(f'guidance to {self.target_name}: {reason}')
         self.vent_reason = reason
+        self.guided_steps += not reason
         self.invalid_inputs += invalid
         self.publish(channels)
 
@@ -550,6 +556,7 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
                   'wearer': self.wearer,
                   # whose calibration guides ('' none): a study session sees a first-time participant
                   'calibration': self.calibration.wearer if self.calibration is not None else '',
+                  'gaze_samples': self.gaze_samples, 'gaze_vented': self.gaze_vented, 'guided_steps': self.guided_steps,
                   **self.lifecycle_values()}
         values.update({f'{d}_kpa': f'{p:.1f}' for d, p in zip(DIRECTIONS, pressures)})
         publish_diagnostics(self, self.diag_pub, [status(self, 'guidance', level, message, values)])

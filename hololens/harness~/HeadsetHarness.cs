@@ -117,7 +117,8 @@ static class HeadsetHarness
         double period = 1.0 / rate;
         while (watch.Elapsed.TotalSeconds < duration)
         {
-            if (frames < 0 || frame < frames)
+            // A frame only once its time has come: the loop wakes every 5 ms at most.
+            if ((frames < 0 || frame < frames) && watch.Elapsed.TotalSeconds >= frame * period)
             {
                 if (restartAfter >= 0 && frame == restartAfter)
                     link.Restart(new StopwatchClock(offset / 2.0, drift));   // a new app: seq 0, another clock origin
