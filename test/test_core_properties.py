@@ -337,6 +337,10 @@ def test_fit_fully_arbitrary_finite_data(theta, pressure, p_max):
 @example(pressure=[10.0, 20.0, 30.0], angles=[1e-100, 2e-100, 3e-100] + [0.0] * 9)
 # ... and a bare ValueError from the initial guess (a0 underflowing to 0) here:
 @example(pressure=[0.0, 5e-324, 1e-323], angles=[0.0, 0.001, 170.0] + [0.0] * 9)
+# ... and an overflow in the solver's products (u^b of the scaled model) at angles 1e149 apart:
+@example(pressure=[0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 27.0],
+         angles=[0.0] * 6 + [1.0, 5.004149548174021e-150, 5.004149548174021e-150] + [0.0] * 3)
+@example(pressure=[0.0, 1.0, 2.0, 3.0, 4.0, 5.0], angles=[0.0, 1e-200, 1e-150, 1e-100, 1.0, 2.0] + [0.0] * 6)
 def test_fit_arbitrary_data_in_the_valid_ranges(pressure, angles):
     """Case 4d: arbitrary angles within the model's range at valid, increasing pressures
     -> a FitReport with finite coefficients, finite RMSE and residuals that match an independent

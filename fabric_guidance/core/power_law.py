@@ -165,6 +165,19 @@ class FitReport:
         }
 
 
+#: An angle below this fraction of the largest measured angle counts as no movement (0).
+MIN_ANGLE_RATIO = 1e-9
+
+
+def resolved(theta: np.ndarray) -> np.ndarray:
+    """The angles as the solver takes them: one below MIN_ANGLE_RATIO of the largest is no
+    movement (0). No tracker resolves it, and a ratio beyond that would put u^b of the fit's
+    scaled model past what the solver's products hold (overflow). Residuals and R^2 are
+    computed at the angles as measured."""
+    top = float(np.max(theta)) if theta.size else 0.0
+    return np.where(theta < MIN_ANGLE_RATIO * top, np.minimum(theta, 0.0), theta) if top > 0 else theta
+
+
 def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: float):
     t = np.asarray(theta, dtype=float).ravel()
     p = np.asarray(pressure, dtype=float).ravel()
@@ -183,8 +196,9 @@ def _check_points(theta: Sequence[float], pressure: Sequence[float], p_max: floa
         raise CalibrationFitError(
             f'pressures must increase step by step (Algorithm 1): step {bad + 1} is {p[bad + 1]:g} kPa '
             f'after {p[bad]:g} kPa')
-    # Angles at or below 0 all mean "no movement": they count as one angle.
-    distinct = np.unique(np.clip(t, 0.0, THETA_MAX)).size
+    # Angles at or below 0 all mean "no movement": they count as one angle (and so does one
+    # too small to resolve: resolved()).
+    distinct = np.unique(np.clip(resolved(t), 0.0, THETA_MAX)).size
     if distinct < MIN_POINTS:
         raise CalibrationFitError(
             f'need at least {MIN_POINTS} distinct angles to fit a, b and c, got {distinct} '
@@ -222,8 +236,9 @@ def fit_power_law(theta: Sequence[float], pressure: Sequence[float], p_max: floa
     """
     t, p = _check_points(theta, pressure, p_max)
     from scipy import optimize   # here, not at import: only a fit needs scipy
-    sc = plf.Scaled(plf.reference_angle(t), float(p_max))
-    lu, pos = plf.log_u(t, sc.theta_r)
+    tr = resolved(t)
+    sc = plf.Scaled(plf.reference_angle(tr), float(p_max))
+    lu, pos = plf.log_u(tr, sc.theta_r)
     y = p / sc.s
     x0 = plf.start(lu, pos, y)
     result = optimize.least_squares(
