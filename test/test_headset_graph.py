@@ -364,13 +364,17 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
     gaze_port = free_port(socket.SOCK_DGRAM)
     with display_session(tmp_path, [
         ('gaze_bridge', FILES, dict(port=gaze_port)),
-        ('pressure_controller', FILES, dict(calibration_file=str(CONFIG / 'calibrations' / 'sim-wearer.yaml'),
+        # 'still' has no calibration yet (sim-wearer's file is another person's: refused).
+        ('pressure_controller', FILES, dict(calibration_file='',
                                             calibration_dir=str(tmp_path / 'cal'), calibration_steps=3,
                                             calibration_dwell_s=0.4, calibration_rest_s=0.3,
                                             calibration_window_s=0.1, wearer='still'))],
             '--uplink', f'127.0.0.1:{gaze_port}', '--rate', '30') as (graph, harness), \
             Probe(graph.domain_id) as probe:
         states = probe.subscribe(String, interface.CALIBRATION_STATE, qos.LATCHED_QOS)
+        # The latched idle state first: a probe matched only after the calibration began would
+        # see 'apply' as its first state (seen on a loaded machine).
+        wait_until(lambda: states, 30.0, what='the latched calibration_state')
         wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 30.0,
                    interval=0.5, what='start_calibration accepted')
         wait_until(lambda: any(m['text'].startswith('Hold still: left, step 3') for m in harness.messages('prompt')),
