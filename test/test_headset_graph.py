@@ -22,7 +22,7 @@ from fabric_guidance.core.geometry import azimuth_deg, elevation_deg, ray_direct
 from fabric_guidance.nodes import qos
 from headset_harness import DelayProxy, Harness, build_harness, pose_line, unity_euler_quat
 from fabric_guidance.paths import node_parameters
-from rosgraph import CONFIG, Graph, Probe, free_port, wait_until
+from rosgraph import Graph, Probe, free_port, wait_until
 
 pytestmark = pytest.mark.graph
 FILES = ('params/guidance.yaml',)

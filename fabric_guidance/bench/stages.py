@@ -20,7 +20,6 @@ from __future__ import annotations
 import threading
 import time
 
-from ..graph.process_graph import wait_until
 
 BRIDGE, CONTROLLER, PLC_OUTPUT = 'gaze_bridge: gaze stream', 'pressure_controller: guidance', 'plc_output: PLC output'
 STATUSES = (BRIDGE, CONTROLLER, PLC_OUTPUT)
@@ -69,6 +68,7 @@ class StageCounters:
         a node that sent none within timeout_s is missing from it."""
         t = time.monotonic() + SETTLE_S
         try:
+            from ..graph.process_graph import wait_until   # here: `bench --help` loads no graph code
             wait_until(lambda: all(self._latest.get(n, (0.0,))[0] > t for n in STATUSES), timeout_s,
                        interval=0.05, what='a status from every package node')
         except AssertionError:   # the account names the stage without counters
