@@ -125,16 +125,17 @@ class Bridge:
         samples published before the probe matched are lost to it); then settle."""
         wait_until(lambda: udp_socket(self.port) is not None, STARTUP_DEADLINE_S, what=f'UDP port {self.port} bound')
         deadline = time.monotonic() + STARTUP_DEADLINE_S
-        while not self.gaze:
+        while not (self.gaze and self.head):   # both topics matched: each has had a pose through
             assert time.monotonic() < deadline, f'no sample through gaze_bridge within {STARTUP_DEADLINE_S} s'
             self.send(self.sample(tag=-1.0))
             try:
-                wait_until(lambda: self.gaze, 0.5, what='the sample')
+                wait_until(lambda: self.gaze and self.head, 0.5, what='the sample')
             except AssertionError:
                 pass
         c = self.settle(poses=False)
-        # Poses published before the probe matched never reach it; from here on all do.
-        self._base = (int(c['published']), len(self.gaze))
+        # Poses published before the probe matched never reach it; from here on all do. Each topic
+        # has its own count: the probe can match head_pose after gaze (one fewer pose there).
+        self._base = (int(c['published']), len(self.gaze), len(self.head))
 
     def settle(self, poses: bool = True) -> dict:
         """Wait until the node has counted every datagram sent (and, with poses, the probe holds
@@ -146,7 +147,7 @@ class Bridge:
         if poses:
             published = int(c['published']) - self._base[0]
             wait_until(lambda: len(self.gaze) - self._base[1] >= published and
-                       len(self.head) - self._base[1] >= published,
+                       len(self.head) - self._base[2] >= published,
                        SETTLE_DEADLINE_S, what=f'{published} poses on {GAZE} and {HEAD_POSE}')
         return c
 
