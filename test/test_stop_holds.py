@@ -346,6 +346,11 @@ def test_a_second_controller_in_the_namespace_is_noticed_and_the_first_vents(tmp
         graph.start('pressure_controller', ('params/guidance.yaml', 'params/sim.yaml'), as_name='second_controller',
                     calibration_file='config/calibrations/sim-wearer.yaml', stall_timeout_s=0.0,
                     start_enabled=False)
+        # Its start and discovery (seconds on a loaded machine) are not the first's to answer for:
+        # the noticing is timed once the graph lists both.
+        wait_until(lambda: sum(name == 'pressure_controller' for name, _ in
+                               probe.node.get_node_names_and_namespaces()) >= 2,
+                   60.0, what='the second pressure_controller on the graph')
         t0 = time.monotonic()
         since = len(diagnostics)
         # Until the first notices, the registers flicker between its pressure and the second's
@@ -356,8 +361,7 @@ def test_a_second_controller_in_the_namespace_is_noticed_and_the_first_vents(tmp
         wait_until(lambda: any('joined' in st.message for m in diagnostics[since:] for st in m.status
                                if st.name.startswith('pressure_controller')), 5.0,
                    what="the first's diagnostics naming the second")
-        print(f'\nsecond controller started -> first disarmed, registers at 0 in {noticed_s:.2f} s '
-              '(process start and graph discovery included)')
+        print(f'\nsecond controller on the graph -> first disarmed, registers at 0 in {noticed_s:.2f} s')
 
 
 def test_a_target_from_another_node_never_moves_the_suit(tmp_path):
