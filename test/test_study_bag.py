@@ -122,6 +122,10 @@ def test_a_session_killed_with_sigkill_leaves_a_closed_bag(tmp_path):
             child.kill()
 
 
+def _seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
 def test_a_simulated_sessions_blocks_each_have_their_bag(tmp_path):
     import yaml
     from fabric_guidance.live_study.session_graph import run_study_session
@@ -145,10 +149,8 @@ def test_a_simulated_sessions_blocks_each_have_their_bag(tmp_path):
         assert presses and set(presses) == {'headset'}, bag
         # The gaze the press was judged on: samples up to the press's capture stamp (how many
         # depends on when the wearer pressed: 89 once, in a block whose press came early).
-        def seconds(stamp):
-            return stamp.sec + stamp.nanosec * 1e-9
-        press_s = seconds(msgs['/confirm'][0].stamp)
-        assert sum(seconds(g.header.stamp) <= press_s for g in msgs['/gaze']) >= 10, bag
+        press_s = _seconds(msgs['/confirm'][0].stamp)
+        assert sum(_seconds(g.header.stamp) <= press_s for g in msgs['/gaze']) >= 10, bag
         lines = [m.data for m in msgs['/study_display']]
         assert 'done sequence' in lines and 'done block' in lines, lines
     assert 'done session' in [m.data for m in read_bag(bags[-1])['/study_display']]
