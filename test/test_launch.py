@@ -584,7 +584,19 @@ def _short_accuracy_study(out, domain_id):
         wait_until(lambda: op.has_gaze() and op.controller_condition, STUDY_DEADLINE_S,
                    what='gaze and the controller on the launched graph')
         op.trial_gate(False)
-        op.enable(True)     # the test is the operator: it arms the controller once (the session never does)
+        # The test is the operator: it arms the controller once (the session never does), once the
+        # launch has activated it (a node still unconfigured refuses enable: a person waits too).
+        from fabric_guidance.live_study.operator import OperatorError
+
+        def armed():
+            try:
+                op.enable(True)
+                return True
+            except OperatorError as exc:
+                if 'activate it first' not in str(exc):
+                    raise
+                return False
+        wait_until(armed, STUDY_DEADLINE_S, interval=0.2, what='the launched controller active and armed')
 
         def set_condition(cond):
             op.set_condition(cond, extra_nodes=('wearer_sim',))
