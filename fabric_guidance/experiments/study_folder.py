@@ -57,15 +57,10 @@ class StudyData:
 
 def check_description(root: Path) -> dict:
     path = root / DESCRIPTION
-    try:
-        description = json.loads(path.read_text(encoding='utf-8'))
-    except FileNotFoundError:
-        raise StudyFolderError(f'{root}: not a study folder (no {DESCRIPTION}) and not a table') from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise StudyFolderError(f'{path}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
+    description = _read_json(path, f'{root}: not a study folder (no {DESCRIPTION}) and not a table')
     key, version = FORMAT
-    if not isinstance(description, dict) or description.get(key) != version:
-        found = description.get(key) if isinstance(description, dict) else None
+    if description.get(key) != version:
+        found = description.get(key)
         raise StudyFolderError(f'{path}: study format version {found!r}, this fabric_guidance reads version {version}')
     return description
 
@@ -97,11 +92,12 @@ def read_lines(path: Path) -> tuple[list[str], list[tuple[int, dict]]]:
     return header, rows
 
 
-def _read_json(path: Path) -> dict:
+def _read_json(path: Path, missing: str = '') -> dict:
+    """A JSON object; StudyFolderError naming the file (`missing`: the line when it is absent)."""
     try:
         data = json.loads(path.read_text(encoding='utf-8'))
     except FileNotFoundError:
-        raise StudyFolderError(f'{path}: missing: which blocks finished is recorded there') from None
+        raise StudyFolderError(missing or f'{path}: missing: which blocks finished is recorded there') from None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise StudyFolderError(f'{path}: cannot read: {getattr(exc, "strerror", None) or exc}') from None
     if not isinstance(data, dict):

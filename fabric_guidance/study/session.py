@@ -277,11 +277,7 @@ class Session:
         if self._phase not in ('rest', 'target', 'front'):
             step.refused = f'pause: nothing to pause (phase {self._phase})'
             return step
-        if self._trial is not None:
-            self._abandon(t, 'repeated', step)
-        else:
-            step.actions.append(Action('vent', t))
-        step.actions.append(Action('prompt', t, text='Paused: please wait'))
+        self._halt(t, 'repeated', step)
         self._phase, self._rest_end = 'paused', None
         return step
 
@@ -335,6 +331,15 @@ class Session:
         self._next_trial(t, step)
         return step
 
+    def _halt(self, t: float, status: str, step: Step) -> None:
+        """Pause or hold: the running trial ends recorded `status` (vented with it), or the suit
+        vents; the wearer is asked to wait."""
+        if self._trial is not None:
+            self._abandon(t, status, step)
+        else:
+            step.actions.append(Action('vent', t))
+        step.actions.append(Action('prompt', t, text='Paused: please wait'))
+
     def disarmed(self, t: float, why: str) -> Step:
         """The operator's arm dropped (an outside vent, a controller restart, a lost controller):
         the running trial ends now, recorded 'vented', and the session holds until arm()."""
@@ -342,11 +347,7 @@ class Session:
         if self._phase in ('idle', 'held', 'stopped', 'done'):
             self._hold = why if self._phase == 'held' else self._hold
             return step
-        if self._trial is not None:
-            self._abandon(t, 'vented', step)
-        else:
-            step.actions.append(Action('vent', t))
-        step.actions.append(Action('prompt', t, text='Paused: please wait'))
+        self._halt(t, 'vented', step)
         self._phase, self._rest_end, self._hold = 'held', None, why
         self._last_result = f'held: {why}'
         return step
