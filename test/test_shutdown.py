@@ -1,14 +1,17 @@
-"""A node's process ends in bounded time once it has vented, whatever its teardown does.
+"""A node's process ends in bounded time once it has vented, whatever its teardown does, and
+however many stop signals arrive.
 
 plc_output once stayed up after logging its vent until `ros2 launch` killed it;
 nodes/spin.run() bounds the teardown after safe_shutdown(). Here a node's safe_shutdown()
 leaves a non-daemon thread behind that never ends, which would hold the interpreter's exit
 forever: the process must still exit 0 after its vent.
 """
+import contextlib
 import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -54,6 +57,53 @@ def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
             proc.kill()
             proc.wait()
     assert 'vented' in out.read_text()
+    assert proc.returncode == 0, out.read_text()
+
+
+BUSY_START = textwrap.dedent('''
+    import time
+    from rclpy.node import Node
+    from fabric_guidance.nodes.spin import run
+
+    class SlowStart(Node):
+        def __init__(self):
+            super().__init__('slow_start')
+            print('ready', flush=True)
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:   # a start-up in Python bytecode (imports, a configure)
+                pass
+
+        def safe_shutdown(self):
+            print('vented', flush=True)
+
+    raise SystemExit(run(SlowStart))
+''')
+
+
+def test_a_storm_of_stop_signals_in_the_start_up_still_ends_in_a_vent(tmp_path):
+    """SIGINT and SIGTERM back to back, as a parent's death, a launch's escalation and a second
+    Ctrl-C deliver them: the handler runs inside itself. A handler that takes a lock (it set a
+    threading.Event) deadlocked there and the process hung for good, never venting."""
+    import os
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
+    out = tmp_path / 'out.txt'
+    with open(out, 'w') as f:
+        proc = subprocess.Popen([sys.executable, '-c', BUSY_START], stdout=f, stderr=subprocess.STDOUT, env=env)
+    try:
+        wait_until(lambda: 'ready' in out.read_text(), EXIT_DEADLINE_S, what='the node up')
+        sent, end = 0, time.monotonic() + 2.0
+        while proc.poll() is None and time.monotonic() < end:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGTERM if sent % 2 else signal.SIGINT)
+            sent += 1
+            time.sleep(0.0002)
+        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S,
+                   what=f'the process exiting after {sent} stop signals')
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert 'vented' in out.read_text(), out.read_text()
     assert proc.returncode == 0, out.read_text()
 
 

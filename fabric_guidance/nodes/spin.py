@@ -60,6 +60,20 @@ def make_executor(kind: str = DEFAULT_EXECUTOR):
     return SingleThreadedExecutor()
 
 
+class StopRequest:
+    """The SIGINT / SIGTERM handler: a plain attribute, no lock. A second signal can arrive while
+    the handler runs (Ctrl-C twice, a launch's SIGINT then SIGTERM, the parent-death SIGINT beside
+    a graph's SIGTERM) and Python runs its handler inside the first one: a handler that takes a
+    lock, as threading.Event.set does, then waits for itself, and the node never vents (seen: a
+    controller hung so in its start-up, listed on the graph for minutes after its test)."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        self.requested = True
+
+
 def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, executor: str = DEFAULT_EXECUTOR) -> int:
     """Spin a node until SIGINT or SIGTERM, then call its `safe_shutdown()` (vent) while the
     ROS context is still up so that it can still publish or write, and exit 0.
@@ -78,13 +92,9 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
     except Exception as exc:  # a bad command line or parameters file: no context, no node yet
         print(f'[fabric_guidance] cannot start: {" ".join(str(exc).split())[:300]}', flush=True)
         return 1
-    stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = StopRequest()
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     node = None
     code = 0
     try:
@@ -98,7 +108,7 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
         gc.freeze()
         spinner = make_executor(executor)
         spinner.add_node(node)
-        while not stop.is_set() and rclpy.ok():
+        while not stop.requested and rclpy.ok():
             spinner.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:
         pass
