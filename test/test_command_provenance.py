@@ -30,15 +30,16 @@ from fabric_guidance.bag.recorder_status import recorded_counts
 from fabric_guidance.interface import CLOCK, CLOCK_KIND, PRESSURE_COMMAND, qos_profile
 from fabric_guidance.nodes.qos import COMMAND_QOS
 from rosgraph import Probe, wait_until
-from test_node_plc import COMMAND_DEADLINE_S, LAYOUT, N, OUTPUT_STATUS, POLL_S, TOLERANCE_KPA, Rig, record_vent
+from test_node_plc import (COMMAND_DEADLINE_S, COMMAND_TIMEOUT_S, LAYOUT, N, OUTPUT_STATUS, POLL_S, TOLERANCE_KPA, Rig,
+                           record_vent)
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
 #: What the foreign publishers send: well below p_max, far from 0.
 FOREIGN_KPA = 150.0
 #: Registers are read this long after the last foreign message was published (every POLL_S):
-#: several write cycles and more than command_timeout_s, so a written command would show.
-HOLD_S = 1.5
+#: several write cycles and more than the rig's command_timeout_s, so a written command would show.
+HOLD_S = COMMAND_TIMEOUT_S + 1.0
 #: A publisher matched with plc_output (discovery on a loaded 2-core machine).
 MATCH_DEADLINE_S = 15.0
 #: plc_output's diagnostics report the refusals (one period and slack).
@@ -47,8 +48,8 @@ REFUSAL_REPORTED_S = 3.0
 RECORD_DEADLINE_S = 20.0
 #: The mock's watchdog in the freeze test: longer than the test, so that only plc_output vents.
 LONG_WATCHDOG_S = 60.0
-#: The freeze: longer than command_timeout_s (0.5 s), so every command published is stale at SIGCONT.
-FREEZE_S = 1.2
+#: The freeze: longer than the rig's command_timeout_s, so every command published is stale at SIGCONT.
+FREEZE_S = COMMAND_TIMEOUT_S + 0.7
 #: SIGCONT of plc_output -> registers at 0 (its first write cycle, a loaded machine).
 THAW_VENT_DEADLINE_S = 0.5
 

@@ -49,7 +49,10 @@ CHANNELS = ChannelMap.load(CONFIG / 'hardware/channel_map.yaml').channels
 #: Every command names its channels, in the configured order (plc_output refuses other orders).
 LAYOUT = named_layout(CHANNELS)
 P_MAX_KPA = min(OUTPUT['p_max_kpa'], REGISTER_MAP.p_max_kpa)
-COMMAND_TIMEOUT_S = OUTPUT['command_timeout_s']
+#: plc_output's command timeout in these rigs [s]: twice the configured one. The rig's controller
+#: is a timer thread of the loaded test process; a stall of it over the configured 0.5 s vented a
+#: rising command mid-test ("stale command" in plc_output's log), which is the node right.
+COMMAND_TIMEOUT_S = 2 * OUTPUT['command_timeout_s']
 WATCHDOG_S = MOCK['watchdog_s']
 RECONNECT_MAX_S = OUTPUT['reconnect_max_s']
 DIAGNOSTICS_PERIOD_S = OUTPUT['diagnostics_period_s']
@@ -115,7 +118,7 @@ class Rig:
         self.port = port or free_port()   # the mock's; plc_output's may be overridden (a proxy)
         self.graph = Graph(log_dir)
         self.mock_overrides = {'port': self.port, **(mock or {})}
-        self.output_overrides = {'plc_port': self.port, **(output or {})}
+        self.output_overrides = {'plc_port': self.port, 'command_timeout_s': COMMAND_TIMEOUT_S, **(output or {})}
         self.start_mock()
         self.graph.start('plc_output', PARAMS_FILES, **self.output_overrides)
         print(f'graph logs: {self.graph.log_dir}')
