@@ -221,8 +221,14 @@ def test_a_command_stamped_in_the_future_is_not_taken_for_fresh(rig):
     script = str(Path(__file__).with_name('stamped_publisher.py'))
 
     def publish(*prefix):
+        # A session of its own: faketime runs the publisher as its child, and killing faketime
+        # alone left the publisher sending into later tests' graphs for its 60 s.
         return subprocess.Popen([*prefix, sys.executable, script, str(r.graph.domain_id), str(GUIDED_KPA), '60'],
-                                env=dict(r.graph.env, PYTHONPATH=os.pathsep.join(sys.path)))
+                                env=dict(r.graph.env, PYTHONPATH=os.pathsep.join(sys.path)), start_new_session=True)
+
+    def end(proc):
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
     ahead = publish('faketime', '-f', '+5s')
     try:
         # Heard (found invalid, or written: the old behaviour, age 0), then watched.
@@ -231,12 +237,10 @@ def test_a_command_stamped_in_the_future_is_not_taken_for_fresh(rig):
         hold_zero(r, 'commands stamped 5 s in the future')
         assert 's in the future by its source timestamp' in status_with(r, 'in the future').message
     finally:
-        ahead.kill()
-        ahead.wait()
+        end(ahead)
     # The control: the same publisher on the host's clock is written.
     honest = publish()
     try:
         r.wait_registers(np.full(N, GUIDED_KPA), STARTUP_DEADLINE_S, 'the same command, stamped now')
     finally:
-        honest.kill()
-        honest.wait()
+        end(honest)
