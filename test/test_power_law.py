@@ -1,4 +1,5 @@
-"""The power law of Eq. 1, its inverse and the Levenberg-Marquardt fit of Algorithm 1."""
+"""The power law of Eq. 1, its inverse and the least-squares fit of Algorithm 1 (bounded trust region;
+the paper names Levenberg-Marquardt: docs/calibration.md)."""
 import math
 
 import numpy as np

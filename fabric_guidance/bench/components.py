@@ -68,7 +68,7 @@ def gaze_parse_us(n: int) -> dict:
 
 
 def fit_ms(n: int) -> dict:
-    """One calibration fit: 10 points (Algorithm 1's), Levenberg-Marquardt on P = a*theta^b + c."""
+    """One calibration fit: 10 points (Algorithm 1's), the least-squares fit of P = a*theta^b + c."""
     cal = Calibration.load(config_path('calibrations/sim-wearer.yaml'))
     points = []
     rng = np.random.default_rng(1)

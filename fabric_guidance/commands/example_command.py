@@ -41,7 +41,7 @@ def run_worked_example(out_dir: Path, stream=sys.stdout) -> int:
     say()
     wearer = SimulatedWearer(DEMO_WEARER, tau_s=0.4)
     say('1. Calibration (Algorithm 1): 10 pressure steps per direction up to '
-        f'{PAPER_P_MAX:g} kPa, Levenberg-Marquardt fit of P = a*theta^b + c')
+        f'{PAPER_P_MAX:g} kPa, least-squares fit of P = a*theta^b + c')
     cal = calibrate(wearer, 'demo-wearer', dwell_s=2.0, rest_s=2.0, record_window_s=0.3)
     say(f'   {"direction":<9} {"true a     b      c":<22} {"fitted a   b      c":<22} '
         f'{"RMSE kPa":>8} {"R^2":>7} {"max|dP| 0-60deg":>15}')

@@ -2,7 +2,7 @@
 ROS messages (the nodes, the simulation, the bench and the tests all run on it).
 
 geometry               frames (Unity -> REP 103) and the horizontal/vertical target angles
-power_law              P = a*theta^b + c, its inverse, the Levenberg-Marquardt fit (Algorithm 1)
+power_law              P = a*theta^b + c, its inverse, the least-squares fit (Algorithm 1)
 feedback               the gaze-error feedback law (Eq. 5), per direction and for all four
 channels               direction pressures onto named suit/arm channels in a configured order
 calibration            Algorithm 1 as a state machine, and the calibration file

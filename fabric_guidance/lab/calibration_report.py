@@ -1,7 +1,7 @@
 """The fit report of a wearer's calibration: a text file a person can read and one PNG.
 
 For each direction (left, right, down, up) Algorithm 1 measured n (pressure, angle) points and
-fitted P = a * theta^b + c by Levenberg-Marquardt. The report shows, per direction:
+fitted P = a * theta^b + c by least squares (core/power_law.py). The report shows, per direction:
 
 - text (<wearer>-fit.txt): the coefficients with their standard errors, the number of
   points, RMSE and R^2 of the fit, the fitted pressure at 10, 20 and 30 deg with its 95 %

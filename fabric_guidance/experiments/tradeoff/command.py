@@ -21,7 +21,7 @@ writes for each knob value the accuracy and the time it costs, with their spread
                         control step, so the rate scales the law's effective gain per second
                         (G x rate); the grid stops at the scene's 60 Hz gaze rate, which the
                         scene files do not let the control rate exceed.
-  fit_tolerance         the Levenberg-Marquardt fit's xtol = ftol (core.power_law.fit_power_law,
+  fit_tolerance         the calibration fit's xtol = ftol (core.power_law.fit_power_law,
                         CalibrationProcedure's fit_tolerance). The points Algorithm 1 recorded
                         for each wearer at the scene's settings are refitted at each tolerance:
                         the fitted law's angle error (against the true law, and against the

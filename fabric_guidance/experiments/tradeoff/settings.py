@@ -71,7 +71,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
     Knob('rate_threshold_dps', 'rate threshold of the feedback law (deg/s)', 'threshold', 'deg/s',
          (3.0, 7.0, _THRESHOLD, 30.0, 60.0, 120.0), (3.0, _THRESHOLD, 60.0), _THRESHOLD, 'core default',
          lambda v, acc: 0 < v <= 1000, BOTH, 'controller.rate_threshold_dps'),
-    Knob('fit_tolerance', 'fit tolerance (LM xtol = ftol)', 'tol', '-',
+    Knob('fit_tolerance', 'fit tolerance (xtol = ftol)', 'tol', '-',
          (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12), (1e-2, 1e-6, 1e-10), 1e-10, 'core default',
          lambda v, acc: 1e-15 < v < 1, FIT),
 )
