@@ -32,13 +32,27 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt(f'signal {signum}')
 
 
+def interrupted(prog: str, exc: KeyboardInterrupt, after: str = '') -> int:
+    """One line for a command that Ctrl-C or SIGTERM stopped, and the shell's 130. By the time
+    the exception reaches here it has come through the command's `finally` blocks: its graph is
+    stopped (each node vents on its way out) and its temporary folders removed. `after`: what the
+    command leaves behind or how to go on."""
+    how = 'SIGTERM' if str(exc) == f'signal {int(signal.SIGTERM)}' else 'Ctrl-C'
+    print(f'{prog}: stopped ({how})' + (f': {after}' if after else ''), file=sys.stderr, flush=True)
+    return 130
+
+
 def main(prog: str, doc: str | None, configure: Configure,
          run: Callable[[argparse.Namespace], int], argv: Sequence[str] | None = None) -> int:
     """The module run on its own (`python -m ...`): the same options, no subcommand."""
     stop_on_sigterm()
     parser = argparse.ArgumentParser(prog=prog, description=doc,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    return run(configure(parser).parse_args(argv))
+    args = configure(parser).parse_args(argv)
+    try:
+        return run(args)
+    except KeyboardInterrupt as exc:
+        return interrupted(prog, exc, getattr(sys.modules.get(run.__module__), 'ON_STOP', ''))
 
 
 def printer(stream: TextIO) -> Callable[..., None]:

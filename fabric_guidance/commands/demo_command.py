@@ -12,6 +12,8 @@ from .. import subcommand
 
 PROG = 'fabric-guidance demo'
 HELP = 'run the simulated ROS graph for a short guided session and report it'
+#: The line after Ctrl-C (subcommand.interrupted): the demo's `finally` has stopped the graph.
+ON_STOP = 'the simulated graph is stopped (each node vented on its way out), its temporary logs removed'
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -30,6 +30,8 @@ import sys
 from .. import subcommand
 
 PROG = 'fabric-guidance replay'
+#: The line after Ctrl-C (subcommand.interrupted), the usual end of a --loop replay.
+ON_STOP = 'the replay is stopped; nothing more is republished'
 HELP = ('replay a recorded session: offline through the controller, or republished with /clock '
         'for the graph')
 
@@ -89,8 +91,6 @@ def run(args, stream=sys.stdout) -> int:
     try:
         n = play(args.bag, args.topics or REPLAYED_INPUTS, args.rate, args.loop, args.loops, args.wait, say,
                  namespace=args.namespace)
-    except KeyboardInterrupt:
-        return 0
     except (ValueError, LiveGraphError) as exc:
         say(f'fabric-guidance replay: {exc}')
         return 2

@@ -41,6 +41,10 @@ from ..atomic import write_text
 from ..study.plan import PRESS_SOURCES, parse_press_sources
 
 PROG = 'fabric-guidance study'
+#: The line after Ctrl-C (subcommand.interrupted): the session's `finally` blocks have closed its
+#: trial gate (--participant) or stopped its simulated graph (--simulated) and closed its files.
+ON_STOP = 'the session is stopped; the trials that ended are in the study folder, and the same command resumes it'
+
 HELP = "run the paper's study session through the graph (--simulated: a scene's wearers as participants)"
 SCENES = {'speed': 'paper-speed', 'accuracy': 'paper-accuracy'}
 

@@ -1,0 +1,115 @@
+"""Ctrl-C or SIGTERM to a command that runs a graph: one line saying what stopped and what is
+left, exit 130, no traceback, and nothing of the graph left behind (its nodes, its temporary
+logs). The clean-up itself is the commands' `finally` blocks; this is what the person sees."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import re
+import signal
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from rosgraph import fresh_domain_id, wait_until
+
+pytestmark = pytest.mark.graph   # the commands start process graphs
+
+#: A cold start of the graph on a loaded 2-core machine, to its first guided target.
+STARTED_S = 90.0
+#: Signal -> the command's exit, its graph stopped (each node vents within its bounded teardown).
+EXIT_S = 60.0
+
+
+class Command:
+    """A `fabric-guidance` command in a process of its own, its output gathered line by line."""
+
+    def __init__(self, *argv: str):
+        env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), PYTHONUNBUFFERED='1')
+        # SIGINT at its default, as in a terminal: a child of a shell's background job ignores it.
+        self.proc = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.commands.cli', *argv],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip('\n'))
+
+    def text(self) -> str:
+        return '\n'.join(self.lines)
+
+    def stop(self, sig: int) -> int:
+        self.proc.send_signal(sig)
+        wait_until(lambda: self.proc.poll() is not None, EXIT_S, what=f'the command to exit after signal {sig}')
+        self._reader.join(5.0)
+        return self.proc.returncode
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def _node_processes(parent: int) -> list[int]:
+    """Processes a graph of `parent` started (nodes/parent.py names the graph's pid in each)."""
+    found = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / 'cmdline').read_bytes()
+        except OSError:
+            continue
+        if b'fabric_guidance.nodes.' in cmdline and f'pid={parent}'.encode() in _graph_of(entry):
+            found.append(int(entry.name))
+    return found
+
+
+def _graph_of(entry: Path) -> bytes:
+    """The FABRIC_GUIDANCE_GRAPH token of a process (the graph's pid leads it), as 'pid=<pid>'."""
+    try:
+        env = (entry / 'environ').read_bytes().split(b'\0')
+    except OSError:
+        return b''
+    for var in env:
+        if var.startswith(b'FABRIC_GUIDANCE_GRAPH='):
+            return b'pid=' + var.split(b'=', 1)[1].split(b'-', 1)[0]
+    return b''
+
+
+@pytest.mark.parametrize('sig, named', [(signal.SIGINT, 'Ctrl-C'), (signal.SIGTERM, 'SIGTERM')])
+def test_a_stopped_demo_says_so_in_one_line_and_leaves_nothing_running(sig, named):
+    cmd = Command('demo')
+    try:
+        wait_until(lambda: re.search(r'target \S+ active', cmd.text()), STARTED_S, what='the demo guiding')
+        logs = re.search(r'logs in (\S+) \(removed at the end', cmd.text())
+        assert logs, cmd.text()
+        code = cmd.stop(sig)
+    finally:
+        cmd.close()
+    out = cmd.text()
+    assert 'Traceback' not in out, out
+    assert code == 130, out
+    assert cmd.lines[-1].startswith(f'fabric-guidance demo: stopped ({named}): the simulated graph is stopped'), out
+    assert not Path(logs.group(1)).exists(), f'{logs.group(1)} left behind'
+    assert not _node_processes(cmd.proc.pid), 'nodes of the demo still running'
+
+
+def test_a_stopped_simulated_study_says_how_to_go_on(tmp_path):
+    cmd = Command('study', '--simulated', '--participants', '1', '--out', str(tmp_path / 'study'))
+    try:
+        wait_until(lambda: 'recording block 1' in cmd.text(), STARTED_S, what='the first block under way')
+        code = cmd.stop(signal.SIGINT)
+    finally:
+        cmd.close()
+    out = cmd.text()
+    assert 'Traceback' not in out, out
+    assert code == 130, out
+    assert cmd.lines[-1] == ('fabric-guidance study: stopped (Ctrl-C): the session is stopped; the trials that '
+                             'ended are in the study folder, and the same command resumes it'), out
+    assert not _node_processes(cmd.proc.pid), 'nodes of the study still running'
