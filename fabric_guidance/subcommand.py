@@ -55,6 +55,22 @@ def main(prog: str, doc: str | None, configure: Configure,
         return interrupted(prog, exc, getattr(sys.modules.get(run.__module__), 'ON_STOP', ''))
 
 
+def writable_folder(path) -> str:
+    """'' when `path` is a folder this process can write into (made if missing), else why not,
+    checked before a command starts anything that would write there at its end."""
+    import os
+    import tempfile
+    from pathlib import Path
+    folder = Path(path).expanduser()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        return f'cannot write into {folder}: {exc.strerror or exc}'
+    return '' if os.access(folder, os.W_OK) else f'cannot write into {folder}'
+
+
 def printer(stream: TextIO) -> Callable[..., None]:
     """say(line=''): print a line to stream and flush it, so progress shows as it happens."""
     def say(line: str = '') -> None:

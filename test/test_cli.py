@@ -103,3 +103,16 @@ def test_sigterm_ends_a_command_as_ctrl_c_does_so_its_clean_up_runs():
     finally:
         signal.signal(signal.SIGTERM, before)
     assert cleaned == [True]
+
+
+@pytest.mark.parametrize('option', ['--record', '--out'])
+def test_a_demo_folder_it_cannot_write_is_refused_before_any_graph_starts(tmp_path, capsys, option):
+    """`demo --record /proc/nope` started the graph, waited 45 s for a recorder that could not
+    write, and ended in a traceback."""
+    from fabric_guidance.commands.cli import main
+    not_a_folder = tmp_path / 'a-file'
+    not_a_folder.write_text('')
+    for folder in ('/proc/nope', str(not_a_folder)):
+        assert main(['demo', option, folder]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f'fabric-guidance demo: error: {option}: cannot write into {folder}')

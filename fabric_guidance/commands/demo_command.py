@@ -38,6 +38,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    for option, folder in (('--out', args.out), ('--record', args.record)):
+        why = subcommand.writable_folder(folder) if folder is not None else ''
+        if why:   # refused before a graph starts, not after the session it would have kept
+            subcommand.error(PROG, f'{option}: {why}')
+            return 2
     from .demo import run_demo  # imports rclpy: only for the graph
     return run_demo(args.condition, args.timeout, args.out, scene=args.scene,
                     record_dir=args.record)
