@@ -298,6 +298,9 @@ class Calibration:
             entry = dirs[d]
             if not isinstance(entry, Mapping):
                 fail(f'directions.{d}', 'must be a mapping with a, b, c')
+            for k in ('a', 'b', 'c'):
+                if k not in entry:
+                    fail(f'directions.{d}.{k}', 'is missing')
             try:
                 law = PowerLaw(entry.get('a'), entry.get('b'), entry.get('c'))
             except (TypeError, ValueError) as exc:

@@ -274,6 +274,8 @@ def _fail(source: str, where: str, reason: str):
 def _number(value, source: str, where: str, meta: Mapping) -> float | int | None:
     if value is None and meta.get('optional'):
         return None
+    if value is None:
+        _fail(source, where, 'is missing')
     unit = meta.get('unit', '')
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         _fail(source, where, f'must be a number ({unit}), got {excerpt(value)}')
@@ -337,6 +339,9 @@ def _parse_protocol(data, source: str):
 
 def _parse_law(data, source: str, where: str) -> PowerLaw:
     data = _mapping(data, source, where)
+    missing = [k for k in ('a', 'b', 'c') if k not in data]
+    if missing:
+        _fail(source, f'{where}.{missing[0]}', 'is missing')
     if set(data) != {'a', 'b', 'c'}:
         _fail(source, where, f'must give exactly a, b and c, got {excerpt(sorted(data))}')
     vals = [_number(data[k], source, f'{where}.{k}', {'unit': u}) for k, u in
@@ -356,6 +361,8 @@ def _parse_population(data, source: str) -> PopulationSpec:
     subjects = _number(data.get('subjects', 15), source, 'population.subjects',
                        {'unit': 'wearers', 'lo': 1, 'hi': 10000, 'integer': True})
     laws_data = data.get('laws')
+    if laws_data is None:
+        _fail(source, 'population.laws', f'is missing (a law a, b, c for each of {list(DIRECTIONS)})')
     if not isinstance(laws_data, Mapping) or set(laws_data) != set(DIRECTIONS):
         got = sorted(laws_data) if isinstance(laws_data, Mapping) else laws_data
         _fail(source, 'population.laws', f'must give a law for exactly {list(DIRECTIONS)}, got {excerpt(got)}')
@@ -468,6 +475,8 @@ def scene_from_dict(data, source: str = '<scene>') -> Scene:
     if not isinstance(name, str) or not name:
         _fail(source, 'name', 'must be a non-empty string')
     seed = data.get('seed')
+    if seed is None:
+        _fail(source, 'seed', "is missing (a whole number >= 0: the run's random seed)")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         _fail(source, 'seed', f'must be a whole number >= 0, got {excerpt(seed)}')
     protocol = _parse_protocol(data.get('protocol'), source)
