@@ -116,3 +116,19 @@ def test_a_demo_folder_it_cannot_write_is_refused_before_any_graph_starts(tmp_pa
         assert main(['demo', option, folder]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f'fabric-guidance demo: error: {option}: cannot write into {folder}')
+
+
+@pytest.mark.parametrize('options, line', [
+    (['--trial-s', '-5'], '--trial-s: must be > 0 s, got -5.0'),
+    (['--participants', '0'], "--participants: 1..15 (the scene's wearers), got 0"),
+    (['--trials', '0'], '--trials: must be >= 1 trials, got 0'),
+    (['--protocol', 'accuracy', '--trial-s', '5'], '--trial-s: only the speed protocol has timed trials'),
+])
+def test_a_study_option_out_of_range_is_refused_before_the_folder_is_made(tmp_path, capsys, options, line):
+    """The folder used to be made first: the corrected command was then refused as 'started with
+    another scene or other options', and the message named the scene file's field."""
+    from fabric_guidance.commands.cli import main
+    out = tmp_path / 'study'
+    assert main(['study', '--simulated', '--out', str(out), *options]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f'fabric-guidance study: error: {line}']
+    assert not out.exists()

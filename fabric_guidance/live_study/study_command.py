@@ -79,11 +79,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return subcommand.add(subparsers, 'study', HELP, __doc__, configure, run)
 
 
-def study_scene(args, out: Path):
-    """The scene of the study's task with --seed/--trials/--trial-s applied, written to
-    out/scene-<protocol>.yaml (wearer_sim reads the scene from that file; one per task, so that
-    one study folder holds both tasks) and loaded from there."""
-    from ..sim.scene import load_scene, scene_path
+#: The scene fields the options set: an error in one of them names the option.
+OPTION_FIELDS = {'seed': '--seed', 'repetitions': '--trials', 'protocol.trial_s': '--trial-s'}
+
+
+def study_scene_data(args) -> dict:
+    """The scene of the study's task with --seed/--trials/--trial-s applied, checked (an error
+    in a field an option set names the option), before anything is written."""
+    from ..sim.scene import SceneError, scene_from_dict, scene_path
     source = scene_path(args.scene or SCENES[args.protocol])
     data = yaml.safe_load(Path(source).read_text())
     if args.seed is not None:
@@ -94,6 +97,30 @@ def study_scene(args, out: Path):
         if data['protocol'].get('kind') != 'speed':
             raise ValueError('--trial-s: only the speed protocol has timed trials')
         data['protocol']['trial_s'] = float(args.trial_s)
+    try:
+        scene = scene_from_dict(data, source=str(source))
+    except SceneError as exc:
+        option = OPTION_FIELDS.get(exc.field)
+        if option and getattr(args, option[2:].replace('-', '_')) is not None:
+            raise ValueError(f'{option}: {exc.reason}') from None
+        raise
+    if scene.protocol.kind != args.protocol:
+        raise ValueError(f'--scene: {scene.name} is a {scene.protocol.kind} scene, not {args.protocol}')
+    if args.simulated and not 1 <= args.participants <= scene.population.subjects:
+        raise ValueError(f'--participants: 1..{scene.population.subjects} (the scene\'s wearers), '
+                         f'got {args.participants}')
+    if args.simulated and args.latin_square and len(scene.conditions) % 2:
+        raise ValueError(f'--latin-square: a balanced Latin square needs an even number of conditions, '
+                         f'the scene has {len(scene.conditions)}')
+    return data
+
+
+def study_scene(args, out: Path, data: dict | None = None):
+    """The scene of study_scene_data(args), written to out/scene-<protocol>.yaml (wearer_sim
+    reads the scene from that file; one per task, so that one study folder holds both tasks)
+    and loaded from there."""
+    from ..sim.scene import load_scene
+    data = study_scene_data(args) if data is None else data
     written = out / f'scene-{args.protocol}.yaml'
     existing = written.read_text() if written.exists() else None
     text = yaml.safe_dump(data, sort_keys=False)
@@ -101,10 +128,7 @@ def study_scene(args, out: Path):
         raise ValueError(f'{written}: this study folder was started with another scene or other options; '
                          'use a new --out or the same options')
     write_text(written, text)
-    scene = load_scene(written)
-    if scene.protocol.kind != args.protocol:
-        raise ValueError(f'--scene: {scene.name} is a {scene.protocol.kind} scene, not {args.protocol}')
-    return scene
+    return load_scene(written)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,14 +152,9 @@ def run(args: argparse.Namespace) -> int:
         return run_live(args, out, say)
     from ..study.store import Study, StudyError
     try:
+        data = study_scene_data(args)   # every option checked before the folder is made
         Study.open(out)     # a new folder, or a study folder to resume; refused otherwise
-        scene = study_scene(args, out)
-        if args.latin_square and len(scene.conditions) % 2:
-            raise ValueError(f'--latin-square: a balanced Latin square needs an even number of conditions, '
-                             f'the scene has {len(scene.conditions)}')
-        if not 1 <= args.participants <= scene.population.subjects:
-            raise ValueError(f'--participants: 1..{scene.population.subjects} (the scene\'s wearers), '
-                             f'got {args.participants}')
+        scene = study_scene(args, out, data)
     except (StudyError, ValueError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 2
@@ -160,8 +179,9 @@ def run_live(args, out: Path, say) -> int:
         check_participant(args.participant)
         if args.session < 1:
             raise ValueError(f'--session: 1 or more, got {args.session}')
+        data = study_scene_data(args)   # every option checked before the folder is made
         Study.open(out)
-        scene = study_scene(args, out)
+        scene = study_scene(args, out, data)
     except (StudyError, ValueError, OSError) as exc:
         subcommand.error(PROG, exc)
         return 2

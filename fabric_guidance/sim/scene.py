@@ -46,7 +46,12 @@ from .effects import REGISTRY, Effect, EffectError, make_effect
 
 
 class SceneError(ValueError):
-    """A scene that cannot be used, naming the file, the field and the reason."""
+    """A scene that cannot be used, naming the file, the field and the reason (also kept apart,
+    so that a command can name its own option for a field it set)."""
+
+    def __init__(self, message: str, field: str = '', reason: str = ''):
+        super().__init__(message)
+        self.field, self.reason = field, reason
 
 
 # ---------------------------------------------------------------------------------------------
@@ -268,7 +273,7 @@ class Scene:
 
 
 def _fail(source: str, where: str, reason: str):
-    raise SceneError(f'{source}: field "{where}" {reason}')
+    raise SceneError(f'{source}: field "{where}" {reason}', where, reason)
 
 
 def _number(value, source: str, where: str, meta: Mapping) -> float | int | None:
