@@ -152,11 +152,18 @@ def test_cli_writes_the_report_and_refuses_a_bad_file_with_its_reason(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.yaml', 'sim-wearer-fit.png', 'sim-wearer-fit.txt']
 
 
-def test_the_shipped_example_is_reported_into_the_current_folder_not_config(tmp_path, monkeypatch, capsys):
+def test_the_shipped_example_is_reported_into_the_users_folder_not_config_nor_the_current_one(
+        tmp_path, monkeypatch, capsys):
+    """Into the current folder it was: from the checkout's root, untracked files in the checkout."""
     before = sorted(p.name for p in SIM_CAL.parent.iterdir())
-    monkeypatch.chdir(tmp_path)
+    cwd, home = tmp_path / 'cwd', tmp_path / 'home'
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    monkeypatch.setenv('HOME', str(home))
     assert main([str(SIM_CAL)]) == 0
-    assert (tmp_path / 'sim-wearer-fit.png').is_file() and (tmp_path / 'sim-wearer-fit.txt').is_file()
+    reports = home / '.fabric_guidance' / 'reports'
+    assert (reports / 'sim-wearer-fit.png').is_file() and (reports / 'sim-wearer-fit.txt').is_file()
+    assert not any(cwd.iterdir())
     assert sorted(p.name for p in SIM_CAL.parent.iterdir()) == before
     # A file of the user's own is still reported beside itself.
     own = tmp_path / 'own' / 'sim-wearer.yaml'

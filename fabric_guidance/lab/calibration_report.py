@@ -243,8 +243,8 @@ def write_fit_report(calibration: Calibration, folder: str | Path, source: str |
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('file', type=Path, metavar='FILE.yaml', help="a wearer's calibration file")
     parser.add_argument('--out', type=Path, default=None, metavar='DIR',
-                        help="folder for <wearer>-fit.txt and <wearer>-fit.png (default: the file's folder; the "
-                             "current folder for a file of the package's config/)")
+                        help="folder for <wearer>-fit.txt and <wearer>-fit.png (default: the file's folder; "
+                             "~/.fabric_guidance/reports for a file of the package's config/)")
     return parser
 
 
@@ -253,12 +253,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return subcommand.add(subparsers, 'calibration-report', HELP, __doc__, configure, run)
 
 
+#: Where the report of a file the package ships goes by default: beside the package's other
+#: per-user folders (~/.fabric_guidance/calibrations, state), never into the checkout.
+SHIPPED_REPORTS = Path('~/.fabric_guidance/reports')
+
+
 def default_out(file: Path) -> Path:
-    """The file's folder; the current folder for a file the package ships (config/), so that
-    reading the shipped example writes nothing into the checkout or the install."""
+    """The file's folder; ~/.fabric_guidance/reports for a file the package ships (config/), so
+    that reading the shipped example writes nothing into the checkout (the current folder, from
+    the checkout's root, did) or the install."""
     shipped = share_dir().resolve() / 'config'
     if file.resolve().is_relative_to(shipped):
-        return Path.cwd()
+        return SHIPPED_REPORTS.expanduser()
     return file.parent
 
 
