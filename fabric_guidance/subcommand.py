@@ -71,6 +71,21 @@ def writable_folder(path) -> str:
     return '' if os.access(folder, os.W_OK) else f'cannot write into {folder}'
 
 
+def results_folder(out, overwrite: bool) -> str:
+    """'' when `out` may take a run's results (missing, empty, or `overwrite`), else why not:
+    another run's files would mix with this one's, with nothing to tell them apart."""
+    from pathlib import Path
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        return f'--out {out} is a file, not a folder'
+    names = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    if names and not overwrite:
+        shown = ', '.join(names[:3]) + (', ...' if len(names) > 3 else '')
+        return (f'--out {out} already holds {len(names)} file(s) ({shown}): another run\'s results would mix '
+                'with this one\'s; give a new --out, or --overwrite to write over them')
+    return ''
+
+
 def printer(stream: TextIO) -> Callable[..., None]:
     """say(line=''): print a line to stream and flush it, so progress shows as it happens."""
     def say(line: str = '') -> None:

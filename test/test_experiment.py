@@ -34,3 +34,17 @@ def test_bad_arguments_are_refused(tmp_path, capsys):
     assert main(['experiment', '--scene', 'no-such-scene', '--out', str(tmp_path)]) == 2
     assert main(['experiment', '--protocol', 'speed', '--subjects', '99', '--out', str(tmp_path)]) == 2
     assert "population" in capsys.readouterr().err
+
+
+def test_an_out_folder_with_another_runs_files_is_refused_unless_overwrite(tmp_path, capsys):
+    """experiment wrote over a results folder in silence, mixing the files of two runs."""
+    (tmp_path / 'trials.csv').write_text('an earlier run\n')
+    assert main(['experiment', '--protocol', 'speed', '--subjects', '1', '--out', str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f'fabric-guidance experiment: error: --out {tmp_path} already holds 1 file(s) (trials.csv): '
+                   "another run's results would mix with this one's; give a new --out, or --overwrite to write "
+                   'over them']
+    assert (tmp_path / 'trials.csv').read_text() == 'an earlier run\n'
+    # --overwrite passes the folder check: the next check (the population) is what refuses here.
+    assert main(['experiment', '--protocol', 'speed', '--subjects', '99', '--out', str(tmp_path), '--overwrite']) == 2
+    assert 'already holds' not in (err := capsys.readouterr().err) and 'population' in err

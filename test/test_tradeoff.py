@@ -258,6 +258,15 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
         run_sweep(settings)
 
 
+def test_an_out_folder_with_another_runs_files_is_refused_unless_overwrite(tmp_path, capsys):
+    (tmp_path / 'tradeoff.csv').write_text('an earlier run\n')
+    assert tradeoff.main(['--out', str(tmp_path), '--quick']) == 2
+    assert 'already holds 1 file(s) (tradeoff.csv)' in capsys.readouterr().err
+    assert (tmp_path / 'tradeoff.csv').read_text() == 'an earlier run\n'
+    assert tradeoff.main(['--out', str(tmp_path), '--overwrite', '--knobs', 'gain,nonsense']) == 2
+    assert 'already holds' not in (err := capsys.readouterr().err) and 'nonsense' in err
+
+
 def test_add_parser_wires_a_subcommand(tmp_path):
     import argparse
     parser = argparse.ArgumentParser()

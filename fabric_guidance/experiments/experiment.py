@@ -19,6 +19,7 @@ from pathlib import Path
 import sys
 import time
 
+from .. import subcommand
 from ..atomic import write_csv, write_text
 
 #: Per protocol: (measure column, label, higher is better), the paper's figures.
@@ -39,6 +40,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--subjects', type=int, default=None, help='the first N wearers of the scene (default: all)')
     p.add_argument('--workers', type=int, default=min(2, os.cpu_count() or 1), help='processes (default: 2)')
     p.add_argument('--out', type=Path, required=True, help='folder for the CSV, statistics, plots and report')
+    p.add_argument('--overwrite', action='store_true',
+                   help='write into an --out that holds files already (refused otherwise: two runs would mix)')
     return p
 
 
@@ -62,6 +65,10 @@ def run(args) -> int:
               f'(the scene\'s population)', file=sys.stderr)
         return 2
     out: Path = args.out
+    why = subcommand.results_folder(out, args.overwrite)
+    if why:
+        print(f'fabric-guidance experiment: error: {why}', file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
     n = args.subjects or scene.population.subjects
     print(f'scene {scene.name}: {scene.protocol.kind} protocol, {n} wearers, conditions {list(scene.conditions)}, '

@@ -79,6 +79,8 @@ HELP = 'sweep the knobs that buy accuracy with time; table, plots and a reading 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('--out', type=Path, required=True, metavar='DIR', help='folder for the table, report and plots')
+    parser.add_argument('--overwrite', action='store_true',
+                        help='write into an --out that holds files already (refused otherwise: two runs would mix)')
     parser.add_argument('--subjects', type=int, default=None,
                         help=f'wearers per scene (default {Settings.subjects}; --quick 2)')
     parser.add_argument('--repetitions', type=int, default=None,
@@ -133,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
     """0 done, 2 bad arguments, scene or variants file, 1 an output could not be written."""
     variants = None
     try:
+        why = subcommand.results_folder(args.out, args.overwrite)
+        if why:
+            raise ValueError(why)
         settings = settings_from_args(args)
         acc, spd = base_scenes(settings)
         check_settings(settings, acc)
