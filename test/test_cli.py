@@ -132,3 +132,12 @@ def test_a_study_option_out_of_range_is_refused_before_the_folder_is_made(tmp_pa
     assert main(['study', '--simulated', '--out', str(out), *options]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f'fabric-guidance study: error: {line}']
     assert not out.exists()
+
+
+def test_a_long_study_says_how_long_before_it_starts():
+    """`study --simulated --out DIR` alone is the paper's whole study (about 1.5 h): said first."""
+    from fabric_guidance.live_study.session_graph import duration_line
+    from fabric_guidance.study.plan import StudyDesign
+    line = duration_line(StudyDesign('speed'), 5)
+    assert line.startswith('study: at least 86 min: 5 participants x 4 conditions x 6 trials x (40 s + 3 s rest)')
+    assert 'at most about 60 min: 200 trials of up to 15 s' in duration_line(StudyDesign('accuracy'), 5)

@@ -112,4 +112,7 @@ def test_a_stopped_simulated_study_says_how_to_go_on(tmp_path):
     assert code == 130, out
     assert cmd.lines[-1] == ('fabric-guidance study: stopped (Ctrl-C): the session is stopped; the trials that '
                              'ended are in the study folder, and the same command resumes it'), out
+    # how long it would have taken, said before the first block began
+    said = [i for i, line in enumerate(cmd.lines) if line.startswith('study: at least 17 min: 1 participants')]
+    assert said and said[0] < next(i for i, line in enumerate(cmd.lines) if 'recording block 1' in line), out
     assert not _node_processes(cmd.proc.pid), 'nodes of the study still running'

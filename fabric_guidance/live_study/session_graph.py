@@ -90,6 +90,23 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
         part.close()
 
 
+def duration_line(design, participants: int) -> str:
+    """What the run will take, said before it starts (the default study is about 1.5 h): the
+    clock's part of it (a speed trial's length, every rest), the rest depends on the wearers."""
+    n = participants * len(design.conditions) * design.trials
+    if design.protocol == 'speed':
+        minutes = n * (design.trial_s + design.rest_s) / 60.0
+        what = (f'at least {minutes:.0f} min: {participants} participants x {len(design.conditions)} conditions x '
+                f'{design.trials} trials x ({design.trial_s:g} s + {design.rest_s:g} s rest)')
+    else:
+        minutes = n * (design.timeout_s + design.rest_s) / 60.0
+        what = (f'at most about {minutes:.0f} min: {n} trials of up to {design.timeout_s:g} s, '
+                f'{design.rest_s:g} s rest each')
+    options = '--participants, --trials and --trial-s' if design.protocol == 'speed' else '--participants and --trials'
+    return (f'study: {what}, and a calibration per participant; {options} shorten it, Ctrl-C stops it and the '
+            'same command resumes')
+
+
 def run_study_session(scene, participants: int, out: Path, say: Callable[[str], None],
                       order: str = 'random', press_sources: tuple[str, ...] = ()) -> int:
     design = design_of(scene, order, press_sources)
@@ -98,6 +115,7 @@ def run_study_session(scene, participants: int, out: Path, say: Callable[[str], 
               'vented_checked': 0}
     say(f'study: {design.protocol} protocol on the simulated graph, scene {scene.name} (seed {scene.seed}), '
         f'{participants} participants, {design.trials} trials per condition; folder {out}')
+    say(duration_line(design, participants))
     for subject in range(participants):
         run_participant(scene, design, study, subject, say, timing)
     write_text(out / f'timing-{design.protocol}.json', json.dumps(timing, indent=1))
