@@ -19,13 +19,23 @@ def test_speed_experiment_writes_everything(tmp_path, capsys):
     assert (tmp_path / 'identified.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     report = (tmp_path / 'report.md').read_text()
     assert 'identified.png' in report and 'Friedman' in report
+    # `analyze` reads the trials table the experiment wrote, to the same statistics.
+    assert main(['analyze', str(tmp_path / 'trials.csv')]) == 0
+    friedman = [line for line in stats.splitlines() if line.startswith('Friedman chi-square')]
+    assert friedman and friedman[0] in capsys.readouterr().out
 
 
-def test_accuracy_experiment_analyses_both_errors(tmp_path):
+def test_accuracy_experiment_analyses_both_errors(tmp_path, capsys):
     assert main(['experiment', '--protocol', 'accuracy', '--subjects', '3', '--out', str(tmp_path)]) == 0
     stats = (tmp_path / 'statistics.txt').read_text()
     assert 'horizontal error' in stats and 'vertical error' in stats
     assert (tmp_path / 'h_error_deg.png').exists() and (tmp_path / 'v_error_deg.png').exists()
+    capsys.readouterr()
+    assert main(['analyze', str(tmp_path / 'trials.csv')]) == 0
+    out = capsys.readouterr().out
+    friedman = [line for line in stats.splitlines() if line.startswith('Friedman chi-square')]
+    assert len(friedman) == 2 and all(line in out for line in friedman)
+    assert 'accuracy: h_error_deg' in out and 'accuracy: v_error_deg' in out
 
 
 def test_bad_arguments_are_refused(tmp_path, capsys):

@@ -1,5 +1,7 @@
-"""`fabric-guidance analyze TABLE.csv|STUDY_DIR`: the paper's statistics on a subjects x
-conditions table, or on the one a live study's folder gives.
+"""`fabric-guidance analyze TABLE.csv|TRIALS.csv|STUDY_DIR`: the paper's statistics on a subjects x
+conditions table, on the trials table `experiment` writes (trials.csv: each wearer's mean per
+condition of each measure of its protocol, as the experiment analysed it), or on the table a
+live study's folder gives.
 
 Prints the Friedman test, the Dunn-Bonferroni pairwise comparisons and the best condition per
 subject; --plot writes the violin plot, --report a markdown report (embedding the plot if any).
@@ -36,14 +38,14 @@ STUDY_TRIALS = TRIALS_GLOB
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    parser.add_argument('table', type=Path, metavar='TABLE.csv|STUDY_DIR',
+    parser.add_argument('table', type=Path, metavar='TABLE.csv|TRIALS.csv|STUDY_DIR',
                         help='header row, then one row per subject: subject id, one value per condition; '
-                             'or a study folder')
+                             "or experiment's trials.csv; or a study folder")
     parser.add_argument('--lower-is-better', action='store_true',
                         help='smaller values are better (errors, times): decides the best condition per subject '
                              '(a study folder: known per measure)')
     parser.add_argument('--protocol', choices=sorted(MEASURES),
-                        help='a study folder: the task to analyse (default: the only one it holds)')
+                        help='a study folder or trials table: the task to analyse (default: the only one it holds)')
     parser.add_argument('--measure', help='a study folder: only this measure (a column of its trials)')
     parser.add_argument('--table', dest='table_out', type=Path, metavar='OUT.csv',
                         help="a study folder: write the subjects x conditions table (one per measure: "
@@ -101,6 +103,14 @@ def run_study(args: argparse.Namespace) -> int:
         return 2
     for note in data.notes:
         print(f'left out: {note}')
+    return write_analyses(args, protocol, measures, analyses, {m: notes for m, (_, notes) in tables.items()},
+                          f'Statistics of the study {args.table.name} ({protocol})')
+
+
+def write_analyses(args: argparse.Namespace, protocol: str, measures: dict, analyses: dict, notes: dict,
+                   title: str) -> int:
+    """Print each measure's analysis (a one-participant table without tests), and write the
+    --table, --plot and --report outputs; 1 when an output cannot be written."""
     several = len(analyses) > 1
 
     def out(path: Path | None, measure: str) -> Path | None:
@@ -109,7 +119,7 @@ def run_study(args: argparse.Namespace) -> int:
     plots = {}
     try:
         for measure, analysis in analyses.items():
-            for note in tables[measure][1]:
+            for note in notes.get(measure, ()):
                 print(f'left out: {note}')
             direction = 'higher' if measures[measure] else 'lower'
             if isinstance(analysis, pd.DataFrame):
@@ -132,7 +142,7 @@ def run_study(args: argparse.Namespace) -> int:
                                              significance=analysis)
                 print(f'plot: {plots[measure]}')
             print()
-        write_report(args, f'Statistics of the study {args.table.name} ({protocol})',
+        write_report(args, title,
                      {f'{m} (per participant)': a for m, a in analyses.items() if not isinstance(a, pd.DataFrame)},
                      {f'{m} (per participant)': p for m, p in plots.items()})
     except OSError as exc:
@@ -147,9 +157,47 @@ def one_participant(frame: pd.DataFrame, measure: str, conditions) -> pd.DataFra
     return table.reindex(columns=list(conditions))
 
 
+#: The columns that make a CSV the trials table `experiment` writes (one row per trial).
+TRIALS_COLUMNS = {'protocol', 'subject', 'condition', 'repetition'}
+
+
+def is_trials_table(path: Path) -> bool:
+    try:
+        return TRIALS_COLUMNS <= set(pd.read_csv(path, nrows=0).columns)
+    except (ValueError, OSError, pd.errors.ParserError):
+        return False    # load_table says what is wrong with it
+
+
+def run_trials(args: argparse.Namespace) -> int:
+    """analyze TRIALS.csv, the trials table `experiment` writes: each wearer's mean per condition
+    of each measure of the protocol, as the experiment analysed them."""
+    try:
+        frame = pd.read_csv(args.table)
+        protocols = sorted(str(p) for p in frame['protocol'].dropna().unique())
+        protocol = args.protocol or (protocols[0] if len(protocols) == 1 else None)
+        if protocol not in MEASURES:
+            raise ValueError(f'{args.table}: holds the protocols {", ".join(protocols) or "none"}: '
+                             'give --protocol')
+        frame = frame[frame['protocol'] == protocol].copy()
+        if 'wearer' in frame:
+            frame['subject'] = frame['wearer']   # as experiment names them (S01, ...)
+        measures = dict(MEASURES[protocol])
+        if args.measure is not None:
+            if args.measure not in frame.columns:
+                raise ValueError(f'--measure: {args.measure} is not a column of {args.table}')
+            measures = {args.measure: HIGHER_IS_BETTER.get(args.measure, not args.lower_is_better)}
+        analyses = {m: analyze_trials(frame, m, higher_is_better=h) for m, h in measures.items()}
+    except (ValueError, KeyError) as exc:
+        subcommand.error(PROG, f'{args.table}: {exc}' if str(args.table) not in str(exc) else exc)
+        return 2
+    return write_analyses(args, protocol, measures, analyses, {}, f'Statistics of {args.table.name} ({protocol})')
+
+
 def run(args: argparse.Namespace) -> int:
     if args.table.is_dir():
         return run_study(args)
+    if is_trials_table(args.table):
+        return run_trials(args)
     try:
         table = load_table(args.table)
         analysis = analyze_blocks(table, higher_is_better=not args.lower_is_better)
