@@ -141,3 +141,13 @@ def test_a_long_study_says_how_long_before_it_starts():
     line = duration_line(StudyDesign('speed'), 5)
     assert line.startswith('study: at least 86 min: 5 participants x 4 conditions x 6 trials x (40 s + 3 s rest)')
     assert 'at most about 60 min: 200 trials of up to 15 s' in duration_line(StudyDesign('accuracy'), 5)
+
+
+def test_a_misspelt_scene_name_lists_the_valid_ones_in_one_line(capsys):
+    from fabric_guidance.commands.cli import main
+    from fabric_guidance.sim.scene import scene_names
+    assert main(['demo', '--scene', 'paper-sped']) == 2
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
+    # nothing ran: no "(the logs above were ...)" line after it
+    assert len(lines) == 1 and "no scene named 'paper-sped' (did you mean paper-speed?)" in lines[0], lines
+    assert all(name in lines[0] for name in scene_names()) and 'paper-fitted-speed' in scene_names()

@@ -170,20 +170,23 @@ def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Pat
     # logs is printed first (the tail of each node that logged an error), and --out keeps them.
     with tempfile.TemporaryDirectory(prefix='fabric-guidance-demo-') as tmp:
         code = _run_demo(condition, timeout_s, Path(tmp), say, scene, record_dir, kept=False)
-        if code != 0:
-            say_log_tails(Path(tmp), say)
+        if code != 0 and say_log_tails(Path(tmp), say):
             say('(the logs above were in a temporary folder, now removed; `--out DIR` keeps them)')
         return code
 
 
-def say_log_tails(log_dir: Path, say, lines: int = 8) -> None:
-    """The last lines of every node log in log_dir that reports an error or a traceback."""
+def say_log_tails(log_dir: Path, say, lines: int = 8) -> int:
+    """The last lines of every node log in log_dir that reports an error or a traceback; how
+    many logs were shown."""
+    shown = 0
     for log in sorted(log_dir.glob('*.log')):
         text = log.read_text(errors='replace')
         if 'Traceback' in text or '[ERROR]' in text:
             say(f'--- {log.name} (last {lines} lines)')
             for line in text.splitlines()[-lines:]:
                 say(f'    {line}')
+            shown += 1
+    return shown
 
 
 def _run_demo(condition, timeout_s, log_dir: Path, say, scene, record_dir, kept: bool) -> int:

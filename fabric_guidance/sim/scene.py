@@ -522,11 +522,22 @@ def scene_path(name_or_path: str | Path) -> Path:
     return config_path(f'scenes/{name_or_path}.yaml')
 
 
+def scene_names() -> list[str]:
+    """The names of the package's scenes (config/scenes/*.yaml)."""
+    return sorted(p.stem for p in config_path('scenes').glob('*.yaml'))
+
+
 def load_scene(name_or_path: str | Path) -> Scene:
     """Read and validate a scene file (a path, or the name of one of config/scenes/)."""
     path = scene_path(name_or_path)
+    if not path.exists() and path.parent == config_path('scenes') and Path(name_or_path).name == str(name_or_path):
+        import difflib
+        names = scene_names()
+        close = difflib.get_close_matches(str(name_or_path), names, n=1)
+        raise SceneError(f'no scene named {str(name_or_path)!r}' + (f' (did you mean {close[0]}?)' if close else '')
+                         + f'; the package\'s scenes: {", ".join(names)}; or give the path of a .yaml file')
     return scene_from_dict(load_yaml(path, 'scene', SceneError), source=str(path))
 
 
 __all__ = ['AccuracyProtocol', 'CalibrationSpec', 'ControllerSpec', 'EffectSpec', 'PROTOCOLS', 'PopulationSpec',
-           'Scene', 'SceneError', 'SpeedProtocol', 'load_scene', 'scene_from_dict', 'scene_path']
+           'Scene', 'SceneError', 'SpeedProtocol', 'load_scene', 'scene_from_dict', 'scene_names', 'scene_path']
