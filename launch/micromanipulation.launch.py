@@ -33,7 +33,7 @@ from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_
                                                   require_own_plc)
 
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
-PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'condition', 'bind_address', 'gaze_port',
+PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'wearer', 'condition', 'study', 'bind_address', 'gaze_port',
                 'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart', 'keystore',
                 'discovery_server', 'start_discovery_server', 'respawn', 'respawn_delay')
 

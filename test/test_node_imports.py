@@ -42,3 +42,23 @@ def test_a_lab_node_imports_no_heavy_package(module):
     assert not heavy, f'fabric_guidance.nodes.{module} loads {heavy} (see this module\'s doc)'
     for needed in NEEDS.get(module, ()):
         assert needed in loaded, needed   # the test sees real imports, not an empty list
+
+
+def test_micromanipulation_launch_passes_every_argument_of_the_lab_launch():
+    """docs/launch.md says micromanipulation.launch.py takes every argument of guidance.launch.py;
+    it declared neither `wearer` nor `study`. Read from the files' text (no launch package here)."""
+    import ast
+    guidance = ast.parse((ROOT / 'launch' / 'guidance.launch.py').read_text())
+    micro = ast.parse((ROOT / 'launch' / 'micromanipulation.launch.py').read_text())
+
+    def assigned(tree, name):
+        return next(node.value for node in tree.body if isinstance(node, ast.Assign)
+                    and any(isinstance(t, ast.Name) and t.id == name for t in node.targets))
+    table = {key.value for key in assigned(guidance, 'ARGUMENTS').keys}
+    declared = {node.args[0].value for node in ast.walk(guidance) if isinstance(node, ast.Call)
+                and getattr(node.func, 'id', '') == 'DeclareLaunchArgument' and isinstance(node.args[0], ast.Constant)}
+    helpers = {'study', 'respawn', 'respawn_delay', 'keystore', 'discovery_server', 'start_discovery_server'}
+    passed = set(ast.literal_eval(assigned(micro, 'PASS_THROUGH')))
+    own = {'params_file', 'extra_params_file'}   # micromanipulation's base_params_file, its own file
+    assert {'wearer', 'condition', 'plc_host'} <= table
+    assert (table | declared | helpers) - own <= passed, sorted((table | declared | helpers) - own - passed)
