@@ -153,14 +153,14 @@ class SessionWatch:
 
 
 def run_demo(condition: int | None = None, timeout_s: float = 45.0, out_dir: Path | None = None,
-             stream=sys.stdout, scene: str | Path | None = None, record_dir: str | Path | None = None) -> int:
+             stream=None, scene: str | Path | None = None, record_dir: str | Path | None = None) -> int:
     """Run the demo; 0 when every target was found, nothing exceeded the limit and the suit
     was vented at the end. condition: 1-3 (default 1); with `scene` (a scene file or the name
     of one of config/scenes/) 1-4, default the scene's first condition. With `record_dir`, the
     session is recorded by nodes/bag_recorder.py as a bag <record_dir>/session_<UTC time>_c<n>
-    (rosbag2, MCAP) for `fabric-guidance replay`."""
+    (rosbag2, MCAP) for `fabric-guidance replay`. `stream`: default, sys.stdout as it is now."""
     def say(line: str = '') -> None:
-        print(line, file=stream, flush=True)
+        print(line, file=sys.stdout if stream is None else stream, flush=True)
 
     if out_dir is not None:
         log_dir = Path(out_dir)
