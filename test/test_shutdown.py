@@ -120,8 +120,16 @@ def test_the_mock_plc_waits_for_its_client_to_vent_and_leave():
     with MockPlcServer(regmap, watchdog_s=60.0) as server:  # no watchdog vent meanwhile
         client = PlcClient(regmap, '127.0.0.1', server.port)
         assert client.connect()
-        client.write_pressures([100.0] * len(regmap))
-        wait_until(lambda: server.commands_kpa().any(), 5.0, what='the command written')
+        beats = iter(range(1, 1000))
+
+        def cycle():
+            # As plc_output's cycle: the command, then a new heartbeat. The PLC zeroes commands at
+            # every scan until a changing heartbeat arms its watchdog; a lone write was seen only
+            # when a read fell between it and the next scan (once, it never was).
+            client.write_pressures([100.0] * len(regmap))
+            client.write_heartbeat(next(beats))
+            return server.watchdog_armed and server.commands_kpa().any()
+        wait_until(cycle, 10.0, what='the command written and kept (the watchdog armed by the heartbeat)')
         assert not server.wait_until_vented(0.3)  # commanding and connected: not vented
 
         def vent_then_leave():
