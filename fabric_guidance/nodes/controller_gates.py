@@ -15,13 +15,17 @@ Every change of either is published on /diagnostics at once (`armed`, `trial_gat
 `started`, the process's start time, so a client tells a restart from a vent).
 
 One controller per namespace: every second the node counts the processes of its name in its
-namespace on the ROS graph. While another is listed, an armed one drops the arm (it vents), enable
-is refused, and both report ERROR: two live controllers would take turns on the same registers,
-and which of them started first does not matter. A respawned process does not see its
-SIGKILLed predecessor (a dead participant announces nothing to a new one; only processes that
-knew it list it for its lease, about 20 s), so a respawn is not refused for it.
+namespace on the ROS graph. One that was alone (for ALONE_CHECKS checks, or when the operator
+armed it) and sees another join drops the arm (it vents)
+and reports ERROR for as long as the other is listed; one that started beside another reports
+ERROR too (the graph lists a SIGKILLed process for about 20 s, so a respawn sees its dead
+predecessor: it is not refused, it starts disarmed in the lab launch anyway).
 """
 from __future__ import annotations
+
+
+#: Checks (one a second) alone in the namespace before a process counts as the first.
+ALONE_CHECKS = 3
 
 
 class Gates:
@@ -37,12 +41,12 @@ class Gates:
             response.success = False
             response.message = f'cannot enable: the node is {self.state_label} (activate it first)'
             return response
-        if request.data and self.others_listed():
-            response.success = False
-            response.message = f'cannot enable: {self.duplicate_text}'
-            return response
         self.enabled = bool(request.data)
         if self.enabled:   # arming starts afresh (and forgets a no-progress stop)
+            if self.listed_alone():
+                # The operator armed this one while it was alone: it is the first, however short
+                # its life so far (a second started within ALONE_CHECKS s was noticed by neither).
+                self.alone_seen = True
             self.vent_controller()
             response.success = True
             response.message = 'armed' + ('' if self.gate_open else
@@ -86,22 +90,34 @@ class Gates:
         self.check_unique()
         self.publish_diagnostics()
 
-    def others_listed(self) -> bool:
-        """Whether the graph lists another process of this node's name in its namespace (and
-        the ERROR text that says so)."""
+    def same_name_count(self) -> int:
+        """Processes of this node's name in its namespace on the graph, this one included."""
         name, ns = self.get_name(), self.get_namespace()
-        n = sum(1 for other, other_ns in self.get_node_names_and_namespaces() if other == name and other_ns == ns)
-        if n > 1:
-            self.duplicate_text = (f'another process named {ns.rstrip("/")}/{name} is listed: this one is '
-                                   'vented and disarmed, and enable is refused, until only one is left')
-        return n > 1
+        return sum(1 for other, other_ns in self.get_node_names_and_namespaces() if other == name and other_ns == ns)
+
+    def listed_alone(self) -> bool:
+        return self.same_name_count() == 1
 
     def check_unique(self) -> None:
-        was, self.duplicate = self.duplicate, self.others_listed()
+        name, ns = self.get_name(), self.get_namespace()
+        n = self.same_name_count()
+        # Alone for ALONE_CHECKS checks in a row: a process that has not discovered an older one
+        # yet does not take itself for the first.
+        self.alone_checks = self.alone_checks + 1 if n == 1 else 0
+        if self.alone_checks >= ALONE_CHECKS:
+            self.alone_seen = True
+        was, self.duplicate = self.duplicate, n > 1
         if not self.duplicate:
             return
-        if self.enabled:
-            self.enabled = False
-            self.vent_all('another process of this name is listed in the namespace')
+        where = f'{ns.rstrip("/")}/{name}'
+        if self.alone_seen:
+            self.duplicate_text = (f'another process named {where} joined: this one vents and stays disarmed (the '
+                                   'operator enables once one of them is gone)')
+            if self.enabled:
+                self.enabled = False
+                self.vent_all('another process of this name joined the namespace')
+        else:
+            self.duplicate_text = (f'another process named {where} is listed (live, or a killed predecessor the '
+                                   'graph still lists for about 20 s)')
         if not was:
             self.get_logger().error(self.duplicate_text)

@@ -146,7 +146,8 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
         self.create_service(Trigger, VENT, self.on_vent)
         self.create_service(SetBool, TRIAL_GATE, self.on_trial_gate)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.duplicate = False   # controller_gates.check_unique
+        self.alone_seen = self.duplicate = False   # controller_gates.check_unique
+        self.alone_checks = 0
         self.duplicate_text = ''
         self.create_timer(1.0, self.on_second, clock=self.steady)
         self.add_on_set_parameters_callback(self.on_set_parameters)
