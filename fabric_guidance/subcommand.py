@@ -48,7 +48,11 @@ def main(prog: str, doc: str | None, configure: Configure,
     stop_on_sigterm()
     parser = argparse.ArgumentParser(prog=prog, description=doc,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    args = configure(parser).parse_args(argv)
+    return run_until_stopped(prog, run, configure(parser).parse_args(argv))
+
+
+def run_until_stopped(prog: str, run: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """run(args); Ctrl-C or SIGTERM: one line (with its module's ON_STOP) and 130, no traceback."""
     try:
         return run(args)
     except KeyboardInterrupt as exc:

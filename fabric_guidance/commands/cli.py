@@ -117,10 +117,7 @@ def _main(argv: list[str]) -> int:
     if unknown:   # a mistyped option of a subcommand: that subcommand's usage, not the top one's
         chosen_parser.error(f'unrecognized arguments: {" ".join(unknown)}')
     subcommand.stop_on_sigterm()
-    try:
-        return args.run(args)
-    except KeyboardInterrupt as exc:   # one line, not a traceback (the clean-up has run)
-        return subcommand.interrupted(f'fabric-guidance {args.command}', exc, getattr(chosen_module, 'ON_STOP', ''))
+    return subcommand.run_until_stopped(f'fabric-guidance {args.command}', args.run, args)
 
 
 if __name__ == '__main__':
