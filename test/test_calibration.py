@@ -201,3 +201,20 @@ def test_wearer_gain_round_trips_and_is_validated(tmp_path, calibration):
         Calibration.load(path)
     with pytest.raises(ValueError):
         calibration.with_gain(float('nan'))
+
+
+@pytest.mark.parametrize('field, value, limit, shown', [
+    ('rmse', 37.54, 37.5, 'RMSE 37.54 kPa > max_rmse_kpa 37.5 kPa'),        # read '37.5 > 37.5' before
+    ('rmse', 37.5000004, 37.5, 'RMSE 37.5000004 kPa > max_rmse_kpa 37.5 kPa'),
+    ('r2', 0.79996, 0.8, 'R^2 0.79996 < min_r2 0.8'),
+    ('rmse', 52.0, 37.5, 'RMSE 52 kPa > max_rmse_kpa 37.5 kPa'),           # no more digits than needed
+])
+def test_a_refusal_never_reads_a_value_equal_to_its_limit(field, value, limit, shown):
+    import dataclasses
+    from fabric_guidance.core.calibration import Acceptance
+    from fabric_guidance.core.power_law import fit_power_law
+    schedule = pressure_schedule(P_MAX, 10)
+    theta = np.asarray(TRUE['left'].theta(schedule, P_MAX))
+    report = dataclasses.replace(fit_power_law(theta, schedule, P_MAX), **{field: value})
+    acceptance = Acceptance(max_rmse_kpa=limit) if field == 'rmse' else Acceptance(min_r2=limit)
+    assert acceptance.refusal(theta, report) == shown

@@ -270,3 +270,23 @@ def test_controller_parameters_record_the_law_and_old_bags_replay_with_the_old_l
     ctl = old.make_controller()
     assert ctl.frame == 'target' and ctl.directions[0].estimator == 'sign'
     assert ctl.stall.timeout_s is None
+
+
+def test_a_first_calibration_refused_still_gets_its_report(tmp_path):
+    """A first-time wearer (no previous calibration) refused on the left: the refused fit's report
+    is written, the directions never reached marked as such (none was written before)."""
+    import dataclasses
+    from fabric_guidance.core.calibration import NOT_MEASURED
+    from fabric_guidance.lab.calibration_report import draw_fit_figure, format_fit_report, write_fit_report
+    proc = run_procedure([0, 0, 0, 0, 0, 0, 0, 10, 20, 30])
+    assert proc.phase == 'failed' and 'min_r2' in proc.error
+    attempt = proc.attempt(None)
+    assert attempt is not None and 'min_r2' in attempt.directions['left'].fit['refused']
+    assert [d for d in ('right', 'down', 'up') if attempt.directions[d].fit.get(NOT_MEASURED)] == ['right', 'down', 'up']
+    text = format_fit_report(attempt)
+    assert 'REFUSED (not used for guidance)' in text
+    assert text.count('not measured: the calibration ended before this direction') == 3
+    titles = [ax.get_title() for ax in draw_fit_figure(attempt).axes if ax.get_title()]
+    assert sum(t.endswith('not measured') for t in titles) == 3 and titles[0].startswith('left'), titles
+    txt, png = write_fit_report(dataclasses.replace(attempt, wearer='w-refused'), tmp_path)
+    assert txt.name == 'w-refused-fit.txt' and png.name == 'w-refused-fit.png' and png.stat().st_size > 0

@@ -124,26 +124,26 @@ class Acceptance:
         t = np.asarray(angles, dtype=float)
         span = float(np.ptp(t)) if t.size else 0.0
         if self.min_span_deg is not None and not span >= self.min_span_deg:
-            return f'angle span {span:.3g} deg < min_span_deg {self.min_span_deg:g} deg'
+            return f'angle span {_past(span, self.min_span_deg)} deg < min_span_deg {self.min_span_deg:g} deg'
         if self.max_reversal_deg is not None and t.size:
             drop = float(np.max(np.maximum.accumulate(t) - t))
             if drop > self.max_reversal_deg:
-                return (f'angles not monotonic: one falls {drop:.3g} deg below an earlier one > '
-                        f'max_reversal_deg {self.max_reversal_deg:g} deg')
+                return (f'angles not monotonic: one falls {_past(drop, self.max_reversal_deg)} deg below an '
+                        f'earlier one > max_reversal_deg {self.max_reversal_deg:g} deg')
         if self.min_r2 is not None and not report.r2 >= self.min_r2:
-            return f'R^2 {report.r2:.3f} < min_r2 {self.min_r2:g}'
+            return f'R^2 {_past(report.r2, self.min_r2)} < min_r2 {self.min_r2:g}'
         if self.max_rmse_kpa is not None and not report.rmse <= self.max_rmse_kpa:
-            return f'RMSE {report.rmse:.3g} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
+            return f'RMSE {_past(report.rmse, self.max_rmse_kpa)} kPa > max_rmse_kpa {self.max_rmse_kpa:g} kPa'
         return self.shape_refusal(t, report)
 
     def shape_refusal(self, angles: np.ndarray, report: FitReport) -> str:
         """The law's shape: exponent, offset, dead zone, and how well the points determine it."""
         law, p, p_max = report.law, np.asarray(report.pressure, dtype=float), report.p_max
         if self.min_b is not None and not law.b >= self.min_b:
-            return (f'exponent b {law.b:.3g} < min_b {self.min_b:g} (the fit sits at or near its lower '
+            return (f'exponent b {_past(law.b, self.min_b)} < min_b {self.min_b:g} (the fit sits at or near its lower '
                     f'bound {FIT_B_MIN:g}: not a power law of these points)')
         if self.max_b is not None and not law.b <= self.max_b:
-            return (f'exponent b {law.b:.3g} > max_b {self.max_b:g} (the fit sits at or near its upper '
+            return (f'exponent b {_past(law.b, self.max_b)} > max_b {self.max_b:g} (the fit sits at or near its upper '
                     f'bound {FIT_B_MAX:g})')
         if not (p.size and math.isfinite(p_max)):
             return ''   # a report without its points: nothing more to check
@@ -178,6 +178,20 @@ class Acceptance:
                 return (f'uncertain: the fitted pressure at a measured angle has a standard error of '
                         f'{se:.3g} kPa > max_se_steps {self.max_se_steps:g} * step {step:.3g} kPa')
         return ''
+
+
+#: The fit key of a direction a failed calibration never reached (CalibrationProcedure.attempt).
+NOT_MEASURED = 'not_measured'
+
+
+def _past(value: float, limit: float) -> str:
+    """value in as few significant digits (3 or more) as read differently from limit as printed:
+    a refusal never reads 'RMSE 37.5 kPa > max_rmse_kpa 37.5 kPa'."""
+    for digits in range(3, 18):
+        text = f'{value:.{digits}g}'
+        if not math.isfinite(value) or float(text) != float(f'{limit:g}'):
+            return text
+    return text
 
 
 #: How far below the first step's pressure the law must command to count as a dead zone, in
@@ -551,8 +565,8 @@ class CalibrationProcedure:
 
     def attempt(self, base: Calibration | None = None) -> Calibration | None:
         """What was measured so far, refused fits included (marked `refused` in their fit), for
-        the fit report of a calibration that failed; directions not fitted come from `base`;
-        None when nothing was fitted or there is no base to fill the rest."""
+        the fit report of a calibration that failed; directions not fitted come from `base`, or
+        are marked NOT_MEASURED (a first calibration); None when nothing was fitted."""
         dirs = dict(base.directions) if base is not None else {}
         for d, report in self.fits.items():
             p, a = self.points[d]
@@ -561,8 +575,10 @@ class CalibrationProcedure:
                 fit['refused'] = self.refused[d]
             dirs[d] = DirectionCalibration(report.law, tuple(map(float, p)),
                                            tuple(map(float, a)), fit)
-        if not self.fits or any(d not in dirs for d in DIRECTIONS):
+        if not self.fits:
             return None
+        for d in DIRECTIONS:      # a placeholder law, never guided with: the report says so
+            dirs.setdefault(d, DirectionCalibration(PowerLaw(1.0, 1.0, 0.0), (), (), {NOT_MEASURED: True}))
         return Calibration(self.wearer, self.p_max, {d: dirs[d] for d in DIRECTIONS})
 
     def result(self, base: Calibration | None = None) -> Calibration:

@@ -33,7 +33,7 @@ import numpy as np
 from .. import subcommand
 from ..atomic import atomic_write, write_text
 from ..paths import share_dir
-from ..core.calibration import Calibration, CalibrationFileError
+from ..core.calibration import NOT_MEASURED, Calibration, CalibrationFileError
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw, law_uncertainty
 from ..core.power_law_fit import BAND_COVERAGE
@@ -126,11 +126,16 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
         f'{"max|res| kPa":>12}',
     ]
     for f in fits:
+        if _not_measured(calibration, f):
+            lines.append(f'{f.direction:<9} not measured: the calibration ended before this direction')
+            continue
         worst = f'{np.max(np.abs(f.residuals)):12.3f}' if f.has_points else f'{"-":>12}'
         rmse = f'{f.rmse:9.3f}' if f.has_points else f'{"-":>9}'
         r2 = f'{f.r2:8.4f}' if f.has_points and math.isfinite(f.r2) else f'{"-":>8}'
         lines.append(f'{f.direction:<9} {f.a:10.4g} {f.b:7.4f} {f.c:8.3f} {f.pressures.size:6d} {rmse} {r2} {worst}')
     for f in fits:
+        if _not_measured(calibration, f):
+            continue
         lines += ['', f'{f.direction} ({MOVEMENT[f.direction]}): P = {f.a:.6g} * theta^{f.b:.6g} + {f.c:.6g}']
         if not f.has_points:
             lines.append('  no points: coefficients given, not fitted from measurements')
@@ -156,6 +161,11 @@ def format_fit_report(calibration: Calibration, source: str | None = None) -> st
     return '\n'.join(lines) + '\n'
 
 
+def _not_measured(calibration: Calibration, f: DirectionFit) -> bool:
+    """A direction a failed first calibration never reached: its law is a placeholder."""
+    return bool(calibration.directions[f.direction].fit.get(NOT_MEASURED))
+
+
 def _reach(f: DirectionFit, p_max: float) -> float:
     """The angle where the curve reaches p_max (THETA_MAX if it never does; 0 below c)."""
     return float(PowerLaw(f.a, f.b, f.c).theta(p_max, p_max))
@@ -172,6 +182,13 @@ def draw_fit_figure(calibration: Calibration):
         inner = GridSpecFromSubplotSpec(2, 1, subplot_spec=outer[i // 2, i % 2], height_ratios=(3, 1), hspace=0.05)
         ax = fig.add_subplot(inner[0])
         ax_res = fig.add_subplot(inner[1], sharex=ax)
+        if _not_measured(calibration, f):
+            ax.set_title(f'{f.direction} ({MOVEMENT[f.direction]}): not measured', fontsize=10)
+            ax.text(0.5, 0.5, 'the calibration ended\nbefore this direction', ha='center', va='center',
+                    transform=ax.transAxes, color='0.4')
+            ax.set_axis_off()
+            ax_res.set_axis_off()
+            continue
         top = max(_reach(f, calibration.p_max), float(np.max(f.angles)) if f.has_points else 0.0, 1.0)
         theta = np.linspace(0.0, top * 1.05, 300)
         curve = f.a * theta ** f.b + f.c
