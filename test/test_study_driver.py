@@ -314,3 +314,37 @@ def test_the_timer_error_is_kept_when_a_gaze_sample_ends_the_trial():
         feeder.join(1.0)
     errors = driver.timing.timer_error_s
     assert len(errors) == 2 and all(0.0 <= e < 0.1 for e in errors), errors
+
+
+def test_a_slow_block_start_shortens_no_rest_and_comes_after_the_last_rows_on_disk():
+    """A block's bag recorder took 1-4 s to start in the rest: the previous trial's row was written
+    after it and the next trial started on a queued sample's time, its rest cut short."""
+    design = StudyDesign('speed', conditions=(1, 3), trials=1, trial_s=0.2, rest_s=0.15)
+    log, said = [], []
+
+    class SlowStore(FakeStore):
+        def record(self, step):
+            log.append(('record', len(step.rows), time.monotonic()))
+
+    def set_condition(c):           # the condition, then a recorder that takes 0.6 s to start
+        log.append(('condition', c, time.monotonic()))
+        time.sleep(0.6)
+        log.append(('ready', c, time.monotonic()))
+    driver = SessionDriver(FakeOperator(log), Session(design, participant_blocks(design, '01', 0)), SlowStore(),
+                           say=lambda line: said.append(line) or log.append(('say', line, time.monotonic())),
+                           set_condition=set_condition)
+    rows = driver.run()
+    assert len(rows) == 2
+    kinds = [k for k, *_ in log]
+    for i, (kind, _c, t_ready) in enumerate(log):
+        if kind == 'ready':
+            opened = next(t for k, on, t in log[i:] if k == 'gate' and on)
+            assert opened >= t_ready + design.rest_s      # the whole rest after the start
+    # the first block's row is on disk and said before the second block's condition is set
+    second = [i for i, (k, c, _t) in enumerate(log) if k == 'condition'][1]
+    assert 'record' in kinds[:second]
+    assert any(k == 'say' and 'trial 1: ok' in str(v) for k, v, _t in log[:second])
+    # and the rows' trial start is the gate's opening, not a time inside the slow start
+    readies = [t for k, _c, t in log if k == 'ready']
+    for row, ready in zip(rows, readies):
+        assert row['trial_start_s'] >= ready + design.rest_s

@@ -24,7 +24,7 @@ import time
 from typing import Callable
 
 from ..core.geometry import azimuth_deg, elevation_deg
-from .operator import Operator, OperatorError
+from .operator import STUDY_TARGET, Operator, OperatorError
 
 #: The loop's sleep between polls [s].
 POLL_S = 0.002
@@ -230,34 +230,51 @@ class SessionDriver:
             self.timing.press_latency_s.append(now - p['stamp'])
             self.timing.press_sources.append(p['source'])
             self.timing.events.append(('press', p['stamp'], now, p['accepted']))
-        for action in step.actions:
-            pending = self.act(action)
-            if action.kind in ('show_target', 'show_front', 'vent'):
-                self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
-                if pending is not None:        # carried out when its answer comes (_check_calls)
-                    self._calls.append((len(self.timing.events) - 1, pending))
+        # A new block's condition (and its bag, whose recorder may take seconds to start) comes
+        # after the finished trial's row is on disk and said; the vent before both.
+        switch = next((i for i, a in enumerate(step.actions) if a.kind == 'set_condition'), len(step.actions))
+        for action in step.actions[:switch]:
+            self._carry_out(action)
+        self._record(step, now)
+        for action in step.actions[switch:]:
+            self._carry_out(action)
+        if switch < len(step.actions):
+            # The rest starts once the graph is in the new condition: its start shortens no rest,
+            # and gaze queued meanwhile cannot start the trial on a stale capture time.
+            self.session.restart_rest(time.monotonic())
+        if step.refused:
+            self.say(f'  refused: {step.refused}')
+        if self.session.phase == 'rest':
+            self.prepare_trial()
+
+    def _carry_out(self, action) -> None:
+        pending = self.act(action)
+        if action.kind in ('show_target', 'show_front', 'vent'):
+            self.timing.events.append((action.kind.replace('show_', ''), action.t, time.monotonic()))
+            if pending is not None:        # carried out when its answer comes (_check_calls)
+                self._calls.append((len(self.timing.events) - 1, pending))
+
+    def _record(self, step, now: float) -> None:
+        """The step's finished trials on disk and on the terminal."""
         for row in step.rows:
             # A speed trial ends at its deadline, whether the tick or a gaze sample captured after
             # it told the session: its timer error is when the driver acted on the end (the vent).
             if row.get('protocol') == 'speed' and row.get('status') == 'ok' and row.get('trial_end_s') is not None:
                 self.timing.timer_error_s.append(now - row['trial_end_s'])
-        if step.rows or step.amended or step.blocks:
-            self.store.record(step)
-            self.rows += step.rows
-            for row in step.rows:
-                self.say(f"  {row['block']} trial {row['repetition'] + 1}: {row['status']}" + (
-                    f", identified {row['identified']} of {row['presented']}" if row.get('identified') is not None
-                    else f", error h {row['h_error_deg']:.1f} v {row['v_error_deg']:.1f} deg"
-                    if row.get('h_error_deg') is not None else ''))
-                if self._ignored:        # once per trial, not per press
-                    self.say(f"  ignored {sum(self._ignored.values())} press(es) from "
-                             f"{', '.join(f'{k} ({n})' for k, n in sorted(self._ignored.items()))}: not a press "
-                             f"source of this session ({', '.join(self.session.design.press_sources)})")
-                    self._ignored.clear()
-        if step.refused:
-            self.say(f'  refused: {step.refused}')
-        if self.session.phase == 'rest':
-            self.prepare_trial()
+        if not (step.rows or step.amended or step.blocks):
+            return
+        self.store.record(step)
+        self.rows += step.rows
+        for row in step.rows:
+            self.say(f"  {row['block']} trial {row['repetition'] + 1}: {row['status']}" + (
+                f", identified {row['identified']} of {row['presented']}" if row.get('identified') is not None
+                else f", error h {row['h_error_deg']:.1f} v {row['v_error_deg']:.1f} deg"
+                if row.get('h_error_deg') is not None else ''))
+            if self._ignored:        # once per trial, not per press
+                self.say(f"  ignored {sum(self._ignored.values())} press(es) from "
+                         f"{', '.join(f'{k} ({n})' for k, n in sorted(self._ignored.items()))}: not a press "
+                         f"source of this session ({', '.join(self.session.design.press_sources)})")
+                self._ignored.clear()
 
     def prepare_trial(self) -> None:
         """before_trial for the session's next trial, once per trial run."""
@@ -290,6 +307,8 @@ class SessionDriver:
                 op.set_parameters('headset_display', draw_targets=visible)
                 self._drawn = visible
             return op.show_target(*action.target, wait=False)
+        elif kind == 'found':        # before show_front: the headset flashes the target it shows
+            op.display(f'found {STUDY_TARGET}')
         elif kind in ('show_front', 'hide'):
             return op.to_front(wait=False)
         elif kind == 'prompt':

@@ -76,6 +76,8 @@ def step_events(step, repetition: int | None, shown: dict, press: tuple | None =
         out.append({'trial_type': 'trial', 'steady_s': start, 'repetition': r.get('repetition'),
                     'duration': (end - start) if end is not None else None, 'value': r.get('status')})
     for a in step.actions:
+        if a.kind == 'found':     # the headset's flash: the press's target_found above says it
+            continue
         kind = ACTION_TYPES.get(a.kind, a.kind)
         e = {'trial_type': kind, 'steady_s': a.t, 'duration': 0.0, 'repetition': repetition}
         if a.kind == 'set_condition':

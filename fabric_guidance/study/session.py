@@ -32,6 +32,7 @@ ACTION_KINDS = (
     'open_gate',       # the trial gate opens (after the rest): the trial starts
     'vent',            # the trial gate closes (suit vented) until the next 'open_gate'
     'show_target',     # target (azimuth, elevation) [deg], visible, target_id, dummy_set
+    'found',           # speed: the accepted press identified the target (the headset's `found` event)
     'show_front',      # speed: the target is back at the front (0, 0)
     'hide',            # no target shown
     'prompt',          # text: what the wearer reads on the headset
@@ -53,6 +54,12 @@ MAX_GAZE_SAMPLES = 2000
 #: frame the press waits for a sample captured after it.
 EARLY_SHARE = 0.75
 FRAME_SAMPLES = 32
+#: A sample captured up to this after a press's stamp was captured at the press [s]:
+#: gaze_bridge maps each datagram's capture time with the clocks read as it handles that
+#: datagram, so a press and a sample of one capture time get stamps microseconds apart, either
+#: way (a press stamped with its frame's capture time was judged on the frame before). Half a
+#: millisecond is half a frame at 1 kHz, a twentieth at 90 Hz.
+SAME_CAPTURE_S = 0.0005
 #: A trial row's status: only 'ok' rows enter the analysis.
 STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted', 'vented')
 
@@ -269,6 +276,12 @@ class Session:
             step.pending = True
         return step
 
+    def restart_rest(self, t: float) -> None:
+        """A rest under way starts again at t: the operator layer's switch to a block's condition
+        (and its recorder) took its time, which must shorten no rest."""
+        if self._phase == 'rest':
+            self._rest_end = t + self.design.rest_s
+
     # -- operator commands -----------------------------------------------------------------
     def pause(self, t: float) -> Step:
         """Vent and hold; a trial running is abandoned (recorded 'repeated') and rerun on resume."""
@@ -466,9 +479,9 @@ class Session:
         return frame is not None and stamp - h[-1].t < EARLY_SHARE * frame
 
     def _sample_at(self, stamp: float) -> GazeSample | None:
-        """The last gaze sample captured at or before stamp."""
+        """The last gaze sample captured at stamp (up to SAME_CAPTURE_S after it) or before it."""
         for s in reversed(self._history):
-            if s.t <= stamp:
+            if s.t <= stamp + SAME_CAPTURE_S:
                 return s
         return None
 
@@ -505,6 +518,7 @@ class Session:
         tr['identified'] += 1
         tr['finds'].append(p.stamp - tr['appeared'])
         self._last_result = f'target {tr["identified"]} found ({out["error_deg"]:.1f} deg)'
+        step.actions.append(Action('found', t, target=tr['target'], target_id='target'))
         step.actions.append(Action('show_front', t, target=(0.0, 0.0), target_id='front', visible=True))
         self._phase, tr['inside_since'] = 'front', None
 
