@@ -68,7 +68,7 @@ def test_the_layout_participants_and_the_sidecar(tmp_path):
     header, rows = read_tsv(st.trials_path)
     assert header == list(COLUMNS) and len(rows) == 8 and {r['status'] for r in rows} == {'ok'}
     side = json.loads(st.sidecar_path.read_text())
-    assert StudyDesign.from_dict(side['Parameters']) == DESIGN
+    assert StudyDesign.from_dict(side['Parameters']).as_dict() == DESIGN.as_dict()
     # every column described at the sidecar's top level (where BIDS tools read it), a unit where there is one
     assert set(COLUMNS) <= set(side) and all(side[c]['Description'] for c in COLUMNS)
     assert side['trial_end_s']['Units'] == 's' and side['h_error_deg']['Units'] == 'deg'
@@ -77,6 +77,27 @@ def test_the_layout_participants_and_the_sidecar(tmp_path):
     assert len(side['BlocksDone']) == 4
     assert not list(root.rglob('.*.tmp'))
     assert {r['wearer'] for r in study_trials(root)} == {'P1', 'P2'}
+
+
+def test_one_folder_holds_both_tasks_each_sidecar_with_its_own_design(tmp_path):
+    """A participant does speed one day and accuracy the next, in the study's one folder."""
+    root = tmp_path / 'study'
+    speed = run_participant(root, 'P1')
+    accuracy_design = StudyDesign('accuracy', seed=7, trials=2, rest_s=0.5, timeout_s=5.0)
+    study = Study.open(root)
+    accuracy = study.session('P1', 2, accuracy_design)
+    session = RecordedSession(Session(accuracy_design, participant_blocks(accuracy_design, 'P1', 0),
+                                      {'gaze_source': 'test'}), accuracy)
+    drive(session, on_step=accuracy.record)
+    for st, task, absent in ((speed, 'speed', 'timeout_s'), (accuracy, 'accuracy', 'dummies')):
+        side = json.loads(st.sidecar_path.read_text())
+        assert side['Parameters']['protocol'] == task and absent not in side['Parameters'], side['Parameters']
+        assert f'task-{task}' in st.trials_path.name and len(read_tsv(st.trials_path)[1]) == 8
+    assert 'trial_s' not in json.loads(accuracy.sidecar_path.read_text())['Parameters']
+    # both reopen as they were (a resumed day), and analyze takes either task from the folder
+    study.session('P1', 1, DESIGN)
+    study.session('P1', 2, accuracy_design)
+    assert {r['protocol'] for r in study_trials(root)} == {'speed', 'accuracy'}
 
 
 def test_bad_input_in_one_line(tmp_path):

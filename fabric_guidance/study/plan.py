@@ -120,7 +120,10 @@ class StudyDesign:
                 object.__setattr__(self, f.name, float(value))
 
     def as_dict(self) -> dict:
-        d = asdict(self)
+        """The task's parameters, without those of the other task (an accuracy sidecar recorded
+        the speed task's 50 dummies and 40 s trials)."""
+        d = {k: v for k, v in asdict(self).items()
+             if not any(k in names for task, names in TASK_ONLY.items() if task != self.protocol)}
         d['conditions'] = list(self.conditions)
         d['press_sources'] = list(self.press_sources)
         return d
@@ -146,6 +149,8 @@ class StudyDesign:
         return replace(self, **changes)
 
 
+#: The parameters of one task only.
+TASK_ONLY = {'speed': ('trial_s', 'acceptance_deg', 'front_dwell_s', 'dummies'), 'accuracy': ('timeout_s',)}
 _POSITIVE = {'trial_s', 'acceptance_deg', 'timeout_s', 'max_press_age_s', 'gaze_gap_s', 'gaze_history_s'}
 
 

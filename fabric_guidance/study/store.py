@@ -306,8 +306,8 @@ class SessionStore:
                              f'recorded, participants.tsv gives {self.participant.index}: the index seeds the '
                              'condition order and the targets; put participants.tsv back as it was written')
         recorded = StudyDesign.from_dict(side.get('Parameters') or {}, str(self.sidecar_path))
-        if recorded != self.design:
-            mine, theirs = self.design.as_dict(), recorded.as_dict()
+        mine, theirs = self.design.as_dict(), recorded.as_dict()   # the task's own parameters
+        if mine != theirs:
             diff = [f'{k} {theirs[k]!r} recorded, {mine[k]!r} given' for k in mine if mine[k] != theirs[k]]
             raise StudyError(f'{self.sidecar_path}: parameters differ from those recorded: {"; ".join(diff)}')
         # Every parameter listed, those added since it was written too (their defaults: equal).
