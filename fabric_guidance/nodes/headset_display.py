@@ -9,7 +9,8 @@ UDP to headset_address:display_port, and nowhere else:
   guides) no target is sent and `active` is empty: an inactive target would give away where
   the next one is (target_selector moves it before it makes it active);
 - event: `next` when a target becomes active, `found` on target_found; each sent three times,
-  EVENT_REPEAT_S apart, with one event_id, since UDP may lose one;
+  EVENT_REPEAT_S apart, with one event_id, since UDP may lose one; each copy gets its seq when
+  it is sent (display_wire.DisplaySender), so no copy is stale behind the messages sent between;
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
   active target, uniform in azimuth within +-dummy_azimuth_deg and in elevation within
   +-dummy_elevation_deg around the front, at the active target's distance;
@@ -31,7 +32,6 @@ Published:  /diagnostics; UDP datagrams to headset_address:display_port
 """
 from __future__ import annotations
 
-from collections import deque
 import ipaddress
 import math
 import socket
@@ -61,8 +61,8 @@ LIVE_NAMESPACE = 'live_targets'
 
 class HeadsetDisplay(Node):
 
-    def __init__(self):
-        super().__init__('headset_display')
+    def __init__(self, **kwargs):   # kwargs: Node's (a test's context, parameter_overrides)
+        super().__init__('headset_display', **kwargs)
         address = declare(self, 'headset_address', '127.0.0.1', "the HoloLens's IP address (the only destination)",
                           read_only=True)
         port = declare(self, 'display_port', 5006, "the headset's downlink UDP port", '-', 1, 65535, read_only=True)
@@ -101,9 +101,7 @@ class HeadsetDisplay(Node):
         self.dummy_positions: list[list[float]] = []
         self.prompt = ('', 0, 0)
         self.phrase = ''
-        self._seq = 0
-        self._event_id = 0
-        self._repeats: deque = deque(maxlen=64)   # (due monotonic, datagram) of events still to repeat
+        self._wire = display_wire.DisplaySender(EVENT_SENDS, EVENT_REPEAT_S)   # seq, event ids, repeats
         self.sent = {kind: 0 for kind in display_wire.KINDS}
         self.send_errors = 0
         self.bytes_sent = 0
@@ -124,9 +122,11 @@ class HeadsetDisplay(Node):
 
     # --- sending --------------------------------------------------------------------------
 
+    def _stamp(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _send(self, kind: str, **fields) -> bytes:
-        data = display_wire.encode(kind, self._seq, self.get_clock().now().nanoseconds * 1e-9, **fields)
-        self._seq = (self._seq + 1) % display_wire.UINT32
+        data = self._wire.encode(kind, self._stamp(), **fields)
         self._send_bytes(kind, data)
         return data
 
@@ -167,21 +167,11 @@ class HeadsetDisplay(Node):
                        positions=self.dummy_positions[part * per:(part + 1) * per])
 
     def event(self, name: str, target: str) -> None:
-        self._event_id = (self._event_id + 1) % display_wire.UINT32
-        now = time.monotonic()
-        for i in range(EVENT_SENDS):
-            data = display_wire.encode('event', self._seq, self.get_clock().now().nanoseconds * 1e-9,
-                                       event_id=self._event_id, event=name, target=target)
-            self._seq = (self._seq + 1) % display_wire.UINT32
-            if i == 0:
-                self._send_bytes('event', data)
-            else:
-                self._repeats.append((now + i * EVENT_REPEAT_S, data))
+        self._send_bytes('event', self._wire.event(name, target, time.monotonic(), self._stamp()))
 
     def _send_repeats(self) -> None:
-        now = time.monotonic()
-        while self._repeats and self._repeats[0][0] <= now:
-            self._send_bytes('event', self._repeats.popleft()[1])
+        for data in self._wire.due(time.monotonic(), self._stamp()):
+            self._send_bytes('event', data)
 
     # --- callbacks ------------------------------------------------------------------------
 
