@@ -12,8 +12,14 @@ UDP to headset_address:display_port, and nowhere else:
   EVENT_REPEAT_S apart, with one event_id, since UDP may lose one; each copy gets its seq when
   it is sent (display_wire.DisplaySender), so no copy is stale behind the messages sent between;
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
-  active target, uniform in azimuth within +-dummy_azimuth_deg and in elevation within
-  +-dummy_elevation_deg around the front, at the active target's distance;
+  active target (core.dummies), around the eye (eye_height_m above the origin, where the
+  targets are placed from): at the active target's distance from the eye, in directions
+  uniform in solid angle within +-dummy_azimuth_deg and +-dummy_elevation_deg of the front,
+  never overlapping one another or the target (nor hiding them, seen from the eye); a field
+  too small for that many gets as many as fit, with a warning. A set waits for the active
+  target's position (target_markers); the first target_markers after an activation that shows
+  the target elsewhere than the set was drawn around draws a new one (a marker overtaken by
+  the activation);
 - prompt: Algorithm 1's steps from calibration_state's fields (core.calibration_state.prompt:
   "Face front and rest", "Hold still: <direction>, step i of n"), cleared when it ends;
 - phrase: condition 4's phrase from speech;
@@ -44,7 +50,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from fabric_guidance.core import calibration_state, display_wire
+from fabric_guidance.core import calibration_state, display_wire, dummies
 from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATE, DIAGNOSTICS, SPEECH, STUDY_DISPLAY,
                                        TARGET_FOUND, TARGET_MARKERS)
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
@@ -57,6 +63,11 @@ EVENT_SENDS = 3
 EVENT_REPEAT_S = 0.02
 #: The marker namespace of the micromanipulator's live objects (target_selector).
 LIVE_NAMESPACE = 'live_targets'
+#: The radius the headset draws a target with (DisplayRenderer.targetDiameterM 0.1 m): dummies keep clear of it.
+TARGET_RADIUS_M = 0.05
+#: The first target_markers after an activation showing the target this far from where its
+#: dummies were drawn around gets a new set (less: the same place, as on the wire within 0.1 mm).
+MOVED_M = 1e-3
 
 
 class HeadsetDisplay(Node):
@@ -79,6 +90,8 @@ class HeadsetDisplay(Node):
                                          'front', 'deg', 0.0, 180.0, read_only=True)
         self.dummy_elevation_deg = declare(self, 'dummy_elevation_deg', 30.0, 'dummies within +- this elevation',
                                            'deg', 0.0, 90.0, read_only=True)
+        self.eye_height_m = declare(self, 'eye_height_m', 1.2, 'gaze origin above the immersive origin (the '
+                                    'dummies are placed around it)', 'm', 0.0, 3.0, read_only=True)
         # Set by a study session before each target too (a parameter: set before the target
         # is, so no refresh can draw an unseen target in between).
         self.draw_targets = declare(self, 'draw_targets', True, "draw the targets (false: the paper's accuracy "
@@ -96,9 +109,10 @@ class HeadsetDisplay(Node):
 
         self.active = ''
         self.targets: list[dict] = []          # {'id', 'position' (Unity), 'role'}, target_markers' order
-        self.distance_m = 2.0                  # of the active target from the origin, for the dummies
         self.dummy_set = 0
-        self.dummy_positions: list[list[float]] = []
+        self.dummy_positions: list[list[float]] = []   # Unity
+        self._drawn_around: list[float] | None = None   # the target (REP 103) the set was drawn around
+        self._await_markers = False            # the first target_markers after an activation not seen yet
         self.prompt = ('', 0, 0)
         self.phrase = ''
         self._wire = display_wire.DisplaySender(EVENT_SENDS, EVENT_REPEAT_S)   # seq, event ids, repeats
@@ -185,8 +199,6 @@ class HeadsetDisplay(Node):
                 continue
             targets.append({'id': m.text, 'position': display_wire.to_unity((p.x, p.y, p.z)),
                             'role': 'live' if m.ns == LIVE_NAMESPACE else 'target'})
-            if m.text == self.active:
-                self.distance_m = math.hypot(p.x, p.y, p.z)
         if len(targets) > display_wire.MAX_TARGETS:
             self.get_logger().warn(f'{len(targets)} targets: the headset is sent the first '
                                    f'{display_wire.MAX_TARGETS} (docs/headset_wire_format.md)', once=True)
@@ -194,18 +206,21 @@ class HeadsetDisplay(Node):
         self.targets = targets
         if changed:
             self.send_targets()
+        target = self.active_position()
+        if self._await_markers and target is not None:
+            self._await_markers = False
+            if self._drawn_around is None or math.dist(target, self._drawn_around) > MOVED_M:
+                self.new_dummies()
+                self.send_dummies()
 
     def on_active(self, msg: String) -> None:
         if msg.data == self.active:
             return
         self.active = msg.data
-        for t in self.targets:
-            if t['id'] == self.active:
-                x, y, z = display_wire.from_unity(t['position'])
-                self.distance_m = math.hypot(x, y, z)
-        if self.active and self.dummies:
-            self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
-            self.dummy_positions = self.draw_dummies(self.dummy_set)
+        self._drawn_around = None
+        self._await_markers = bool(self.active and self.dummies)
+        if self._await_markers:
+            self.new_dummies()
         self.send_targets()
         if self.dummies:
             self.send_dummies()
@@ -213,15 +228,34 @@ class HeadsetDisplay(Node):
             # an unseen target is not named either: the wearer learns a trial began, not where
             self.event('next', self.shown()[0])
 
-    def draw_dummies(self, dummy_set: int) -> list[list[float]]:
-        """The dummy positions of a set (Unity world): seeded by dummy_seed and the set number."""
+    def active_position(self) -> list[float] | None:
+        """The active target's position (REP 103) as target_markers last gave it; None if not."""
+        for t in self.targets:
+            if t['id'] == self.active:
+                return display_wire.from_unity(t['position'])
+        return None
+
+    def new_dummies(self) -> None:
+        """A new set around the active target, once its position is known (else on_markers draws it)."""
+        target = self.active_position()
+        if target is None:
+            return
+        self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
+        self.dummy_positions = self.draw_dummies(self.dummy_set, target)
+        self._drawn_around = target
+
+    def draw_dummies(self, dummy_set: int, target) -> list[list[float]]:
+        """The dummy positions of a set (Unity world) around the eye: seeded by dummy_seed and the set number."""
         rng = np.random.default_rng([self.dummy_seed, dummy_set])
-        az = np.radians(rng.uniform(-self.dummy_azimuth_deg, self.dummy_azimuth_deg, self.dummies))
-        el = np.radians(rng.uniform(-self.dummy_elevation_deg, self.dummy_elevation_deg, self.dummies))
-        r = self.distance_m
-        # REP 103: x forward, y left (azimuth positive to the left), z up.
-        ros = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
-        return [display_wire.to_unity(p) for p in ros]
+        eye = (0.0, 0.0, self.eye_height_m)     # REP 103: x forward, y left, z up
+        placed = dummies.around_eye(rng, self.dummies, eye, target, self.dummy_radius_m, TARGET_RADIUS_M,
+                                    self.dummy_azimuth_deg, self.dummy_elevation_deg)
+        if len(placed) < self.dummies:
+            self.get_logger().warning(
+                f'only {len(placed)} of {self.dummies} dummies fit apart around a target '
+                f'{math.dist(target, eye):.2f} m from the eye: the field is too small for them (parameters '
+                'dummies, dummy_radius_m, dummy_azimuth_deg, dummy_elevation_deg, eye_height_m)', once=True)
+        return [display_wire.to_unity(p) for p in placed]
 
     def on_found(self, msg: String) -> None:
         self.event('found', msg.data)
@@ -266,7 +300,8 @@ class HeadsetDisplay(Node):
     def _publish_diagnostics(self) -> None:
         level = DiagnosticStatus.WARN if self.send_errors else DiagnosticStatus.OK
         values = {'destination': f'{self.destination[0]}:{self.destination[1]}', 'active': self.active,
-                  'targets': len(self.targets), 'dummy_set': self.dummy_set, 'send_errors': self.send_errors,
+                  'targets': len(self.targets), 'dummy_set': self.dummy_set, 'dummies': len(self.dummy_positions),
+                  'send_errors': self.send_errors,
                   'bytes_sent': self.bytes_sent, 'bad_calibration_states': self.bad_states,
                   **{f'sent_{k}': n for k, n in self.sent.items()}}
         message = f'{sum(self.sent.values())} display messages sent' + (
