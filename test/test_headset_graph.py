@@ -318,18 +318,20 @@ def test_the_speed_task_reaches_the_headset_with_its_dummies_and_events(tmp_path
         i = names.index(t['id'])
         x, y, z = positions[3 * i:3 * i + 3]
         assert t['position'] == pytest.approx([-y, z, x], abs=1e-4) and t['role'] == 'target'
-    # 50 dummies in two parts of 25, at the active target's distance, within +-60 / +-30 deg.
+    # 50 dummies in two parts of 25, seen from the eye (headset_display's eye_height_m, 1.2 m) at
+    # the active target's distance from it, within +-60 / +-30 deg.
     dummies = [m for m in harness.messages('dummies') if m['set'] > 0]
     last_set = dummies[-1]['set']
     parts = {m['part']: m['positions'] for m in dummies if m['set'] == last_set}
     assert sorted(parts) == [0, 1] and sum(len(p) for p in parts.values()) == 50
     # (the set drawn for the target active last: auto_advance went on after the found one)
     shown = next(t for t in targets['targets'] if t['id'] == targets['active'])
-    r = np.linalg.norm(shown['position'])
+    eye = np.array([0.0, 0.0, 1.2])
+    r = np.linalg.norm(np.array(display_wire.from_unity(shown['position'])) - eye)
     for p in parts[0] + parts[1]:
-        ros = np.array(display_wire.from_unity(p))
-        assert np.linalg.norm(ros) == pytest.approx(r, abs=1e-3)
-        assert abs(azimuth_deg(ros)) <= 60.0 + 1e-6 and abs(elevation_deg(ros)) <= 30.0 + 1e-6
+        seen = np.array(display_wire.from_unity(p)) - eye
+        assert np.linalg.norm(seen) == pytest.approx(r, abs=1e-3)
+        assert abs(azimuth_deg(seen)) <= 60.0 + 0.01 and abs(elevation_deg(seen)) <= 30.0 + 0.01
     # Each event sent three times, logged three times, one id.
     found = [m for m in harness.messages('event') if m['event'] == 'found']
     assert len({m['event_id'] for m in found}) == 1 and found[0]['target'] == active['active']

@@ -245,3 +245,58 @@ def test_a_confirm_of_another_version_or_kind_is_not_a_confirm():
     assert err.value.reason == 'kind'
     # Unknown fields are ignored, as in every uplink message.
     assert parse_uplink(b'{"version":1,"kind":"confirm","press_id":7,"stamp":2,"hand":"left"}', 1024) == Confirm(7, 2.0)
+
+
+# --- the sender: seq in send order, events repeated ---------------------------------------
+
+SCHEDULE = st.lists(st.tuples(st.sampled_from(['event', 'prompt', 'wait']), st.floats(0.0, 0.05)), max_size=40)
+
+
+def send_schedule(steps):
+    """A DisplaySender driven by (what, seconds before it) steps: events and prompts at those
+    times, due copies sent before each step and all at the end; the datagrams in send order."""
+    sender, now, sent, events = dw.DisplaySender(sends=3, repeat_s=0.02), 0.0, [], 0
+    for what, dt in steps:
+        now += dt
+        sent += sender.due(now, now)
+        if what == 'event':
+            events += 1
+            sent.append(sender.event('found', f'e{events}', now, now))
+        elif what == 'prompt':
+            sent.append(sender.encode('prompt', now, text=f'p{len(sent)}', step=0, steps=0))
+    sent += sender.due(now + 1.0, now + 1.0)
+    assert sender.pending() == 0
+    return [dw.decode(d) for d in sent], events
+
+
+@given(SCHEDULE, st.data())
+def test_every_event_copy_is_ahead_of_what_was_sent_before_it_so_a_lost_copy_is_repaired(steps, data):
+    msgs, events = send_schedule(steps)
+    # seq +1 per datagram in send order, copies included; three copies of each event, one id
+    assert [m.seq for m in msgs] == list(range(len(msgs)))
+    copies = [m for m in msgs if m.kind == 'event']
+    assert len(copies) == 3 * events
+    assert all(sum(1 for c in copies if c.fields['event_id'] == i) == 3 for i in range(1, events + 1))
+    # in order, none lost: nothing stale, each event shown once
+    view = dw.DisplayView()
+    shown = [line for m in msgs for line in view.apply(m) if line.startswith('found')]
+    assert view.stale == 0 and shown == [f'found e{i}' for i in range(1, events + 1)]
+    # whatever is lost: each event with a copy through is shown exactly once, in order
+    lost = data.draw(st.sets(st.integers(0, max(0, len(msgs) - 1))), label='lost')
+    view = dw.DisplayView()
+    shown = [line for i, m in enumerate(msgs) if i not in lost for line in view.apply(m) if line.startswith('found')]
+    through = [f"found {c.fields['target']}" for i, c in enumerate(msgs) if i not in lost and c.kind == 'event']
+    assert view.stale == 0 and shown == list(dict.fromkeys(through))
+
+
+def test_event_copies_go_in_the_order_due_and_at_most_capacity_wait():
+    def targets(datagrams):
+        return [dw.decode(d).fields['target'] for d in datagrams]
+    sender = dw.DisplaySender(sends=3, repeat_s=0.02)
+    sender.event('next', 'a', 0.0, 0.0)        # copies due at 0.02, 0.04
+    sender.event('found', 'b', 0.01, 0.01)     # at 0.03, 0.05
+    assert targets(sender.due(0.019, 0.0)) == [] and targets(sender.due(1.0, 1.0)) == ['a', 'b', 'a', 'b']
+    sender = dw.DisplaySender(sends=3, repeat_s=0.02, capacity=3)
+    sender.event('next', 'a', 0.0, 0.0)
+    sender.event('found', 'b', 0.01, 0.01)     # four waiting: the one due first is dropped
+    assert sender.pending() == 3 and targets(sender.due(1.0, 1.0)) == ['b', 'a', 'b']

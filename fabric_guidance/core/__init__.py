@@ -13,6 +13,7 @@ control_step           pressure_controller's step without ROS (the node and the 
 controller_parameters  the controller's parameters in one table (declarations, scene, docs)
 gaze_wire              the HoloLens gaze datagram (wire format v1)
 display_wire           the display downlink to the headset (v1)
+dummies                the speed task's distractors around the eye, uniform in solid angle, apart
 clock_sync             the headset clock's offset and drift from the echo exchange
 safe_input             reading outside files safely, with one-line errors naming the field
 """

@@ -4,13 +4,16 @@ docs/headset_wire_format.md is the specification (the C# receiver in hololens/ i
 same). encode() builds one datagram from a kind and its fields, never longer than
 MAX_DATAGRAM_BYTES: lists are capped by the spec's counts and strings cut to their limits
 before encoding. decode() is the headset's trust boundary in Python (the simulated wearer
-uses it): any bytes give a DisplayMessage or a WireFormatError, nothing else.
+uses it): any bytes give a DisplayMessage or a WireFormatError, nothing else. DisplaySender
+numbers what one sender sends (seq, event_id) and repeats events; DisplayView is the receiver.
 
 Positions are Unity world coordinates (metres); to_unity() converts from REP 103.
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
+import itertools
 import json
 from typing import Any, Sequence
 
@@ -209,6 +212,50 @@ _CHECKS = {
 }
 
 assert all(name in _CHECKS for names in KINDS.values() for name in names)
+
+
+class DisplaySender:
+    """One sender's display datagrams: seq +1 per datagram in the order they are sent, events
+    sent `sends` times `repeat_s` apart with one event_id (UDP may lose one).
+
+    A repeated event keeps its fields, not its bytes: each copy is encoded when it is due, with
+    the seq of that moment. Copies numbered when queued would carry seqs below those of the
+    messages sent between them, and a receiver drops a datagram not ahead of the last one it
+    applied (DisplayView, the headset): every copy after the first would be stale and a lost
+    first copy never repaired. At most `capacity` copies wait (the oldest is dropped beyond).
+    """
+
+    def __init__(self, sends: int = 3, repeat_s: float = 0.02, capacity: int = 64):
+        self.sends, self.repeat_s, self.capacity = int(sends), float(repeat_s), int(capacity)
+        self.seq = 0
+        self.event_id = 0
+        self._order = itertools.count()      # ties of one due time in the order queued
+        self._repeats: list[tuple[float, int, dict]] = []   # (due, order, event fields), by due
+
+    def encode(self, kind: str, stamp: float, **fields: Any) -> bytes:
+        """The next datagram of this sender: encode() with the next seq."""
+        data = encode(kind, self.seq, stamp, **fields)
+        self.seq = (self.seq + 1) % UINT32
+        return data
+
+    def event(self, event: str, target: str, now: float, stamp: float) -> bytes:
+        """A new event's first copy (send it now); the others are due from `now` on (due())."""
+        self.event_id = (self.event_id + 1) % UINT32
+        fields = {'event_id': self.event_id, 'event': event, 'target': target}
+        for i in range(1, self.sends):
+            bisect.insort(self._repeats, (now + i * self.repeat_s, next(self._order), fields))
+        del self._repeats[:max(0, len(self._repeats) - self.capacity)]
+        return self.encode('event', stamp, **fields)
+
+    def due(self, now: float, stamp: float) -> list[bytes]:
+        """The event copies due by `now`, each encoded now with its own seq, in the order due."""
+        out = []
+        while self._repeats and self._repeats[0][0] <= now:
+            out.append(self.encode('event', stamp, **self._repeats.pop(0)[2]))
+        return out
+
+    def pending(self) -> int:
+        return len(self._repeats)
 
 
 class DisplayView:

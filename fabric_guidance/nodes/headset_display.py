@@ -9,10 +9,17 @@ UDP to headset_address:display_port, and nowhere else:
   guides) no target is sent and `active` is empty: an inactive target would give away where
   the next one is (target_selector moves it before it makes it active);
 - event: `next` when a target becomes active, `found` on target_found; each sent three times,
-  EVENT_REPEAT_S apart, with one event_id, since UDP may lose one;
+  EVENT_REPEAT_S apart, with one event_id, since UDP may lose one; each copy gets its seq when
+  it is sent (display_wire.DisplaySender), so no copy is stale behind the messages sent between;
 - dummies: with `dummies` > 0 (the paper's speed task: 50), a new seeded set for every newly
-  active target, uniform in azimuth within +-dummy_azimuth_deg and in elevation within
-  +-dummy_elevation_deg around the front, at the active target's distance;
+  active target (core.dummies), around the eye (eye_height_m above the origin, where the
+  targets are placed from): at the active target's distance from the eye, in directions
+  uniform in solid angle within +-dummy_azimuth_deg and +-dummy_elevation_deg of the front,
+  never overlapping one another or the target (nor hiding them, seen from the eye); a field
+  too small for that many gets as many as fit, with a warning. A set waits for the active
+  target's position (target_markers); the first target_markers after an activation that shows
+  the target elsewhere than the set was drawn around draws a new one (a marker overtaken by
+  the activation);
 - prompt: Algorithm 1's steps from calibration_state's fields (core.calibration_state.prompt:
   "Face front and rest", "Hold still: <direction>, step i of n"), cleared when it ends;
 - phrase: condition 4's phrase from speech;
@@ -31,7 +38,6 @@ Published:  /diagnostics; UDP datagrams to headset_address:display_port
 """
 from __future__ import annotations
 
-from collections import deque
 import ipaddress
 import math
 import socket
@@ -44,7 +50,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from fabric_guidance.core import calibration_state, display_wire
+from fabric_guidance.core import calibration_state, display_wire, dummies
 from fabric_guidance.interface import (ACTIVE_TARGET, CALIBRATION_STATE, DIAGNOSTICS, SPEECH, STUDY_DISPLAY,
                                        TARGET_FOUND, TARGET_MARKERS)
 from fabric_guidance.nodes.diagnostics import publish_diagnostics, status
@@ -57,12 +63,17 @@ EVENT_SENDS = 3
 EVENT_REPEAT_S = 0.02
 #: The marker namespace of the micromanipulator's live objects (target_selector).
 LIVE_NAMESPACE = 'live_targets'
+#: The radius the headset draws a target with (DisplayRenderer.targetDiameterM 0.1 m): dummies keep clear of it.
+TARGET_RADIUS_M = 0.05
+#: The first target_markers after an activation showing the target this far from where its
+#: dummies were drawn around gets a new set (less: the same place, as on the wire within 0.1 mm).
+MOVED_M = 1e-3
 
 
 class HeadsetDisplay(Node):
 
-    def __init__(self):
-        super().__init__('headset_display')
+    def __init__(self, **kwargs):   # kwargs: Node's (a test's context, parameter_overrides)
+        super().__init__('headset_display', **kwargs)
         address = declare(self, 'headset_address', '127.0.0.1', "the HoloLens's IP address (the only destination)",
                           read_only=True)
         port = declare(self, 'display_port', 5006, "the headset's downlink UDP port", '-', 1, 65535, read_only=True)
@@ -79,6 +90,8 @@ class HeadsetDisplay(Node):
                                          'front', 'deg', 0.0, 180.0, read_only=True)
         self.dummy_elevation_deg = declare(self, 'dummy_elevation_deg', 30.0, 'dummies within +- this elevation',
                                            'deg', 0.0, 90.0, read_only=True)
+        self.eye_height_m = declare(self, 'eye_height_m', 1.2, 'gaze origin above the immersive origin (the '
+                                    'dummies are placed around it)', 'm', 0.0, 3.0, read_only=True)
         # Set by a study session before each target too (a parameter: set before the target
         # is, so no refresh can draw an unseen target in between).
         self.draw_targets = declare(self, 'draw_targets', True, "draw the targets (false: the paper's accuracy "
@@ -96,14 +109,13 @@ class HeadsetDisplay(Node):
 
         self.active = ''
         self.targets: list[dict] = []          # {'id', 'position' (Unity), 'role'}, target_markers' order
-        self.distance_m = 2.0                  # of the active target from the origin, for the dummies
         self.dummy_set = 0
-        self.dummy_positions: list[list[float]] = []
+        self.dummy_positions: list[list[float]] = []   # Unity
+        self._drawn_around: list[float] | None = None   # the target (REP 103) the set was drawn around
+        self._await_markers = False            # the first target_markers after an activation not seen yet
         self.prompt = ('', 0, 0)
         self.phrase = ''
-        self._seq = 0
-        self._event_id = 0
-        self._repeats: deque = deque(maxlen=64)   # (due monotonic, datagram) of events still to repeat
+        self._wire = display_wire.DisplaySender(EVENT_SENDS, EVENT_REPEAT_S)   # seq, event ids, repeats
         self.sent = {kind: 0 for kind in display_wire.KINDS}
         self.send_errors = 0
         self.bytes_sent = 0
@@ -124,9 +136,11 @@ class HeadsetDisplay(Node):
 
     # --- sending --------------------------------------------------------------------------
 
+    def _stamp(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _send(self, kind: str, **fields) -> bytes:
-        data = display_wire.encode(kind, self._seq, self.get_clock().now().nanoseconds * 1e-9, **fields)
-        self._seq = (self._seq + 1) % display_wire.UINT32
+        data = self._wire.encode(kind, self._stamp(), **fields)
         self._send_bytes(kind, data)
         return data
 
@@ -167,21 +181,11 @@ class HeadsetDisplay(Node):
                        positions=self.dummy_positions[part * per:(part + 1) * per])
 
     def event(self, name: str, target: str) -> None:
-        self._event_id = (self._event_id + 1) % display_wire.UINT32
-        now = time.monotonic()
-        for i in range(EVENT_SENDS):
-            data = display_wire.encode('event', self._seq, self.get_clock().now().nanoseconds * 1e-9,
-                                       event_id=self._event_id, event=name, target=target)
-            self._seq = (self._seq + 1) % display_wire.UINT32
-            if i == 0:
-                self._send_bytes('event', data)
-            else:
-                self._repeats.append((now + i * EVENT_REPEAT_S, data))
+        self._send_bytes('event', self._wire.event(name, target, time.monotonic(), self._stamp()))
 
     def _send_repeats(self) -> None:
-        now = time.monotonic()
-        while self._repeats and self._repeats[0][0] <= now:
-            self._send_bytes('event', self._repeats.popleft()[1])
+        for data in self._wire.due(time.monotonic(), self._stamp()):
+            self._send_bytes('event', data)
 
     # --- callbacks ------------------------------------------------------------------------
 
@@ -195,8 +199,6 @@ class HeadsetDisplay(Node):
                 continue
             targets.append({'id': m.text, 'position': display_wire.to_unity((p.x, p.y, p.z)),
                             'role': 'live' if m.ns == LIVE_NAMESPACE else 'target'})
-            if m.text == self.active:
-                self.distance_m = math.hypot(p.x, p.y, p.z)
         if len(targets) > display_wire.MAX_TARGETS:
             self.get_logger().warn(f'{len(targets)} targets: the headset is sent the first '
                                    f'{display_wire.MAX_TARGETS} (docs/headset_wire_format.md)', once=True)
@@ -204,18 +206,21 @@ class HeadsetDisplay(Node):
         self.targets = targets
         if changed:
             self.send_targets()
+        target = self.active_position()
+        if self._await_markers and target is not None:
+            self._await_markers = False
+            if self._drawn_around is None or math.dist(target, self._drawn_around) > MOVED_M:
+                self.new_dummies()
+                self.send_dummies()
 
     def on_active(self, msg: String) -> None:
         if msg.data == self.active:
             return
         self.active = msg.data
-        for t in self.targets:
-            if t['id'] == self.active:
-                x, y, z = display_wire.from_unity(t['position'])
-                self.distance_m = math.hypot(x, y, z)
-        if self.active and self.dummies:
-            self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
-            self.dummy_positions = self.draw_dummies(self.dummy_set)
+        self._drawn_around = None
+        self._await_markers = bool(self.active and self.dummies)
+        if self._await_markers:
+            self.new_dummies()
         self.send_targets()
         if self.dummies:
             self.send_dummies()
@@ -223,15 +228,34 @@ class HeadsetDisplay(Node):
             # an unseen target is not named either: the wearer learns a trial began, not where
             self.event('next', self.shown()[0])
 
-    def draw_dummies(self, dummy_set: int) -> list[list[float]]:
-        """The dummy positions of a set (Unity world): seeded by dummy_seed and the set number."""
+    def active_position(self) -> list[float] | None:
+        """The active target's position (REP 103) as target_markers last gave it; None if not."""
+        for t in self.targets:
+            if t['id'] == self.active:
+                return display_wire.from_unity(t['position'])
+        return None
+
+    def new_dummies(self) -> None:
+        """A new set around the active target, once its position is known (else on_markers draws it)."""
+        target = self.active_position()
+        if target is None:
+            return
+        self.dummy_set = self.dummy_set % (display_wire.UINT32 - 1) + 1
+        self.dummy_positions = self.draw_dummies(self.dummy_set, target)
+        self._drawn_around = target
+
+    def draw_dummies(self, dummy_set: int, target) -> list[list[float]]:
+        """The dummy positions of a set (Unity world) around the eye: seeded by dummy_seed and the set number."""
         rng = np.random.default_rng([self.dummy_seed, dummy_set])
-        az = np.radians(rng.uniform(-self.dummy_azimuth_deg, self.dummy_azimuth_deg, self.dummies))
-        el = np.radians(rng.uniform(-self.dummy_elevation_deg, self.dummy_elevation_deg, self.dummies))
-        r = self.distance_m
-        # REP 103: x forward, y left (azimuth positive to the left), z up.
-        ros = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
-        return [display_wire.to_unity(p) for p in ros]
+        eye = (0.0, 0.0, self.eye_height_m)     # REP 103: x forward, y left, z up
+        placed = dummies.around_eye(rng, self.dummies, eye, target, self.dummy_radius_m, TARGET_RADIUS_M,
+                                    self.dummy_azimuth_deg, self.dummy_elevation_deg)
+        if len(placed) < self.dummies:
+            self.get_logger().warning(
+                f'only {len(placed)} of {self.dummies} dummies fit apart around a target '
+                f'{math.dist(target, eye):.2f} m from the eye: the field is too small for them (parameters '
+                'dummies, dummy_radius_m, dummy_azimuth_deg, dummy_elevation_deg, eye_height_m)', once=True)
+        return [display_wire.to_unity(p) for p in placed]
 
     def on_found(self, msg: String) -> None:
         self.event('found', msg.data)
@@ -276,7 +300,8 @@ class HeadsetDisplay(Node):
     def _publish_diagnostics(self) -> None:
         level = DiagnosticStatus.WARN if self.send_errors else DiagnosticStatus.OK
         values = {'destination': f'{self.destination[0]}:{self.destination[1]}', 'active': self.active,
-                  'targets': len(self.targets), 'dummy_set': self.dummy_set, 'send_errors': self.send_errors,
+                  'targets': len(self.targets), 'dummy_set': self.dummy_set, 'dummies': len(self.dummy_positions),
+                  'send_errors': self.send_errors,
                   'bytes_sent': self.bytes_sent, 'bad_calibration_states': self.bad_states,
                   **{f'sent_{k}': n for k, n in self.sent.items()}}
         message = f'{sum(self.sent.values())} display messages sent' + (
