@@ -282,7 +282,8 @@ def test_a_first_calibration_refused_still_gets_its_report(tmp_path):
     assert proc.phase == 'failed' and 'min_r2' in proc.error
     attempt = proc.attempt(None)
     assert attempt is not None and 'min_r2' in attempt.directions['left'].fit['refused']
-    assert [d for d in ('right', 'down', 'up') if attempt.directions[d].fit.get(NOT_MEASURED)] == ['right', 'down', 'up']
+    unmeasured = [d for d in ('right', 'down', 'up') if attempt.directions[d].fit.get(NOT_MEASURED)]
+    assert unmeasured == ['right', 'down', 'up']
     text = format_fit_report(attempt)
     assert 'REFUSED (not used for guidance)' in text
     assert text.count('not measured: the calibration ended before this direction') == 3

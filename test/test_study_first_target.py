@@ -10,7 +10,7 @@ from rclpy.parameter import Parameter
 
 from fabric_guidance.core import display_wire
 from fabric_guidance.live_study.operator import STUDY_TARGET, target_position
-from rosgraph import Graph, Probe, free_port, wait_until
+from rosgraph import Graph, Probe, wait_until
 
 pytestmark = pytest.mark.graph
 
