@@ -110,7 +110,7 @@ test-launch: $(LSTAMP)
 	AMENT_PREFIX_PATH=$(abspath $(LBUILD))/install/fabric_guidance \
 	  PYTHONPATH=$$(ls -d $(abspath $(LBUILD))/install/fabric_guidance/lib/python3*/site-packages) \
 	  FABRIC_GUIDANCE_INSTALL=$(abspath $(LBUILD))/install FABRIC_GUIDANCE_LAUNCH_DISTRO=$(LAUNCH_DISTRO) \
-	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py test/test_workspace.py \
+	  timeout -k 10 $(LAUNCH_TIMEOUT_S) $(LVENV)/bin/pytest test/test_launch.py test/test_launch_dry_run.py test/test_workspace.py \
 	    -p no:cacheprovider $(PYTEST_ARGS)
 
 # Not part of `make test` (a second full venv takes a few minutes on a cold pip cache).

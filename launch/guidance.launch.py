@@ -25,6 +25,9 @@ same domain (docs/interfaces.md, "Names and namespaces"). It needs that suit's o
 (plc_host:= and/or plc_port:=): without one the launch refuses to start, naming them, as the
 parameter file's address is the root suit's PLC.
 
+mock_plc:=true runs the lab graph against a mock PLC on this PC (plc_host 127.0.0.1, plc_port or
+1502), started first: a lab's dry run with the real headset and a person, no suit (docs/launch.md).
+
 keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
 discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and
 start_discovery_server:=true also runs it here (docs/lab_network.md). Unset, nothing changes.
@@ -45,9 +48,10 @@ from launch_ros.actions import LifecycleNode, Node
 import yaml
 
 from fabric_guidance.interface import MANAGED_NODES
-from fabric_guidance.graph.launch_support import (NodeOverrides, lab_launch_arguments, lab_network_actions,
-                                                  lab_node_kwargs, launch_namespace, lifecycle_bring_up,
-                                                  namespace_argument, require_own_plc, respawn_arguments,
+from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_listens, lab_launch_arguments,
+                                                  lab_network_actions, lab_node_kwargs, launch_namespace,
+                                                  lifecycle_bring_up, namespace_argument, require_own_plc,
+                                                  respawn_arguments,
                                                   respawn_enabled, respawn_kwargs, study_argument,
                                                   study_params_files)
 
@@ -74,6 +78,8 @@ ARGUMENTS = {
 NODES = ('gaze_bridge', 'target_selector', 'pressure_controller', 'plc_output', 'headset_display')
 #: Lifecycle nodes (nodes/managed.py): brought up by this launch's lifecycle events, not by themselves.
 MANAGED = MANAGED_NODES
+#: The mock PLC's port with mock_plc:=true and no plc_port:= (config/params/guidance.yaml's).
+MOCK_PLC_PORT = 1502
 
 
 def argument_value(name: str, kind, text: str):
@@ -116,6 +122,9 @@ def _nodes(context, *args, **kwargs):
     generated = NodeOverrides(context)
     namespace = launch_namespace(context)
     require_own_plc(namespace, {arg: LaunchConfiguration(arg).perform(context) for arg in ('plc_host', 'plc_port')})
+    mock_port = _mock_plc_port(context)
+    if mock_port is not None:
+        overrides['plc_output'].update(plc_host='127.0.0.1', plc_port=mock_port)
     actions = []
     for name in NODES:
         lab = lab_node_kwargs(context, name)     # enclave, discovery server: {} when unset
@@ -136,7 +145,28 @@ def _nodes(context, *args, **kwargs):
             actions.append(Node(package='fabric_guidance', executable=name, name=name, namespace=namespace,
                                 output='screen',
                                 parameters=[*files, generated.file(name, overrides[name])], **lab, **restart))
-    return [*lab_network_actions(context), *actions, generated.cleanup_action()]
+    if mock_port is None:
+        return [*lab_network_actions(context), *actions, generated.cleanup_action()]
+    # The lab nodes once the mock listens: plc_output's first connection then succeeds.
+    mock = Node(package='fabric_guidance', executable='mock_plc', name='mock_plc', namespace=namespace,
+                output='screen', parameters=[generated.file('mock_plc', {'port': mock_port})],
+                **lab_node_kwargs(context, 'mock_plc'))
+    return [*lab_network_actions(context), mock, after_mock_plc_listens(mock, actions), generated.cleanup_action()]
+
+
+def _mock_plc_port(context) -> int | None:
+    """The mock PLC's port with mock_plc:=true, None without; ValueError names the argument."""
+    text = LaunchConfiguration('mock_plc').perform(context).strip().lower()
+    if text not in ('', 'true', 'false'):
+        raise ValueError(f'launch argument mock_plc:={text!r} is not true or false')
+    if text != 'true':
+        return None
+    host = LaunchConfiguration('plc_host').perform(context).strip()
+    if host not in ('', '127.0.0.1', 'localhost'):
+        raise ValueError(f'launch argument plc_host:={host!r} with mock_plc:=true: the mock PLC listens on this PC '
+                         '(127.0.0.1); leave plc_host empty, or mock_plc false for the PLC at that address')
+    port = LaunchConfiguration('plc_port').perform(context).strip()
+    return argument_value('plc_port', int, port) if port else MOCK_PLC_PORT
 
 
 def generate_launch_description():
@@ -157,6 +187,9 @@ def generate_launch_description():
         *[DeclareLaunchArgument(arg, default_value='',
                                 description=f'{desc} (empty: from params_file)')
           for arg, (_, _, _, desc) in ARGUMENTS.items()],
+        DeclareLaunchArgument('mock_plc', default_value='false',
+                              description='true: a mock PLC on this PC instead of the suit (plc_host 127.0.0.1, '
+                                          f'plc_port or {MOCK_PLC_PORT}): a dry run with the real headset'),
         namespace_argument(),
         *respawn_arguments(),      # respawn, respawn_delay
         *lab_launch_arguments(),   # keystore, discovery_server, start_discovery_server

@@ -35,7 +35,7 @@ from fabric_guidance.graph.launch_support import (NodeOverrides, after_mock_plc_
 OBJECTS = ('holding_pipette', 'microbead', 'injection_pipette')
 PASS_THROUGH = ('plc_host', 'plc_port', 'calibration_file', 'wearer', 'condition', 'study', 'bind_address', 'gaze_port',
                 'allowed_senders', 'headset_address', 'display_port', 'use_sim_time', 'autostart', 'keystore',
-                'discovery_server', 'start_discovery_server', 'respawn', 'respawn_delay')
+                'discovery_server', 'start_discovery_server', 'respawn', 'respawn_delay', 'mock_plc')
 
 
 def _graph(context, *args, **kwargs):
@@ -51,6 +51,9 @@ def _graph(context, *args, **kwargs):
     if namespace:
         arguments['namespace'] = namespace
     simulated_wearer = LaunchConfiguration('wearer_sim').perform(context).lower() == 'true'
+    if simulated_wearer and arguments.get('mock_plc', '').strip().lower() == 'true':
+        raise ValueError('launch argument mock_plc:=true with wearer_sim:=true: wearer_sim:=true starts its own '
+                         'mock PLC; give one of them')
     # Its own mock PLC (simulated) or the lab's PLC: with a namespace, named here.
     require_own_plc(namespace, {name: arguments.get(name, '')
                                 for name in (('plc_port',) if simulated_wearer else ('plc_host', 'plc_port'))})
