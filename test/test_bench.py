@@ -12,7 +12,7 @@ import pytest
 from fabric_guidance.bench.graphs import make_sweep
 from fabric_guidance.bench.latency import Write, landings, percentiles_ms
 from fabric_guidance.bench.gaze_sweep import check_sweep
-from fabric_guidance.bench.stages import APPLIED_FLOOR
+from fabric_guidance.bench.stages import shortfall
 from rosgraph import ROOT
 
 
@@ -57,10 +57,22 @@ def test_a_shortfall_names_the_stage_that_lost_the_samples():
     acc = account(before, after, 1000, 490, {CONTROLLER: [stall]})
     assert acc['lost'] == {'bridge': 2, 'controller': 503, 'plc_output': 1, 'PLC': 4}, acc
     line = shortfall(90.0, 450, 900, pool([acc]))
-    assert line.startswith('90 Hz: the package applied 450 of 900 samples (50.0 %), below the floor of 90 %')
+    assert line.startswith('90 Hz: the package applied 450 of 900 samples (50.0 %), 4 superseded in a queue under '
+                           'load counted with them, below the floor of 90 %')
     assert 'at: controller 503 (superseded in its gaze queue 3; vented by its step 500; said "' + stall in line
     assert line.index('controller 503') < line.index('PLC 4') < line.index('bridge 2') < line.index('plc_output 1')
     assert shortfall(90.0, 810, 900, acc) is None and shortfall(1000.0, 100, 900, acc) is None
+    # Samples a queue dropped for a newer one under load count toward the floor (a fresh run at
+    # load 10: 86.9 % applied, every loss superseded in plc_output's command queue) ...
+    loaded = account(before, {**after, CONTROLLER: {**after[CONTROLLER], 'gaze_vented': '0'},
+                              PLC_OUTPUT: {**after[PLC_OUTPUT], 'commands received (not a vent)': '500'}}, 1000, 990, {})
+    assert loaded['causes']['plc_output']['superseded in its command queue'] == 235
+    assert shortfall(90.0, 780, 900, loaded) is None and shortfall(90.0, 500, 900, loaded) is not None
+    # ... but a stage that received nothing of what was sent is cut off, not loaded
+    cut = account(before, {**after, PLC_OUTPUT: {**after[PLC_OUTPUT], 'commands received (not a vent)': '150'}},
+                  1000, 0, {})
+    assert cut['causes']['plc_output'] == {'none received of what was sent': 585, 'refused, invalid or ignored': 0}
+    assert 'none received of what was sent 585' in shortfall(90.0, 0, 900, cut)
     # A node that sent no status: named, not guessed.
     silent = account(before, {**after, CONTROLLER: {}}, 1000, 0, {})
     assert 'no counters from controller, plc_output' in shortfall(90.0, 0, 900, silent)
@@ -79,7 +91,7 @@ def test_a_quick_bench_writes_every_key(tmp_path):
     # bench/stages.py) is the one the bench fails below: loaded 2 cores (load 4-21) lost 0-2.9 %
     # of a run in the queues between the nodes, the stall watch more than half.
     e = r['e2e_latency_ms']['90']
-    assert e['sent'] == 1600 and e['applied'] >= APPLIED_FLOOR[90.0] * e['sent'], \
+    assert e['sent'] == 1600 and shortfall(90.0, e['applied'], e['sent'], r['stages']['90']) is None, \
         (e['applied'], e['sent'], r['stages']['90'], r['failures'])
     assert run.returncode == 0, run.stdout + run.stderr
     assert r['failures'] == []

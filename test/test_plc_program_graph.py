@@ -169,9 +169,14 @@ def test_a_second_client_s_write_is_refused_and_changes_nothing(lab):
     answer = raw_request(lab.plc_port, command_pdu([3000] * N, ahead))
     assert answer == bytes([0x90, 6]), answer.hex()
     wait_until(lambda: lab.state()['busy_count'] >= before + 1, 2.0, what='the refused write counted')
-    assert lab.watch.matches(GUIDED), lab.watch.read()
-    # F1 is never guided here: 3000 counts there would only come from the refused write.
-    assert lab.state()['max_output_counts'][REGMAP.names.index('F1')] == 0
+    # No channel guidance leaves at 0 ever had an output: 3000 counts there would only come from
+    # the refused write (the program keeps each output's maximum; plc_output's next write would
+    # hide it from a read of the registers).
+    maxima = lab.state()['max_output_counts']
+    assert [n for n, m in zip(REGMAP.names, maxima) if m and n not in GUIDED] == [], maxima
+    # and guidance goes on as it was (waited for: a loaded machine may vent on a late gaze sample
+    # in between, and resume with the next)
+    lab.guided(deadline_s=20.0, what='guidance after the refused write')
 
 
 class Writer:
