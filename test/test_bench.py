@@ -65,7 +65,8 @@ def test_a_shortfall_names_the_stage_that_lost_the_samples():
     # Samples a queue dropped for a newer one under load count toward the floor (a fresh run at
     # load 10: 86.9 % applied, every loss superseded in plc_output's command queue) ...
     loaded = account(before, {**after, CONTROLLER: {**after[CONTROLLER], 'gaze_vented': '0'},
-                              PLC_OUTPUT: {**after[PLC_OUTPUT], 'commands received (not a vent)': '500'}}, 1000, 990, {})
+                              PLC_OUTPUT: {**after[PLC_OUTPUT], 'commands received (not a vent)': '500'}},
+                     1000, 990, {})
     assert loaded['causes']['plc_output']['superseded in its command queue'] == 235
     assert shortfall(90.0, 780, 900, loaded) is None and shortfall(90.0, 500, 900, loaded) is not None
     # ... but a stage that received nothing of what was sent is cut off, not loaded
