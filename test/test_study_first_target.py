@@ -1,7 +1,8 @@
 """A study's lab graph (guidance.yaml with study-speed.yaml or study-accuracy.yaml) shows nothing
 until the session shows its first target: no start-up target named `study` at the front, no
 dummies around it during the calibration; the session's first target then gets its `next` event
-like every other (before, the start-up target kept the name and trial 1 had no `next`)."""
+like every other (before, the start-up target kept the name and trial 1 had no `next`); between
+targets nothing is drawn (before, the last target stayed in view, magenta, through every rest)."""
 import socket
 
 import pytest
@@ -63,6 +64,18 @@ def test_nothing_is_shown_before_the_sessions_first_target(tmp_path, protocol):
         if protocol == 'speed':
             wait_until(lambda: any(m.fields['set'] > 0 for m in udp.of('dummies')), 20.0,
                        what="the first target's dummies")
+            assert any(m.fields['active'] == STUDY_TARGET and [t['id'] for t in m.fields['targets']] == [STUDY_TARGET]
+                       for m in udp.of('targets'))
+        # the rest after it, as Operator.to_front: the target stays in target_markers where it
+        # was, and is not drawn (draw_inactive false): the participant sees no last target
+        with Probe(graph.domain_id) as probe:
+            request = SetParameters.Request(parameters=[Parameter('active_target', value='').to_parameter_msg()])
+            assert probe.call(SetParameters, '/target_selector/set_parameters', request).results[0].successful
+        seen = len(udp.of('targets'))
+        wait_until(lambda: sum(m.fields['active'] == '' for m in udp.of('targets')[seen:]) >= 2, 20.0,
+                   what='two refreshes in the rest')
+        rest = [m for m in udp.of('targets')[seen:] if m.fields['active'] == '']
+        assert all(m.fields['targets'] == () for m in rest), rest
     finally:
         graph.stop_all()
         udp.sock.close()

@@ -7,7 +7,8 @@ UDP to headset_address:display_port, and nowhere else:
   the micromanipulator's objects) and active_target, positions converted to Unity world; with
   `draw_targets` false (the paper's accuracy task: the target is never seen, the suit alone
   guides) no target is sent and `active` is empty: an inactive target would give away where
-  the next one is (target_selector moves it before it makes it active);
+  the next one is (target_selector moves it before it makes it active); with `draw_inactive`
+  false (a study session) only the active target is sent, none between targets;
 - event: `next` when a target becomes active, `found` on target_found; each sent three times,
   EVENT_REPEAT_S apart, with one event_id, since UDP may lose one; each copy gets its seq when
   it is sent (display_wire.DisplaySender), so no copy is stale behind the messages sent between;
@@ -96,6 +97,10 @@ class HeadsetDisplay(Node):
         # is, so no refresh can draw an unseen target in between).
         self.draw_targets = declare(self, 'draw_targets', True, "draw the targets (false: the paper's accuracy "
                                     'task, an unseen target reached by guidance alone; nothing drawn or named)')
+        # A study's one target stays in target_markers where it last was between its trials: a
+        # participant would see last trial's target (magenta) through every rest.
+        self.draw_inactive = declare(self, 'draw_inactive', True, 'draw the targets that are not active (false: '
+                                     'the active one only, none between targets: a study session)', read_only=True)
         self.add_post_set_parameters_callback(self.on_parameters)
         try:
             ip = ipaddress.ip_address(address)
@@ -157,9 +162,11 @@ class HeadsetDisplay(Node):
 
     def shown(self) -> tuple[str, list[dict]]:
         """The active target's id and the targets as the headset is to draw them."""
-        if self.draw_targets:
-            return self.active, self.targets
-        return '', []
+        if not self.draw_targets:
+            return '', []
+        if not self.draw_inactive:
+            return self.active, [t for t in self.targets if t['id'] == self.active]
+        return self.active, self.targets
 
     def send_targets(self) -> None:
         active, targets = self.shown()
