@@ -17,32 +17,15 @@ the target is shown), 'front' (speed: the target is back at the front, waiting f
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
 import math
 from typing import Sequence
 
 from ..core.geometry import wrap_deg
 from ..sim.wearer import angle_between_deg
 from .plan import Block, StudyDesign, TrialSpec, target_stream
+from .steps import ACTION_KINDS, PRESS_KEYS, STATUSES, Action, GazeSample, Press, Step  # noqa: F401 (re-exported)
 from .trial_columns import CONTEXT_COLUMNS, RECORD_COLUMNS, SESSION_COLUMNS
 
-#: What an Action asks of the operator layer.
-ACTION_KINDS = (
-    'set_condition',   # condition: switch the graph to it (layout, feedback mode, speech)
-    'open_gate',       # the trial gate opens (after the rest): the trial starts
-    'vent',            # the trial gate closes (suit vented) until the next 'open_gate'
-    'show_target',     # target (azimuth, elevation) [deg], visible, target_id, dummy_set
-    'found',           # speed: the accepted press identified the target (the headset's `found` event)
-    'show_front',      # speed: the target is back at the front (0, 0)
-    'hide',            # no target shown
-    'prompt',          # text: what the wearer reads on the headset
-    'done',            # the display's done event: text 'sequence', 'block' or 'session' (the last block)
-)
-#: What Step.presses tells of each resolved press: its stamp, receipt and source [s, steady
-#: clock], the gaze sample's time, the error [deg] (full angle; h/v for accuracy), accepted,
-#: and why not.
-PRESS_KEYS = ('stamp', 'received', 'resolved', 'source', 'gaze_t', 'error_deg', 'h_error_deg', 'v_error_deg',
-              'accepted', 'reason')
 #: The columns a session fills (store adds the rest).
 ROW_FIELDS = tuple(RECORD_COLUMNS) + tuple(SESSION_COLUMNS) + tuple(CONTEXT_COLUMNS)
 #: The most gaze samples kept, whatever their stamps (2 s at 1 kHz).
@@ -60,48 +43,6 @@ FRAME_SAMPLES = 32
 #: way (a press stamped with its frame's capture time was judged on the frame before). Half a
 #: millisecond is half a frame at 1 kHz, a twentieth at 90 Hz.
 SAME_CAPTURE_S = 0.0005
-#: A trial row's status: only 'ok' rows enter the analysis.
-STATUSES = ('ok', 'repeated', 'skipped', 'stopped', 'interrupted', 'vented')
-
-
-@dataclass(frozen=True)
-class Action:
-    kind: str                                   # one of ACTION_KINDS
-    t: float                                    # event time it was decided at [s, steady clock]
-    condition: int | None = None
-    target: tuple[float, float] | None = None   # (azimuth, elevation) [deg], positive left / up
-    target_id: str | None = None                # 'target', 'front'
-    visible: bool | None = None                 # accuracy: False (the unseen target)
-    dummy_set: int | None = None                # speed: a new set of dummies per target
-    text: str | None = None                     # prompt text; done: 'sequence' or 'block'
-
-
-@dataclass
-class Step:
-    """What one event produced."""
-
-    actions: list[Action] = field(default_factory=list)
-    rows: list[dict] = field(default_factory=list)          # finished trials (session.ROW_FIELDS)
-    blocks: list[Block] = field(default_factory=list)       # finished blocks
-    refused: str | None = None                              # a refused press or command, why
-    amended: list[tuple[str, int, str]] = field(default_factory=list)  # (block key, repetition, new status)
-    presses: list[dict] = field(default_factory=list)       # presses resolved now (PRESS_KEYS)
-    pending: bool = False                                   # a press waits for its gaze sample
-    ignored: str | None = None                              # the source of a press not judged (counted)
-
-
-@dataclass(frozen=True)
-class GazeSample:
-    t: float                # capture time [s, steady clock]
-    yaw_deg: float          # positive left
-    pitch_deg: float        # positive up
-
-
-@dataclass(frozen=True)
-class Press:
-    stamp: float            # capture time at its source [s, steady clock]
-    received: float         # when the session got it [s, steady clock]
-    source: str             # 'keyboard', 'ros', 'headset'
 
 
 class Session:
@@ -275,6 +216,19 @@ class Session:
         else:
             step.pending = True
         return step
+
+    def target_shown(self, t: float) -> None:
+        """The graph showed the trial's current target at t (target_selector answered the call
+        that placed it): its find time counts from t, and a trial's first target starts the trial
+        there, which then lasts trial_s (timeout_s) from it. A call that took its time (a loaded
+        machine, a block's first trial) would otherwise count against the wearer."""
+        tr = self._trial
+        if tr is None or self._phase != 'target' or t <= tr['appeared']:
+            return
+        if tr['appeared'] == tr['start']:       # the trial's first target
+            d = self.design
+            tr['start'], tr['end'] = t, t + (d.trial_s if d.protocol == 'speed' else d.timeout_s)
+        tr['appeared'] = t
 
     def restart_rest(self, t: float) -> None:
         """A rest under way starts again at t: the operator layer's switch to a block's condition
