@@ -352,7 +352,6 @@ def test_a_slow_block_start_shortens_no_rest_and_comes_after_the_last_rows_on_di
         assert row['trial_start_s'] >= ready + design.rest_s
 
 
-
 def test_a_trial_starts_when_its_target_is_shown_not_when_it_was_decided():
     """The target appeared 0.29-1.14 s after the recorded trial_start_s, and was up 13.86-19.71 s
     of a 20 s trial that the TSV said lasted trial_s."""
