@@ -57,8 +57,9 @@ def test_a_shortfall_names_the_stage_that_lost_the_samples():
     acc = account(before, after, 1000, 490, {CONTROLLER: [stall]})
     assert acc['lost'] == {'bridge': 2, 'controller': 503, 'plc_output': 1, 'PLC': 4}, acc
     line = shortfall(90.0, 450, 900, pool([acc]))
-    assert line.startswith('90 Hz: the package applied 450 of 900 samples (50.0 %), 4 superseded in a queue under '
-                           'load counted with them, below the floor of 90 %')
+    assert line.startswith("90 Hz: the package applied 450 of 900 samples (50.0 %), 4 lost to the machine's load "
+                           "(superseded in a queue, or the mock PLC's link down) counted with them, below the floor "
+                           'of 90 %')
     assert 'at: controller 503 (superseded in its gaze queue 3; vented by its step 500; said "' + stall in line
     assert line.index('controller 503') < line.index('PLC 4') < line.index('bridge 2') < line.index('plc_output 1')
     assert shortfall(90.0, 810, 900, acc) is None and shortfall(1000.0, 100, 900, acc) is None
@@ -69,6 +70,13 @@ def test_a_shortfall_names_the_stage_that_lost_the_samples():
                      1000, 990, {})
     assert loaded['causes']['plc_output']['superseded in its command queue'] == 235
     assert shortfall(90.0, 780, 900, loaded) is None and shortfall(90.0, 500, 900, loaded) is not None
+    # ... as do samples missing from the register log while plc_output's link to the (loaded) mock
+    # PLC was down: a fresh run lost 31 of 270 C# frames so; without a link failure they count
+    calm = {**after, CONTROLLER: {**after[CONTROLLER], 'gaze_vented': '0'}}
+    late = account(before, calm, 1000, 890, {})
+    assert late['lost']['PLC'] == 104 and shortfall(90.0, 790, 900, late) is not None
+    link = {**calm, PLC_OUTPUT: {**calm[PLC_OUTPUT], 'link failures': '1'}}
+    assert shortfall(90.0, 790, 900, account(before, link, 1000, 890, {})) is None
     # ... but a stage that received nothing of what was sent is cut off, not loaded
     cut = account(before, {**after, PLC_OUTPUT: {**after[PLC_OUTPUT], 'commands received (not a vent)': '150'}},
                   1000, 0, {})
