@@ -202,8 +202,6 @@ class SessionDriver:
             self._calls.popleft()
             kind, decided, _sent = self.timing.events[index]
             self.timing.events[index] = (kind, decided, pending.done_at)
-            if kind == 'target' and pending.done_at is not None:
-                self.session.target_shown(pending.done_at)   # the trial's time from the target shown
 
     def feed_gaze(self) -> None:
         """The samples appended to op.gaze since the last call, each once, in order: taken from

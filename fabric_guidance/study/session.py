@@ -217,19 +217,6 @@ class Session:
             step.pending = True
         return step
 
-    def target_shown(self, t: float) -> None:
-        """The graph showed the trial's current target at t (target_selector answered the call
-        that placed it): its find time counts from t, and a trial's first target starts the trial
-        there, which then lasts trial_s (timeout_s) from it. A call that took its time (a loaded
-        machine, a block's first trial) would otherwise count against the wearer."""
-        tr = self._trial
-        if tr is None or self._phase != 'target' or t <= tr['appeared']:
-            return
-        if tr['appeared'] == tr['start']:       # the trial's first target
-            d = self.design
-            tr['start'], tr['end'] = t, t + (d.trial_s if d.protocol == 'speed' else d.timeout_s)
-        tr['appeared'] = t
-
     def restart_rest(self, t: float) -> None:
         """A rest under way starts again at t: the operator layer's switch to a block's condition
         (and its recorder) took its time, which must shorten no rest."""

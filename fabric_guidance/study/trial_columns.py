@@ -32,7 +32,7 @@ RECORD_COLUMNS: dict[str, tuple[str, str]] = {
     'timed_out': ('-', 'accuracy: True when no press came within timeout_s'),
     'identified': ('-', 'speed: targets identified (accepted presses) within trial_s'),
     'presented': ('-', 'speed: targets that appeared'),
-    'mean_find_s': ('s', 'speed: mean time from a target shown to its accepted press'),
+    'mean_find_s': ('s', 'speed: mean time from a target appearing to its accepted press'),
 }
 assert list(RECORD_COLUMNS) == [f.name for f in fields(TrialRecord)], 'RECORD_COLUMNS out of step with TrialRecord'
 
@@ -44,8 +44,7 @@ SESSION_COLUMNS: dict[str, tuple[str, str]] = {
                     "'vented' (the operator's arm dropped during it: an outside vent, a controller restart or a "
                     "lost controller; run again once the operator re-arms)"),
     'block': ('-', 'the block: task, position and condition (one bag per block)'),
-    'trial_start_s': ('s', 'steady clock when the first target of the trial was shown (target_selector '
-                           'answered its call)'),
+    'trial_start_s': ('s', 'steady clock when the trial started (trial gate opened, target set)'),
     'trial_end_s': ('s', 'steady clock when the trial ended (speed: trial_start_s + trial_s)'),
     'press_s': ('s', 'steady clock capture time of the press that ended an accuracy trial, or of the '
                      'last accepted press of a speed trial; empty if none'),
