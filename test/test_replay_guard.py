@@ -62,3 +62,25 @@ def test_a_subscriber_not_named_yet_is_waited_for_then_refused():
     graph.subscribers['/gaze'] = [('pressure_controller', '/')]   # named: a live one
     with pytest.raises(LiveGraphError, match='runs on the wall clock'):
         guard(graph, ['/gaze'], {'/pressure_controller': False}).wait_known(1.0)
+
+
+def test_while_playing_a_subscriber_unnamed_for_a_moment_is_waited_for_one_unnamed_for_wait_s_refused():
+    """A fresh run's replay stopped at its second loop: the graph had lost a subscriber's name for
+    a moment (a loaded machine). While playing, the guard gives a name wait_s, as at the start."""
+    import time
+    named = [('pressure_controller', '/replay')]
+    graph = FakeGraph(subscribers={'/replay/gaze': named})
+    g = guard(graph, ['/replay/gaze'], {'/replay/pressure_controller': True})
+    g.check(0.05)
+    graph.subscribers['/replay/gaze'] = [('_NODE_NAME_UNKNOWN_', '_NODE_NAMESPACE_UNKNOWN_')]
+    g.check(0.05)                       # unnamed just now: not refused yet
+    graph.subscribers['/replay/gaze'] = named
+    g.check(0.05)                       # named again: the wait starts afresh next time
+    graph.subscribers['/replay/gaze'] = [('_NODE_NAME_UNKNOWN_', '_NODE_NAMESPACE_UNKNOWN_')]
+    g.check(0.05)
+    time.sleep(0.06)                    # unnamed for longer than wait_s
+    with pytest.raises(LiveGraphError, match="a subscriber's node is not known"):
+        g.check(0.05)
+    graph.subscribers['/replay/gaze'] = [('pressure_controller', '/')]   # a live one: at once
+    with pytest.raises(LiveGraphError, match='runs on the wall clock'):
+        guard(graph, ['/replay/gaze'], {'/pressure_controller': False}).check(10.0)

@@ -8,8 +8,10 @@ Never into a live graph: before the first message and every RECHECK_S while play
 subscribers of every control topic it publishes (topics.CONTROL_TOPICS: the ones that move a
 suit) are looked at; a pressure_controller on the wall clock (its use_sim_time false, or not
 answering) or a plc_output in that namespace makes the replay stop with LiveGraphError (one
-line, nothing more published). A replay's own controller runs with use_sim_time:=true, in a
-graph of its own or under a namespace (`namespace`: every topic published under it).
+line, nothing more published), and so does a subscriber the graph has not named for `wait_s`
+(a live controller also takes its target only from its own target_selector: docs/safety.md).
+A replay's own controller runs with use_sim_time:=true, in a graph of its own or under a
+namespace (`namespace`: every topic published under it).
 """
 from __future__ import annotations
 
@@ -40,12 +42,21 @@ class LiveGuard:
         self.node = node
         self.topics = sorted(t for t in topics if is_control_topic(t))
         self._sim_time: dict[str, bool] = {}   # a controller's full name -> its use_sim_time
+        self._unnamed_since: float | None = None   # a subscriber not named yet, seen first then
 
-    def check(self) -> None:
-        """Raise LiveGraphError when a control topic is heard in a live namespace, or (after
-        wait_s) by a subscriber whose node the graph cannot name."""
+    def check(self, wait_s: float = 0.0) -> None:
+        """Raise LiveGraphError when a control topic is heard in a live namespace, or by a
+        subscriber whose node the graph has not named for wait_s (the graph names a node some
+        time after its endpoints match, and may lose a name for a moment on a loaded machine:
+        a fresh run's replay stopped at its second loop on an unnamed subscriber)."""
         unknown = self.look()
-        if unknown:
+        if not unknown:
+            self._unnamed_since = None
+            return
+        now = time.monotonic()
+        if self._unnamed_since is None:
+            self._unnamed_since = now
+        if now - self._unnamed_since >= wait_s:
             raise LiveGraphError(self._refusal(unknown, 'a subscriber\'s node is not known (the graph '
                                                         'has not named it)'))
 
@@ -177,7 +188,7 @@ def play(path, topics: Sequence[str] = REPLAYED_INPUTS, rate: float = 1.0, loop:
                 if stop():
                     break
                 if time.monotonic() >= next_check:   # a live controller started meanwhile
-                    guard.check()
+                    guard.check(wait_s)
                     next_check = time.monotonic() + RECHECK_S
                 clock(ts)
                 pubs[topic].publish(data)
