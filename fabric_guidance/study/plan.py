@@ -122,8 +122,8 @@ class StudyDesign:
     def as_dict(self) -> dict:
         """The task's parameters, without those of the other task (an accuracy sidecar recorded
         the speed task's 50 dummies and 40 s trials)."""
-        d = {k: v for k, v in asdict(self).items()
-             if not any(k in names for task, names in TASK_ONLY.items() if task != self.protocol)}
+        other = {name for task, names in TASK_ONLY.items() if task != self.protocol for name in names}
+        d = {k: v for k, v in asdict(self).items() if k not in other}
         d['conditions'] = list(self.conditions)
         d['press_sources'] = list(self.press_sources)
         return d

@@ -45,7 +45,7 @@ SESSION_COLUMNS: dict[str, tuple[str, str]] = {
                     "lost controller; run again once the operator re-arms)"),
     'block': ('-', 'the block: task, position and condition (one bag per block)'),
     'trial_start_s': ('s', 'steady clock when the trial started (trial gate opened, target set)'),
-    'trial_end_s': ('s', 'steady clock when the trial ended (speed: trial_start_s + trial_s)'),
+    'trial_end_s': ('s', 'steady clock when the trial ended (speed: trial_start_s + trial_s exactly)'),
     'press_s': ('s', 'steady clock capture time of the press that ended an accuracy trial, or of the '
                      'last accepted press of a speed trial; empty if none'),
     'press_source': ('-', "where that press came from: its confirm's frame_id ('keyboard', 'headset', "
