@@ -30,6 +30,17 @@ def test_the_domain_ids_of_xdist_workers_never_meet(monkeypatch):
     assert {fresh_domain_id() for _ in range(300)} == set(range(1, 101))
 
 
+def test_a_simulated_studys_domain_is_a_safe_one_and_never_the_shells(monkeypatch):
+    """study --simulated picks its graph's domain as the tests do (1-100: above 101 the DDS ports
+    fall in Linux's ephemeral range) and never the domain ROS_DOMAIN_ID names (a running graph's)."""
+    from fabric_guidance.live_study.simulated import own_domain_id
+    monkeypatch.setenv('PYTEST_XDIST_WORKER', 'gw1')
+    monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', '2')
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    drawn = {own_domain_id() for _ in range(300)}
+    assert drawn == set(range(2, 101, 2)) - {42}, sorted(drawn)
+
+
 def test_processes_with_finds_a_marked_process_and_its_child_until_they_end():
     mark = f'{os.getpid()}-marked'
     # A parent that starts a child (which inherits the environment), both sleeping.

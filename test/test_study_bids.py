@@ -19,6 +19,7 @@ from fabric_guidance.study.events import EVENT_COLUMNS
 from fabric_guidance.study.plan import StudyDesign
 from fabric_guidance.study.store import read_tsv
 from test_study_store import DESIGN, run_participant  # noqa: E402 (test/ is on sys.path)
+from rosgraph import log_tails  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 VALIDATOR = ROOT / '.npm-bids' / 'node_modules' / '.bin' / 'bids-validator'
@@ -136,7 +137,7 @@ def test_both_simulated_protocols_into_one_folder_pass_the_validator(tmp_path):
                               '--participants', '1', '--protocol', protocol, '--trials', '1', '--out', str(out),
                               *extra], capture_output=True, text=True, timeout=600,
                              env=dict(os.environ, PYTHONUNBUFFERED='1'))
-        assert res.returncode == 0, res.stdout + res.stderr
+        assert res.returncode == 0, res.stdout + res.stderr + log_tails(out / 'sourcedata' / 'logs')
     report = bids_validator(out)
     assert not report['issues']['errors'], errors(report)
     assert sorted(report['summary']['tasks']) == ['accuracy', 'speed'] and report['summary']['subjects'] == ['01']

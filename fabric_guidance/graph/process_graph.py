@@ -262,6 +262,12 @@ class Graph:
     def log(self, node: str) -> str:
         return (self.log_dir / f'{node}.log').read_text()
 
+    def ended(self) -> dict[str, int]:
+        """The nodes whose process has ended without being stopped, with their exit codes."""
+        with self._lock:
+            return {key: proc.returncode for key, proc in self.processes.items()
+                    if key not in self._stopping and proc.poll() is not None}
+
     def stop(self, node: str, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
         with self._lock:
             self._stopping.add(node)   # not restarted by the supervisor

@@ -30,9 +30,10 @@ import time
 from typing import Callable
 
 from ..core import condition as condition_of
-from ..graph.process_graph import FILES, Graph, loopback_dds_env, sim_lab, start_nodes, wait_until
+from ..graph.process_graph import FILES, Graph, fresh_domain_id, loopback_dds_env, sim_lab, start_nodes, wait_until
 from ..sim.population import calibrate_wearer, sample_wearer
 from ..study import plan
+from ..study.store import StudyError
 from ..sim.scene_plan import MAX_SCENE_GAZE_RATE_HZ, NO_REGULATOR_LAG_S
 from .operator import STUDY_TARGET, Operator, target_position
 
@@ -69,6 +70,15 @@ def graph_overrides(lab, scene, subject: int, cond: int, calibration_file: Path,
                             repetition=0)
 
 
+def own_domain_id() -> int:
+    """A fresh domain of 1-100 that is not the one ROS_DOMAIN_ID names."""
+    taken = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    while True:
+        domain = fresh_domain_id()
+        if str(domain) != taken:
+            return domain
+
+
 def fresh_folder(base: Path) -> Path:
     """base, or base-2, base-3 ... the first that does not exist yet."""
     path, n = base, 1
@@ -99,10 +109,11 @@ class SimulatedParticipant:
         self.lab = sim_lab(cond.number, cond.layout or 'suit', log_dir / 'calibrations')
         self.gaze_rate_hz = min(scene.sim_rate_hz, MAX_SCENE_GAZE_RATE_HZ)
         graph_overrides(self.lab, scene, subject, cond.number, self.calibration_file, self.gaze_rate_hz)
-        # Domains 101-200: the tests' graphs take 1-100 (process_graph.fresh_domain_id), and a
-        # session that meets another graph's target_selector on its domain would steer that one.
-        # A folder of its own per run: a resumed study never writes into the logs of the run before.
-        self.graph = Graph(fresh_folder(log_dir / 'graph'), domain_id=101 + (os.getpid() * 7 + subject) % 100)
+        # A domain of 1-100 (process_graph.fresh_domain_id; under pytest-xdist, its worker's own):
+        # above 101 the DDS ports fall in Linux's ephemeral range (32768-60999), where any UDP
+        # socket can hold one, and discovery then fails by chance. Not the domain this shell's
+        # ROS_DOMAIN_ID names: a session that met a running graph's target_selector would steer it.
+        self.graph = Graph(fresh_folder(log_dir / 'graph'), domain_id=own_domain_id())
         self.op: Operator | None = None
         self.timing = Timing()
         self.condition = cond.number
@@ -111,12 +122,26 @@ class SimulatedParticipant:
         start_nodes(self.graph, self.lab, FILES)
         os.environ.update(loopback_dds_env())
         self.op = Operator(self.graph.domain_id)
-        wait_until(lambda: self.op.has_gaze() and self.op.controller_condition,
-                   STARTUP_S, what='gaze and the controller on the study graph')
+        try:
+            wait_until(lambda: self.op.has_gaze() and self.op.controller_condition is not None,
+                       STARTUP_S, what='gaze and the controller on the study graph')
+        except AssertionError:
+            raise StudyError(self.startup_failure()) from None
         self.op.trial_gate(False)     # the session's gate: vented until the first trial
         # The simulated operator arms the controller once: this call stands for the person at
         # the console (the session itself never calls enable).
         self.op.enable(True)
+
+    def startup_failure(self) -> str:
+        """One line: what of the graph was not heard within STARTUP_S, which nodes ended, where
+        their logs are."""
+        missing = [what for what, heard in (('gaze from gaze_bridge', self.op.has_gaze()),
+                                            ("pressure_controller's status on /diagnostics",
+                                             self.op.controller_condition is not None)) if not heard]
+        ended = ', '.join(f'{node} (exit {code})' for node, code in self.graph.ended().items())
+        return (f'the study graph of participant {self.subject + 1:02d} (ROS_DOMAIN_ID {self.graph.domain_id}) '
+                f'did not start within {STARTUP_S:g} s: no {" and no ".join(missing)}; '
+                f'{"nodes ended: " + ended if ended else "every node still running"}; logs in {self.graph.log_dir}')
 
     def switch(self, cond: int) -> None:
         """The condition for the next block, within the running graph: the `condition` parameter
