@@ -138,14 +138,13 @@ def main(argv: list[str] | None = None) -> int:
 def check(args: argparse.Namespace) -> DryRun:
     """The settings of `args`; OptionError naming the option at the first bad value."""
     from ..graph.lab_graph import study_params_file
-    from ..paths import node_parameters
     files = ['params/guidance.yaml']
     if args.study is not None:
         try:
             files.append(study_params_file(args.study))
         except ValueError as exc:
             raise OptionError(f'--study {args.study}: {exc}') from None
-    bridge = node_parameters(files[0], 'gaze_bridge')
+    bridge, plc = _file_values(files, 'gaze_bridge'), _file_values(files, 'plc_output')
     domain_id = _domain_id(os.environ.get('ROS_DOMAIN_ID', ''))
     headset = _address('--headset-address', args.headset_address)
     bind = _address('--bind-address', bridge['bind_address'] if args.bind_address is None else args.bind_address)
@@ -155,7 +154,7 @@ def check(args: argparse.Namespace) -> DryRun:
     if bind.is_loopback and not headset.is_loopback:
         raise OptionError(f'--bind-address {bind}: a headset at {headset} cannot reach a loopback address; give '
                           "this PC's address on the headset's network")
-    plc_port = _port('--plc-port', args.plc_port, node_parameters(files[0], 'plc_output')['plc_port'])
+    plc_port = _port('--plc-port', args.plc_port, plc['plc_port'])
     gaze_port = _port('--gaze-port', args.gaze_port, bridge['port'])
     display_port = _port('--display-port', args.display_port, bridge['display_port'])
     _can_listen('--plc-port', plc_port, '127.0.0.1', socket.SOCK_STREAM, 'the mock PLC')
@@ -170,6 +169,15 @@ def check(args: argparse.Namespace) -> DryRun:
             raise OptionError(f'{option}: {why}')
     return DryRun(domain_id, str(headset), str(bind), plc_port, gaze_port, display_port, tuple(files),
                   controller, logs.resolve(), args.study)
+
+
+def _file_values(files: list[str], node: str) -> dict:
+    """A node's parameters as the files give them, the later file's values winning."""
+    from ..paths import node_parameters
+    values: dict = {}
+    for name in files:
+        values.update(node_parameters(name, node))
+    return values
 
 
 def _domain_id(text: str) -> int:
@@ -278,7 +286,7 @@ def run_dry_run(plan: DryRun, say) -> int:
             return 1
         overrides = plan.overrides()
         for node in LAB_NODES:
-            graph.start(node, plan.files, **overrides[node])
+            graph.start(node, (*plan.files, override_file(plan.logs, node, overrides[node])))
         from ..graph.lab_graph import RESPAWN_DELAY_S
         # A fixed delay, as launch's respawn (it has no growing back-off).
         graph.supervise(SUPERVISED, delay_s=RESPAWN_DELAY_S, max_delay_s=RESPAWN_DELAY_S)
@@ -288,6 +296,17 @@ def run_dry_run(plan: DryRun, say) -> int:
     finally:
         stop(graph, say)
     return 0
+
+
+def override_file(logs: Path, node: str, values: dict) -> str:
+    """A parameter file keyed by the node's own name, loaded after the package's files so that its
+    values win, as the lab launch passes its arguments; kept with the logs (what each node was given)."""
+    import yaml
+    folder = logs / 'parameters'
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f'{node}.yaml'
+    path.write_text(yaml.safe_dump({f'/{node}': {'ros__parameters': values}}, sort_keys=False))
+    return str(path)
 
 
 def _mock_listens(graph) -> str:
@@ -317,12 +336,16 @@ def started_lines(plan: DryRun) -> list[str]:
         f'  ROS_DOMAIN_ID {plan.domain_id} (from the shell), DDS on 127.0.0.1: the operator\'s tools join from this PC '
         f'with the same ROS_DOMAIN_ID{session}',
         f'  mock PLC 127.0.0.1:{plan.plc_port} (Modbus TCP, plc_output\'s link); gaze from {plan.headset} on UDP '
-        f'{plan.bind_address}:{plan.gaze_port}; display to {plan.headset}:{plan.display_port}',
+        f'{_endpoint(plan.bind_address, plan.gaze_port)}; display to {_endpoint(plan.headset, plan.display_port)}',
         f'  pressure_controller is disarmed, and again whenever it restarts: arm it with '
         f'`ros2 service call {interface.full_name(interface.ENABLE)} std_srvs/srv/SetBool "{{data: true}}"`',
         f'  logs in {plan.logs}',
         '  Ctrl-C stops every node, each venting on its way out.',
     ]
+
+
+def _endpoint(address: str, port: int) -> str:
+    return f'[{address}]:{port}' if ':' in address else f'{address}:{port}'
 
 
 def watch(graph, plan: DryRun, say) -> None:
