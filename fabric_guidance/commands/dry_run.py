@@ -52,6 +52,9 @@ MOCK_LISTENS_S = 60.0
 POLL_S = 0.2
 #: The highest ROS_DOMAIN_ID whose DDS ports exist (Fast DDS: 7400 + 250 x the id stays below 65536).
 MAX_DOMAIN_ID = 232
+#: Above it the DDS ports fall in Linux's ephemeral port range (32768-60999), where any program's
+#: UDP socket may hold one (the ROS 2 docs' "About Domain ID").
+SAFE_DOMAIN_ID = 101
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -337,6 +340,9 @@ def started_lines(plan: DryRun) -> list[str]:
         f'with the same ROS_DOMAIN_ID{session}',
         f'  mock PLC 127.0.0.1:{plan.plc_port} (Modbus TCP, plc_output\'s link); gaze from {plan.headset} on UDP '
         f'{_endpoint(plan.bind_address, plan.gaze_port)}; display to {_endpoint(plan.headset, plan.display_port)}',
+        *([f'  WARNING: ROS_DOMAIN_ID {plan.domain_id} is above {SAFE_DOMAIN_ID}: its DDS ports lie in Linux\'s '
+            'ephemeral range, where another program may take one and discovery then fails by chance; 0-101 are safe']
+          if plan.domain_id > SAFE_DOMAIN_ID else []),
         f'  pressure_controller is disarmed, and again whenever it restarts: arm it with '
         f'`ros2 service call {interface.full_name(interface.ENABLE)} std_srvs/srv/SetBool "{{data: true}}"`',
         f'  logs in {plan.logs}',
