@@ -26,7 +26,8 @@ same domain (docs/interfaces.md, "Names and namespaces"). It needs that suit's o
 parameter file's address is the root suit's PLC.
 
 mock_plc:=true runs the lab graph against a mock PLC on this PC (plc_host 127.0.0.1, plc_port or
-1502), started first: a lab's dry run with the real headset and a person, no suit (docs/launch.md).
+1502), started first: a lab's dry run with the real headset and a person, no suit (docs/launch.md);
+`fabric-guidance dry-run --headset-address ...` starts the same without `ros2 launch`.
 
 keystore:=DIR runs each node in its SROS2 enclave, security enforced (docs/security.md);
 discovery_server:=ADDRESS[:PORT] makes every node a client of that discovery server, and

@@ -44,7 +44,7 @@ def test_help_lists_every_subcommand_without_importing_one():
     assert subcommand_modules.isdisjoint(loaded['modules'])
 
 
-@pytest.mark.parametrize('name', ['example', 'bench', 'replay', 'demo'])
+@pytest.mark.parametrize('name', ['example', 'bench', 'replay', 'demo', 'dry-run'])
 def test_a_light_subcommand_imports_only_its_own_module(name):
     stdout, loaded = probe(name, '--help')
     assert f'usage: fabric-guidance {name}' in stdout

@@ -1,6 +1,7 @@
 """fabric-guidance: the package's command line.
 
   demo      the simulated ROS graph, a guided session, what happened (`make demo`)
+  dry-run   the lab graph against a mock PLC on this PC, the real headset, no suit (a lab's dry run)
   replay    a recorded session: through the graph with /clock, or --offline against the controller
   recover   a complete bag (summary, metadata.yaml) from the intact part of a cut-off recording
   calibration-report  a calibration file's fit per direction, as text and a PNG
@@ -34,6 +35,8 @@ from .. import subcommand
 SUBCOMMANDS = {
     'demo': ('fabric_guidance.commands.demo_command',
              'run the simulated ROS graph for a short guided session and report it'),
+    'dry-run': ('fabric_guidance.commands.dry_run', 'run the lab graph against a mock PLC on this PC, with the '
+                'real headset and no suit (a dry run)'),
     'replay': ('fabric_guidance.commands.replay', 'replay a recorded session: offline through the '
                'controller, or republished with /clock for the graph'),
     'recover': ('fabric_guidance.commands.recover', 'write a complete bag (summary, metadata.yaml) from the intact '

@@ -32,12 +32,12 @@ from launch.event_handlers import OnProcessIO, OnShutdown
 import yaml
 
 from ..lab import discovery_server, lab_network, security_policy
+from .lab_graph import MOCK_PLC_LISTENING, RESPAWN_DELAY_S, STUDY_TASKS, study_params_file
 from .suit_plc import require_own_plc
 
-__all__ = ['require_own_plc']   # the launch files' rule on a namespaced suit's PLC (suit_plc.py)
-
-#: The line mock_plc logs once its listener accepts connections (nodes/mock_plc.py).
-MOCK_PLC_LISTENING = 'mock PLC listening on'
+# The launch files' rule on a namespaced suit's PLC (suit_plc.py); what `fabric-guidance dry-run`
+# shares with the lab launch (lab_graph.py).
+__all__ = ['require_own_plc', 'MOCK_PLC_LISTENING', 'STUDY_TASKS']
 
 
 def loopback_dds_actions(share: str) -> list:
@@ -62,10 +62,6 @@ def namespace_argument() -> DeclareLaunchArgument:
                                              "/suit_a/pressure_controller/enable ...); empty: the root")
 
 
-#: The study's tasks: `study:=<task>` loads config/params/study-<task>.yaml after the other files.
-STUDY_TASKS = ('speed', 'accuracy')
-
-
 def study_argument() -> DeclareLaunchArgument:
     return DeclareLaunchArgument('study', default_value='',
                                  description="the paper's task of a study session (docs/study.md): speed or "
@@ -79,7 +75,7 @@ def study_params_files(context, share: str) -> list:
         return []
     if task not in STUDY_TASKS:
         raise ValueError(f"launch argument study:={task!r}: one of {', '.join(STUDY_TASKS)} or empty")
-    return [os.path.join(share, 'config', 'params', f'study-{task}.yaml')]
+    return [os.path.join(share, 'config', study_params_file(task))]
 
 
 def launch_namespace(context) -> str:
@@ -172,7 +168,7 @@ def respawn_kwargs(context, node: str) -> dict:
     process died, as often as it dies (launch's delay is fixed; it has no growing back-off)."""
     if node not in RESPAWNED or not respawn_enabled(context):
         return {}
-    text = context.launch_configurations.get('respawn_delay', '') or '2.0'
+    text = context.launch_configurations.get('respawn_delay', '') or str(RESPAWN_DELAY_S)
     try:
         delay = float(text)
     except ValueError:
@@ -188,7 +184,7 @@ def respawn_arguments() -> list:
                               description='restart a lab node whose process died (false: leave it down); '
                                           'the controller then starts disabled: guidance resumes only '
                                           'once the operator calls enable'),
-        DeclareLaunchArgument('respawn_delay', default_value='2.0',
+        DeclareLaunchArgument('respawn_delay', default_value=str(RESPAWN_DELAY_S),
                               description='seconds from a node process dying to its restart'),
     ]
 
