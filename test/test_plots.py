@@ -1,0 +1,283 @@
+"""Every plot the package makes, rendered from a small run and read as a reader would: axis
+labels with their units (the trial's length for targets per trial), the conditions under the
+names of core/plot_style.py, no two texts overlapping and no legend over data
+(core/plot_style.py measures matplotlib's text extents), and intervals within a quantity's range.
+
+Each run is the smallest that draws the plot (seconds); the figures are caught as they are saved.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from pathlib import Path
+import re
+
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+import numpy as np
+import pytest
+import yaml
+
+from fabric_guidance.core.plot_style import (condition_label, legends_covering_data, measure_label,
+                                             overlapping_texts)
+from fabric_guidance.paths import config_path
+
+DATA = Path(__file__).parent / 'data'
+#: A unit in parentheses at the end of a label, or a count per trial.
+UNIT = re.compile(r'\([^()]*\b(deg|s|ms|min|kPa|MB|Hz|count|x)\b[^()]*\)|per .*trial')
+
+
+@contextlib.contextmanager
+def caught_figures():
+    """{file name: Figure} of every figure saved inside the block."""
+    saved: dict[str, Figure] = {}
+    original = Figure.savefig
+
+    def savefig(self, fname, *args, **kwargs):
+        name = getattr(fname, 'name', fname)
+        if isinstance(name, int):       # atomic_write's os.fdopen: the descriptor's file
+            name = os.readlink(f'/proc/self/fd/{name}')
+        name = Path(str(name)).name
+        match = re.match(r'^\.(.+?)\.[^.]+\.tmp$', name)     # atomic_write's temporary file
+        saved[match.group(1) if match else name] = self
+        return original(self, fname, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Figure, 'savefig', savefig)
+        yield saved
+
+
+def quiet(main, argv):
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return main(argv)
+
+
+def readable(fig: Figure) -> None:
+    """No two texts overlap, none runs off the figure, no legend lies over data."""
+    problems = overlapping_texts(fig) + legends_covering_data(fig)
+    assert not problems, '\n'.join(problems)
+
+
+def intervals(ax) -> np.ndarray:
+    """The ends of every bar (LineCollection) of the axes, in data coordinates (x, y)."""
+    ends = [np.asarray(seg, float) for c in ax.collections if isinstance(c, LineCollection)
+            for seg in c.get_segments() if len(seg)]
+    return np.concatenate(ends) if ends else np.empty((0, 2))
+
+
+def within_axes(ax) -> None:
+    """Every bar lies inside the axes' limits (none cut by the frame), and a log axis has no
+    bar end at or below 0."""
+    ends = intervals(ax)
+    (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+    eps_x, eps_y = 1e-9 * (x1 - x0), 1e-9 * (y1 - y0)
+    assert np.all((ends[:, 0] >= x0 - eps_x) & (ends[:, 0] <= x1 + eps_x)), f'{ax.get_title()}: a bar leaves the x axis'
+    assert np.all((ends[:, 1] >= y0 - eps_y) & (ends[:, 1] <= y1 + eps_y)), f'{ax.get_title()}: a bar leaves the y axis'
+
+
+def never_below_zero(ax) -> None:
+    ends = intervals(ax)
+    assert ends.size and np.all(ends >= 0), f'{ax.get_title()!r}: an interval reaches below 0 ({ends.min():g})'
+
+
+def tick_texts(ax) -> list[str]:
+    return [t.get_text().replace('\n', ' ') for t in ax.get_xticklabels()]
+
+
+def legend_texts(fig: Figure) -> list[str]:
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend()] + list(fig.legends)
+    return [t.get_text() for lg in legends for t in lg.get_texts()]
+
+
+# ---------------------------------------------------------------- experiment and analyze
+
+@pytest.fixture(scope='module')
+def experiment_run(tmp_path_factory):
+    """experiment on a study's scene file: paper-speed with 10 s trials, two repetitions,
+    written as `study --simulated` writes it (the name inside still paper-speed)."""
+    from fabric_guidance.commands import cli
+    tmp = tmp_path_factory.mktemp('plots-experiment')
+    data = yaml.safe_load(Path(config_path('scenes/paper-speed.yaml')).read_text())
+    data['protocol']['trial_s'] = 10.0
+    data['repetitions'] = 2
+    scene = tmp / 'scene-speed.yaml'
+    scene.write_text(yaml.safe_dump(data, sort_keys=False))
+    with caught_figures() as figures:
+        code = quiet(cli.main, ['experiment', '--scene', str(scene), '--subjects', '3', '--workers', '1',
+                                '--out', str(tmp / 'out')])
+    assert code == 0
+    return tmp / 'out', figures
+
+
+def test_experiment_names_the_scene_file_and_its_trial_length(experiment_run):
+    _, figures = experiment_run
+    ax = figures['identified.png'].axes[0]
+    assert ax.get_ylabel() == measure_label('identified', 10.0)
+    assert 'per 10 s trial' in ax.get_ylabel() and '40' not in ax.get_ylabel()
+    title = ax.get_title()
+    assert 'scene-speed.yaml' in title and not title.startswith('paper-speed')
+
+
+def test_identified_names_its_dots_and_its_conditions_and_shows_no_key_without_stars(experiment_run):
+    _, figures = experiment_run
+    fig = figures['identified.png']
+    ax = fig.axes[0]
+    assert tick_texts(ax) == [condition_label(c) for c in (1, 2, 3, 4)]
+    assert any('trial' in t for t in legend_texts(fig)), legend_texts(fig)
+    stars = [t for t in ax.texts if set(t.get_text()) <= {'*'}]
+    assert not stars and 'p < 0.05' not in ax.get_xlabel()    # 3 wearers: no pair apart
+    readable(fig)
+
+
+def test_analyze_labels_a_measure_with_its_unit_not_its_column_or_file(experiment_run, tmp_path):
+    from fabric_guidance.experiments import analyze
+    out, _ = experiment_run
+    with caught_figures() as figures:
+        assert quiet(analyze.main, [str(out / 'trials.csv'), '--plot', str(tmp_path / 'trials.png')]) == 0
+        assert quiet(analyze.main, [str(DATA / 'table-identified-targets.csv'),
+                                    '--plot', str(tmp_path / 'table.png')]) == 0
+    trials, table = figures['trials.png'], figures['table.png']
+    assert trials.axes[0].get_ylabel() == measure_label('identified', None, 'mean per participant')
+    assert 'table-identified-targets' not in table.axes[0].get_ylabel()
+    assert 'per subject' in table.axes[0].get_ylabel()
+    for fig in (trials, table):
+        assert tick_texts(fig.axes[0]) == [condition_label(c) for c in (1, 2, 3, 4)]
+        readable(fig)
+    # the paper's table separates conditions 1 and 4: brackets, and the key that reads them
+    assert any(set(t.get_text()) <= {'*'} for t in table.axes[0].texts)
+    assert 'p < 0.05' in table.axes[0].get_xlabel()
+
+
+# ---------------------------------------------------------------- tradeoff
+
+@pytest.fixture(scope='module')
+def tradeoff_run(tmp_path_factory):
+    """tradeoff --quick over 2 seeds on three knobs (the gain, the two with positive whiskers)."""
+    from fabric_guidance.experiments import tradeoff
+    out = tmp_path_factory.mktemp('plots-tradeoff')
+    with caught_figures() as figures:
+        code = quiet(tradeoff.main, ['--quick', '--seeds', '2', '--knobs', 'gain,acceptance_deg,fit_tolerance',
+                                     '--workers', '1', '--out', str(out), '--overwrite'])
+    assert code == 0
+    return figures
+
+
+@pytest.mark.parametrize('name', ['gain.png', 'acceptance_deg.png', 'fit_tolerance.png'])
+def test_knob_plots_are_readable_with_whiskers_within_range(tradeoff_run, name):
+    fig = tradeoff_run[name]
+    readable(fig)
+    for ax in fig.axes:
+        assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel()), (ax.get_xlabel(), ax.get_ylabel())
+        never_below_zero(ax)
+        within_axes(ax)
+
+
+def test_gain_plot_labels_every_value(tradeoff_run):
+    fig = tradeoff_run['gain.png']
+    for ax in fig.axes:
+        texts = ' '.join(t.get_text() for t in ax.texts)
+        for g in ('0', '0.05', '0.5'):
+            assert re.search(rf'G = ([\d.]+, )*{re.escape(g)}\b', texts), (g, texts)
+        assert 'not labelled' not in texts
+
+
+def test_plane_zoom_cuts_no_whisker_and_labels_every_gain(tradeoff_run):
+    fig = tradeoff_run['plane.png']
+    readable(fig)
+    whole, zoom = fig.axes[:2]
+    for ax in (whole, zoom):
+        within_axes(ax)
+        never_below_zero(ax)
+        assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel())
+    labels = ' '.join(t.get_text() for t in zoom.texts)
+    assert 'G 0 ' in labels + ' ' and 'G 0.5' in labels, labels
+    assert 'not labelled' not in labels
+    for c in (1, 2, 3, 4):
+        assert any(condition_label(c) in t for t in legend_texts(fig)), legend_texts(fig)
+
+
+# ---------------------------------------------------------------- sensitivity, compare-paper, fit_tradeoff
+
+def test_sensitivity_axes_have_labels_with_units(tmp_path):
+    from fabric_guidance.experiments import sensitivity
+    with caught_figures() as figures:
+        assert quiet(sensitivity.main, ['--quick', '--parameters', 'reaction_delay.mean_s,gaze_noise.sd_deg',
+                                        '--workers', '1', '--out', str(tmp_path)]) == 0
+    fig = figures['sensitivity.png']
+    readable(fig)
+    scene = yaml.safe_load(Path(config_path('scenes/paper-fitted-speed.yaml')).read_text())
+    trial = f'per {scene["protocol"]["trial_s"]:g} s trial'
+    labels = [ax.get_xlabel() for ax in fig.axes]
+    assert all(UNIT.search(x) for x in labels), labels
+    assert sum(trial in x for x in labels) == 3 and sum('(deg)' in x for x in labels) == 2, labels
+    for ax in fig.axes:
+        if 'error' in ax.get_xlabel() or 'targets per' in ax.get_xlabel() and 'minus' not in ax.get_title():
+            assert ax.get_xlim()[0] >= 0 or any('cut at 0' in t for t in legend_texts(fig))
+
+
+def test_comparison_bars_stay_in_the_axes_and_conditions_are_named_as_elsewhere(tmp_path):
+    from fabric_guidance.experiments import paper_comparison
+    with caught_figures() as figures:
+        assert quiet(paper_comparison.main, ['--out', str(tmp_path), '--speed-scene', 'paper-speed',
+                                             '--accuracy-scene', 'paper-accuracy', '--subjects', '3',
+                                             '--seeds', '7', '--workers', '1']) == 0
+    fig = figures['comparison.png']
+    readable(fig)
+    for ax in fig.axes:
+        assert tick_texts(ax) == [condition_label(c) for c in (1, 2, 3, 4)]
+        assert UNIT.search(ax.get_ylabel()), ax.get_ylabel()
+        within_axes(ax)
+        never_below_zero(ax)
+
+
+def test_fit_tradeoff_uses_one_axis_for_the_weight_and_says_what_each_line_is(tmp_path):
+    from fabric_guidance.experiments import fit_tradeoff
+    design = config_path('scenes/fit') / 'design-arm_spread-0.1.npz'
+    with caught_figures() as figures:
+        assert quiet(fit_tradeoff.main, ['--out', str(tmp_path), '--emphasis', '1,2,8', '--draws', '20',
+                                         '--design', str(design)]) == 0
+    fig = figures['fit_tradeoff.png']
+    readable(fig)
+    a, b = fig.axes[:2]
+    assert a.get_xscale() == b.get_xscale()
+    assert [t.get_text() for t in a.get_xticklabels()] == [t.get_text() for t in b.get_xticklabels()]
+    assert not {'means', 'sds', 'best', 'corr'} & set(legend_texts(fig)), legend_texts(fig)
+
+
+# ---------------------------------------------------------------- lab and bench
+
+def test_calibration_report_figure(tmp_path):
+    from fabric_guidance.lab import calibration_report
+    with caught_figures() as figures:
+        assert quiet(calibration_report.main, [str(config_path('calibrations/sim-wearer.yaml')),
+                                               '--out', str(tmp_path)]) == 0
+    fig = figures['sim-wearer-fit.png']
+    readable(fig)
+    for ax in fig.axes:
+        if ax.axison:
+            assert UNIT.search(ax.get_ylabel().replace('\n', ' ')), ax.get_ylabel()
+
+
+def test_soak_figure(tmp_path):
+    from fabric_guidance.bench.soak import COLUMNS, OBSERVED
+    from fabric_guidance.bench.soak_report import plot
+    rng = np.random.default_rng(1)
+    rows = []
+    for i in range(6):
+        row = {c: 0 for c in COLUMNS}
+        row.update(row=i, t_start_s=60.0 * i, t_end_s=60.0 * (i + 1), warnings='', stall='',
+                   targets_reached=20, targets_skipped=1, time_to_target_s=2.5)
+        for kind in ('latency', 'command'):
+            row.update({f'{kind}_p50_ms': 2 + rng.random(), f'{kind}_p99_ms': 6 + rng.random(),
+                        f'{kind}_max_ms': 12 + 3 * rng.random()})
+        for n in OBSERVED:
+            row.update({f'rss_mb.{n}': 80 + rng.random(), f'cpu_s_per_min.{n}': 3 * rng.random(),
+                        f'fds.{n}': 20, f'threads.{n}': 10})
+        rows.append(row)
+    with caught_figures() as figures:
+        plot(rows, tmp_path / 'soak.png', OBSERVED)
+    fig = next(iter(figures.values()))
+    readable(fig)
+    for ax in fig.axes:
+        assert UNIT.search(ax.get_ylabel()), ax.get_ylabel()
