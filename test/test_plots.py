@@ -153,14 +153,20 @@ def test_analyze_labels_a_measure_with_its_unit_not_its_column_or_file(experimen
 
 @pytest.fixture(scope='module')
 def tradeoff_run(tmp_path_factory):
-    """tradeoff --quick over 2 seeds on three knobs (the gain, the two with positive whiskers)."""
-    from fabric_guidance.experiments import tradeoff
-    out = tmp_path_factory.mktemp('plots-tradeoff')
+    """The --quick sweep over 2 seeds on three knobs (the gain on its full grid of seven values,
+    the two knobs whose errors lie near 0), written as the command writes it."""
+    from fabric_guidance.experiments.tradeoff.intervals import run_seeds
+    from fabric_guidance.experiments.tradeoff.report import write_outputs
+    from fabric_guidance.experiments.tradeoff.settings import DEFAULT_GRIDS, QUICK_GRIDS, base_scenes, quick_settings
+    settings = quick_settings(knobs=('gain', 'acceptance_deg', 'fit_tolerance'), workers=1,
+                              grids={**QUICK_GRIDS, 'gain': DEFAULT_GRIDS['gain']})
+    seed = base_scenes(settings)[1].seed
     with caught_figures() as figures:
-        code = quiet(tradeoff.main, ['--quick', '--seeds', '2', '--knobs', 'gain,acceptance_deg,fit_tolerance',
-                                     '--workers', '1', '--out', str(out), '--overwrite'])
-    assert code == 0
+        write_outputs(run_seeds(settings, (seed, seed + 1)), tmp_path_factory.mktemp('plots-tradeoff'))
     return figures
+
+
+GAINS = [0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5]
 
 
 @pytest.mark.parametrize('name', ['gain.png', 'acceptance_deg.png', 'fit_tolerance.png'])
@@ -168,17 +174,18 @@ def test_knob_plots_are_readable_with_whiskers_within_range(tradeoff_run, name):
     fig = tradeoff_run[name]
     readable(fig)
     for ax in fig.axes:
-        assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel()), (ax.get_xlabel(), ax.get_ylabel())
         never_below_zero(ax)
         within_axes(ax)
+        assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel()), (ax.get_xlabel(), ax.get_ylabel())
 
 
 def test_gain_plot_labels_every_value(tradeoff_run):
-    fig = tradeoff_run['gain.png']
-    for ax in fig.axes:
+    from fabric_guidance.experiments.tradeoff.settings import DEFAULT_GRIDS
+    assert list(DEFAULT_GRIDS['gain']) == GAINS
+    for ax in tradeoff_run['gain.png'].axes:
         texts = ' '.join(t.get_text() for t in ax.texts)
-        for g in ('0', '0.05', '0.5'):
-            assert re.search(rf'G = ([\d.]+, )*{re.escape(g)}\b', texts), (g, texts)
+        for g in GAINS:
+            assert re.search(rf'G = ([\d.]+, )*{g:g}(?![\d.])', texts), (g, texts)
         assert 'not labelled' not in texts
 
 
@@ -191,7 +198,9 @@ def test_plane_zoom_cuts_no_whisker_and_labels_every_gain(tradeoff_run):
         never_below_zero(ax)
         assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel())
     labels = ' '.join(t.get_text() for t in zoom.texts)
-    assert 'G 0 ' in labels + ' ' and 'G 0.5' in labels, labels
+    for g in GAINS:
+        if g != 0.05:       # the package's gain: the condition's own point
+            assert re.search(rf'G ([\d.]+, )*{g:g}(?![\d.])', labels), (g, labels)
     assert 'not labelled' not in labels
     for c in (1, 2, 3, 4):
         assert any(condition_label(c) in t for t in legend_texts(fig)), legend_texts(fig)

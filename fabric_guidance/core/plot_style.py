@@ -84,31 +84,6 @@ def quantile_interval(values: Iterable[float], low: float = 10.0, high: float = 
     return float(np.percentile(v, low)), float(np.percentile(v, high))
 
 
-def log_t_interval(values: Iterable[float], confidence: float = 0.95) -> tuple[float, float]:
-    """The t interval of the mean of positive values taken on their logarithms: exp(mean(log)
-    +- t x SD(log) / sqrt(k)). Never below 0 and as asymmetric as such values are, where the
-    plain t interval of a few runs reaches below 0. (nan, nan) with fewer than two values or
-    one that is not > 0 (the caller falls back to the plain interval, cut and marked)."""
-    from scipy.stats import t as student
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], float)
-    if v.size < 2 or np.any(v <= 0):
-        return math.nan, math.nan
-    logs = np.log(v)
-    half = float(student.ppf(0.5 + confidence / 2, v.size - 1) * logs.std(ddof=1) / math.sqrt(v.size))
-    return float(np.exp(logs.mean() - half)), float(np.exp(logs.mean() + half))
-
-
-def log_se_interval(values: Iterable[float]) -> tuple[float, float]:
-    """+-1 SE of the mean of positive values on their logarithms (exp(mean(log) +- SE(log))):
-    the one-run whisker of a positive quantity; (nan, nan) as log_t_interval."""
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], float)
-    if v.size < 2 or np.any(v <= 0):
-        return math.nan, math.nan
-    logs = np.log(v)
-    half = float(logs.std(ddof=1) / math.sqrt(v.size))
-    return float(np.exp(logs.mean() - half)), float(np.exp(logs.mean() + half))
-
-
 def within_range(lo: float, hi: float, floor: float | None = 0.0) -> tuple[float, float, bool]:
     """(lo, hi, cut): an interval of a quantity that cannot go below `floor` (0 for errors,
     times and counts), its low end raised to the floor where it reaches below; `cut` says so,
@@ -141,6 +116,15 @@ def mark_cut(ax, x: Sequence[float], y: Sequence[float], *, vertical: bool = Tru
     goes on below, the figure cannot show it."""
     if len(x):
         ax.plot(x, y, ls='none', marker='v' if vertical else '<', ms=6, color=colour, zorder=zorder)
+
+
+def from_zero(ax) -> None:
+    """A linear axis of a quantity that is never negative starts at 0 at the lowest, not in the
+    margin below it (a log axis is left as it is)."""
+    if ax.get_xscale() == 'linear' and ax.get_xlim()[0] < 0:
+        ax.set_xlim(left=0.0)
+    if ax.get_yscale() == 'linear' and ax.get_ylim()[0] < 0:
+        ax.set_ylim(bottom=0.0)
 
 
 # ------------------------------------------------------------------------------ legends
@@ -254,9 +238,14 @@ def overlapping_texts(fig, pad: float = 0.5) -> list[str]:
     run into each other), annotations, and each legend as one box."""
     renderer = _renderer(fig)
     page = fig.bbox
+    from matplotlib.text import Text
     boxes = []
     for name, artist in _texts(fig):
-        box = artist.get_window_extent(renderer)
+        # an annotation's own extent takes in its arrow: the words are what must not overlap
+        if hasattr(artist, 'update_positions'):
+            artist.update_positions(renderer)
+        box = Text.get_window_extent(artist, renderer) if isinstance(artist, Text) else \
+            artist.get_window_extent(renderer)
         if box.width <= 0 or box.height <= 0:
             continue
         boxes.append((name, box.expanded(1.0, 1.0).padded(-pad)))
