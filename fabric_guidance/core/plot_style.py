@@ -118,12 +118,12 @@ def mark_cut(ax, x: Sequence[float], y: Sequence[float], *, vertical: bool = Tru
         ax.plot(x, y, ls='none', marker='v' if vertical else '<', ms=6, color=colour, zorder=zorder)
 
 
-def from_zero(ax) -> None:
+def from_zero(ax, x: bool = True, y: bool = True) -> None:
     """A linear axis of a quantity that is never negative starts at 0 at the lowest, not in the
-    margin below it (a log axis is left as it is)."""
-    if ax.get_xscale() == 'linear' and ax.get_xlim()[0] < 0:
+    margin below it (a log axis, and an axis of categories, x=False, are left as they are)."""
+    if x and ax.get_xscale() == 'linear' and ax.get_xlim()[0] < 0:
         ax.set_xlim(left=0.0)
-    if ax.get_yscale() == 'linear' and ax.get_ylim()[0] < 0:
+    if y and ax.get_yscale() == 'linear' and ax.get_ylim()[0] < 0:
         ax.set_ylim(bottom=0.0)
 
 
