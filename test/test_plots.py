@@ -268,6 +268,14 @@ def test_calibration_report_figure(tmp_path):
     for ax in fig.axes:
         if ax.axison:
             assert UNIT.search(ax.get_ylabel().replace('\n', ' ')), ax.get_ylabel()
+    # a refused direction's note (bottom right) and the legend keep apart
+    import dataclasses
+    from fabric_guidance.core.calibration import Calibration
+    cal = Calibration.load(config_path('calibrations/sim-wearer.yaml'))
+    directions = dict(cal.directions)
+    directions['left'] = dataclasses.replace(directions['left'], fit=dict(
+        directions['left'].fit, refused='fit refused: angle span 0.3 deg < min_span_deg 5 deg'))
+    readable(calibration_report.draw_fit_figure(dataclasses.replace(cal, directions=directions)))
 
 
 def test_soak_figure(tmp_path):

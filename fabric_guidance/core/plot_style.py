@@ -130,9 +130,34 @@ def from_zero(ax, x: bool = True, y: bool = True) -> None:
 # ------------------------------------------------------------------------------ legends
 
 def legend_below(ax, ncol: int = 2, fontsize: float = 8, **kwargs):
-    """The axes' legend under its x label, outside the data (a constrained layout makes room)."""
-    return ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.14), ncol=ncol, fontsize=fontsize,
+    """The axes' legend under its tick labels and x label, outside the data (a constrained
+    layout makes room; call it once the labels are set)."""
+    renderer = _renderer(ax.figure)
+    frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer)
+    below = (frame.y0 - tight.y0) / max(frame.height, 1.0) + 0.02
+    return ax.legend(loc='upper center', bbox_to_anchor=(0.5, -below), ncol=ncol, fontsize=fontsize,
                      frameon=False, **kwargs)
+
+
+def legend_clear(ax, fontsize: float = 8, renderer=None, **kwargs):
+    """The axes' legend inside it where it covers no data point and none of the axes' texts
+    (matplotlib's 'best' first, then each corner and side); where no place is clear, under the
+    axes (legend_below). Call it once the figure's layout is whole; `renderer`: of a draw of it
+    since (several axes share one draw: a legend inside one axes moves no other)."""
+    from matplotlib.text import Text
+    renderer = renderer or _renderer(ax.figure)
+    points = _data_points(ax)
+    texts = [Text.get_window_extent(t, renderer) for t in ax.texts if t.get_visible() and t.get_text()]
+    for loc in ('best', 'upper left', 'upper right', 'lower right', 'lower left', 'center left', 'center right',
+                'upper center', 'lower center'):
+        legend = ax.legend(loc=loc, fontsize=fontsize, **kwargs)
+        legend.draw(renderer)               # placed ('best' too) as the figure's draw will place it
+        box = legend.get_window_extent(renderer)
+        if not any(box.x0 < x < box.x1 and box.y0 < y < box.y1 for x, y in points) and \
+                not any(box.overlaps(t) for t in texts):
+            return legend
+        legend.remove()
+    return legend_below(ax, fontsize=fontsize, **kwargs)
 
 
 def _data_points(ax) -> np.ndarray:
