@@ -91,6 +91,41 @@ def legend_texts(fig: Figure) -> list[str]:
     return [t.get_text() for lg in legends for t in lg.get_texts()]
 
 
+# ---------------------------------------------------------------- the checks themselves
+
+def test_the_checks_see_overlapping_texts_a_text_off_the_figure_and_a_legend_over_data():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from fabric_guidance.core.plot_style import legend_clear
+    fig = Figure(figsize=(4, 3))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.plot([0, 1, 2], [0, 1, 2], 'o-', label='data')
+    assert overlapping_texts(fig) == [] and legends_covering_data(fig) == []
+    ax.text(1.0, 1.5, 'one label')
+    ax.text(1.05, 1.52, 'another label')
+    ax.text(1.9, 0.2, 'a long note that runs past the right edge of the figure')
+    problems = overlapping_texts(fig)
+    assert any("'one label' overlaps text 'another label'" in p for p in problems), problems
+    assert any('runs off the figure' in p for p in problems), problems
+    ax.legend(loc='center', fontsize=20)        # over the middle point
+    assert legends_covering_data(fig)
+    legend_clear(ax)                            # moved where it covers nothing
+    assert not legends_covering_data(fig)
+
+
+def test_labels_and_ranges():
+    from fabric_guidance.core.plot_style import quantile_interval, within_range, with_unit
+    assert measure_label('identified', 10.0) == 'identified target objects per 10 s trial'
+    assert measure_label('identified') == 'identified target objects per trial'
+    assert measure_label('h_error_deg', per='mean per participant') == \
+        'horizontal error at the key press (deg), mean per participant'
+    assert with_unit('threads', 'count') == 'threads (count)' and with_unit('G', '-') == 'G'
+    assert condition_label(3) == '3 simple (arm) haptics, adjusted'
+    assert within_range(-2.0, 5.0) == (0.0, 5.0, True) and within_range(1.0, 5.0) == (1.0, 5.0, False)
+    lo, hi = quantile_interval([0.1, 0.2, 0.3, 10.0])
+    assert 0.1 <= lo < hi <= 10.0
+
+
 # ---------------------------------------------------------------- experiment and analyze
 
 @pytest.fixture(scope='module')
@@ -148,6 +183,19 @@ def test_analyze_labels_a_measure_with_its_unit_not_its_column_or_file(experimen
     # the paper's table separates conditions 1 and 4: brackets, and the key that reads them
     assert any(set(t.get_text()) <= {'*'} for t in table.axes[0].texts)
     assert 'p < 0.05' in table.axes[0].get_xlabel()
+
+
+def test_beyond_violins_say_the_trial_length_and_are_readable(tmp_path):
+    from fabric_guidance.experiments.discussion import beyond
+    with caught_figures() as figures:
+        assert quiet(beyond.main, ['--quick', '--workers', '1', '--out', str(tmp_path)]) == 0
+    assert len(figures) == 9
+    scene = yaml.safe_load(Path(config_path('scenes/paper-speed.yaml')).read_text())     # beyond's default
+    assert figures['gain_identified.png'].axes[0].get_ylabel() == measure_label(
+        'identified', scene['protocol']['trial_s'], 'mean per wearer')
+    for fig in figures.values():
+        assert UNIT.search(fig.axes[0].get_ylabel()), fig.axes[0].get_ylabel()
+        readable(fig)
 
 
 # ---------------------------------------------------------------- tradeoff

@@ -134,8 +134,9 @@ def plot(rows: list[dict], path: Path, observed) -> Path:
     t = [r['t_end_s'] / 60 for r in rows]
     colours = dict(zip(observed, colormaps['tab10'].colors))
     fig = Figure(figsize=(13, 15), layout='constrained')
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
     axes = fig.subplots(4, 2, sharex=True)
+    with_legend = []        # their legends once every panel is drawn
 
     def panel(ax, series, title, ylabel, zero=True, legend=True):
         top = 0.0
@@ -149,7 +150,7 @@ def plot(rows: list[dict], path: Path, observed) -> Path:
         if zero:   # counts and times from zero: a flat line must not look like a swing
             ax.set_ylim(0, max(1.0, 1.25 * top))
         if legend:
-            legend_clear(ax, fontsize=7, ncol=2, handlelength=3)
+            with_legend.append(ax)
 
     for ax in axes[-1]:
         ax.set_xlabel(with_unit('time since the start', 'min'))
@@ -171,6 +172,9 @@ def plot(rows: list[dict], path: Path, observed) -> Path:
     panel(axes[3, 1], [('time_to_target_s', 'median', {})], 'time to a target', with_unit('time to a target', 's'))
     handles = [Line2D([], [], color=colours[n], marker='.') for n in observed]
     fig.legend(handles, observed, loc='outside upper center', ncol=len(observed), fontsize=8, title='processes')
+    canvas.draw()
+    for ax in with_legend:
+        legend_clear(ax, fontsize=7, renderer=canvas.get_renderer(), ncol=2, handlelength=3)
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=90)
     return write_bytes(path, buf.getvalue())

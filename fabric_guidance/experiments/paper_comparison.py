@@ -310,13 +310,14 @@ def plot_comparison(results: Sequence[SeedResult], path: Path, dpi: int = 120) -
         ax.axhline(paper.ACCURACY_LIMIT_DEG, color='black', linestyle='--', linewidth=1,
                    label=f'the paper: every mean < {paper.ACCURACY_LIMIT_DEG:g} deg')
         ax.set_ylim(0, None)
-        style.legend_below(ax, ncol=1)
-    else:
-        ax.legend(handles=[Line2D([], [], ls='none')], labels=['no accuracy scene run'], loc='center')
     ax.set_xticks(x, ticks)
     ax.set_ylabel(style.with_unit('absolute error at the key press', 'deg'))
     ax.set_title('Accuracy experiment: the model over its wearers')
     ax.grid(axis='y', alpha=0.3)
+    if acc:
+        style.legend_below(ax, ncol=1)
+    else:
+        ax.legend(handles=[Line2D([], [], ls='none')], labels=['no accuracy scene run'], loc='center')
     atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format=Path(path).suffix.lstrip('.') or 'png'))
     return path
 
