@@ -255,7 +255,7 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
         whole.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec='0.4', ls='--', lw=0.8, zorder=2))
     if cut:
         handles.append(Line2D([], [], ls='none', marker='v', color='black'))
-        labels.append('whisker cut at 0, or at a log axis\'s bottom (it reaches below; tradeoff.csv has its ends)')
+        labels.append('whisker cut at 0, or at a log axis\'s bottom (it reaches below; the CSV has its ends)')
     s = result.settings
     if zoom is not None:
         whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
@@ -263,10 +263,11 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
         zoom.set_title(f'zoom: the knobs swept in condition {cond} (package values at its point)'
                        + (f'\nconditions {", ".join(outside)} lie outside the zoom' if outside else ''),
                        fontsize=10)
-    fig.suptitle((title or 'What accuracy costs in time: conditions 1-4 at the package defaults and '
-                  'every knob') + f';\n{s.subjects} wearers, {whiskers}'
-                 + ('; grey: each run\'s own point' if k > 1 else '') + '; lower and to the left is better',
-                 fontsize=11)
+    heading = ((title or 'What accuracy costs in time: conditions 1-4 at the package defaults and every knob')
+               + f';\n{s.subjects} wearers, {whiskers}' + ('; grey: each run\'s own point' if k > 1 else '')
+               + '; lower and to the left is better')
+    width = int(fig.get_figwidth() * 11)       # characters a line of the title holds at 11 pt
+    fig.suptitle('\n'.join(style.wrap(line, width) for line in heading.split('\n')), fontsize=11)
     fig.legend(handles, labels, loc='outside lower center', ncol=2, fontsize=8.5, frameon=False)
     canvas.draw()
     renderer = canvas.get_renderer()
