@@ -185,6 +185,19 @@ def test_analyze_labels_a_measure_with_its_unit_not_its_column_or_file(experimen
     assert 'p < 0.05' in table.axes[0].get_xlabel()
 
 
+def test_analyze_of_a_study_folder_says_its_trial_length(tmp_path):
+    from fabric_guidance.experiments import analyze
+    from test_study_store import DESIGN, run_participant
+    for pid in ('P1', 'P2', 'P3'):
+        run_participant(tmp_path / 'study', pid)
+    with caught_figures() as figures:
+        assert quiet(analyze.main, [str(tmp_path / 'study'), '--plot', str(tmp_path / 'study.png')]) == 0
+    fig = figures['study.png']
+    assert fig.axes[0].get_ylabel() == measure_label('identified', DESIGN.trial_s, 'mean per participant')
+    assert f'per {DESIGN.trial_s:g} s trial' in fig.axes[0].get_ylabel()
+    readable(fig)
+
+
 def test_beyond_violins_say_the_trial_length_and_are_readable(tmp_path):
     from fabric_guidance.experiments.discussion import beyond
     with caught_figures() as figures:
