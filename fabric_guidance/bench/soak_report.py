@@ -120,15 +120,23 @@ def summary(rows: list[dict], results: dict[str, dict], args: dict, problems: li
 # ---------------------------------------------------------------- the plot
 def plot(rows: list[dict], path: Path, observed) -> Path:
     """The per-row figures over time, one panel each, as a PNG; a node has one colour in every
-    panel (one legend above them)."""
+    panel (one legend above them); each axis says its unit (core/plot_style.py), a panel's own
+    legend lies where it covers no data."""
     import io
 
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from ..core.plot_style import legend_clear, with_unit
+    from matplotlib import colormaps
+
     t = [r['t_end_s'] / 60 for r in rows]
-    colours = dict(zip(observed, plt.get_cmap('tab10').colors))
-    fig, axes = plt.subplots(4, 2, figsize=(13, 14), sharex=True)
+    colours = dict(zip(observed, colormaps['tab10'].colors))
+    fig = Figure(figsize=(13, 15), layout='constrained')
+    canvas = FigureCanvasAgg(fig)
+    axes = fig.subplots(4, 2, sharex=True)
+    with_legend = []        # their legends once every panel is drawn
 
     def panel(ax, series, title, ylabel, zero=True, legend=True):
         top = 0.0
@@ -142,29 +150,31 @@ def plot(rows: list[dict], path: Path, observed) -> Path:
         if zero:   # counts and times from zero: a flat line must not look like a swing
             ax.set_ylim(0, max(1.0, 1.25 * top))
         if legend:
-            ax.legend(fontsize=7, loc='best', ncol=2, handlelength=3)
+            with_legend.append(ax)
 
+    for ax in axes[-1]:
+        ax.set_xlabel(with_unit('time since the start', 'min'))
     panel(axes[0, 0], [(f'{kind}_{q}_ms', f'{label} {q}', dict(linestyle=ls, color=c))
                        for kind, label, ls in (('latency', 'to register', '-'), ('command', 'to command', '--'))
                        for q, c in (('p50', 'tab:blue'), ('p99', 'tab:orange'), ('max', 'tab:red'))],
-          'gaze-to-register and gaze-to-command latency', 'ms')
+          'gaze-to-register and gaze-to-command latency', with_unit('latency', 'ms'))
     for ax, figure, title, unit, zero in ((axes[0, 1], 'rss_mb', 'resident memory', 'MB', False),
                                           (axes[1, 0], 'cpu_s_per_min', 'CPU', 's per minute', True),
                                           (axes[1, 1], 'fds', 'open file descriptors', 'count', True),
                                           (axes[2, 0], 'threads', 'threads', 'count', True)):
-        panel(ax, [(f'{figure}.{n}', n, dict(color=colours[n])) for n in observed], title, unit, zero, legend=False)
+        panel(ax, [(f'{figure}.{n}', n, dict(color=colours[n])) for n in observed], title,
+              with_unit(title if figure != 'cpu_s_per_min' else 'CPU time', unit), zero, legend=False)
     losses = ('datagrams_lost', 'datagrams_dropped', 'commands_not_landed', 'steps_unseen', 'samples_unmatched',
               'plc_watchdog_trips')
-    panel(axes[2, 1], [(col, col, {}) for col in losses], 'losses per row', 'count')
+    panel(axes[2, 1], [(col, col, {}) for col in losses], 'losses per row', with_unit('losses per row', 'count'))
     panel(axes[3, 0], [('targets_reached', 'reached', {}), ('targets_skipped', 'skipped', {})],
-          'targets per row', 'count')
-    panel(axes[3, 1], [('time_to_target_s', 'median', {})], 'time to a target', 's')
-    for ax in axes[-1]:
-        ax.set_xlabel('minutes')
-    handles = [plt.Line2D([], [], color=colours[n], marker='.') for n in observed]
-    fig.legend(handles, observed, loc='upper center', ncol=len(observed), fontsize=8, title='processes')
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
+          'targets per row', with_unit('targets per row', 'count'))
+    panel(axes[3, 1], [('time_to_target_s', 'median', {})], 'time to a target', with_unit('time to a target', 's'))
+    handles = [Line2D([], [], color=colours[n], marker='.') for n in observed]
+    fig.legend(handles, observed, loc='outside upper center', ncol=len(observed), fontsize=8, title='processes')
+    canvas.draw()
+    for ax in with_legend:
+        legend_clear(ax, fontsize=7, renderer=canvas.get_renderer(), ncol=2, handlelength=3)
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=90)
-    plt.close(fig)
     return write_bytes(path, buf.getvalue())

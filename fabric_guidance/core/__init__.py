@@ -16,6 +16,7 @@ display_wire           the display downlink to the headset (v1)
 dummies                the speed task's distractors around the eye, uniform in solid angle, apart
 clock_sync             the headset clock's offset and drift from the echo exchange
 safe_input             reading outside files safely, with one-line errors naming the field
+plot_style             how every figure shows the conditions, units and intervals; its text checks
 """
 from .calibration import Calibration, CalibrationFileError, CalibrationProcedure, pressure_schedule
 from .channels import ChannelMap, ChannelMapError

@@ -46,13 +46,15 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                              '(a study folder: known per measure)')
     parser.add_argument('--protocol', choices=sorted(MEASURES),
                         help='a study folder or trials table: the task to analyse (default: the only one it holds)')
-    parser.add_argument('--measure', help='a study folder: only this measure (a column of its trials)')
+    parser.add_argument('--measure', help='a study folder or trials table: only this measure (a column of its '
+                                          "trials); a table: the measure its values are (the plot's label)")
     parser.add_argument('--table', dest='table_out', type=Path, metavar='OUT.csv',
                         help="a study folder: write the subjects x conditions table (one per measure: "
                              "OUT-<measure>.csv when several)")
     parser.add_argument('--plot', type=Path, metavar='OUT.png', help='write the violin plot here')
     parser.add_argument('--label', default=None,
-                        help='y-axis label of the plot (default: "<table name> (per subject)")')
+                        help="y-axis label of the plot (default: the measure with its unit; a table without "
+                             "--measure: a value per subject in the table's unit)")
     parser.add_argument('--report', type=Path, metavar='OUT.md', help='write a markdown report here')
     return parser
 
@@ -104,14 +106,17 @@ def run_study(args: argparse.Namespace) -> int:
     for note in data.notes:
         print(f'left out: {note}')
     return write_analyses(args, protocol, measures, analyses, {m: notes for m, (_, notes) in tables.items()},
-                          f'Statistics of the study {args.table.name} ({protocol})')
+                          f'Statistics of the study {args.table.name} ({protocol})', data.trial_s)
 
 
 def write_analyses(args: argparse.Namespace, protocol: str, measures: dict, analyses: dict, notes: dict,
-                   title: str) -> int:
+                   title: str, trial_s: float | None = None) -> int:
     """Print each measure's analysis (a one-participant table without tests), and write the
-    --table, --plot and --report outputs; 1 when an output cannot be written."""
+    --table, --plot and --report outputs; 1 when an output cannot be written. trial_s: the
+    trials' length where the source says it (the label of targets per trial)."""
+    from ..core.plot_style import measure_label
     several = len(analyses) > 1
+    labels = {m: args.label or measure_label(m, trial_s, 'mean per participant') for m in analyses}
 
     def out(path: Path | None, measure: str) -> Path | None:
         return None if path is None else (path.with_name(f'{path.stem}-{measure}{path.suffix}') if several else path)
@@ -138,13 +143,14 @@ def write_analyses(args: argparse.Namespace, protocol: str, measures: dict, anal
                 print(f'table: {path}')
             if args.plot is not None and not isinstance(analysis, pd.DataFrame):
                 from .violin_plots import violin_plot
-                plots[measure] = violin_plot(analysis, f'{measure} (per participant)', out(args.plot, measure),
-                                             significance=analysis)
+                plots[measure] = violin_plot(analysis, labels[measure], out(args.plot, measure),
+                                             significance=analysis, title=f'{args.table.name} ({protocol})',
+                                             point="one participant's mean")
                 print(f'plot: {plots[measure]}')
             print()
         write_report(args, title,
-                     {f'{m} (per participant)': a for m, a in analyses.items() if not isinstance(a, pd.DataFrame)},
-                     {f'{m} (per participant)': p for m, p in plots.items()})
+                     {labels[m]: a for m, a in analyses.items() if not isinstance(a, pd.DataFrame)},
+                     {labels[m]: p for m, p in plots.items()})
     except OSError as exc:
         subcommand.error(PROG, f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')
         return 1
@@ -206,12 +212,15 @@ def run(args: argparse.Namespace) -> int:
                          else f'{args.table}: {exc.strerror or exc}')
         return 2
     print(format_analysis(analysis), end='', flush=True)
-    label = args.label or f'{args.table.stem} (per subject)'
+    from ..core.plot_style import measure_label
+    label = args.label or (measure_label(args.measure, None, 'mean per subject') if args.measure
+                           else "value per subject (the table's unit)")
     try:
         plot = None
         if args.plot is not None:
             from .violin_plots import violin_plot  # matplotlib only when a plot is asked for
-            plot = violin_plot(analysis, label, args.plot, significance=analysis)
+            plot = violin_plot(analysis, label, args.plot, significance=analysis, title=args.table.name,
+                               point="one subject's value")
             print(f'\nplot: {plot}')
         write_report(args, f'Statistics of {args.table.name}', {label: analysis},
                      {label: plot} if plot is not None else {})

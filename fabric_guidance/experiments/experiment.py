@@ -22,11 +22,28 @@ import time
 from .. import subcommand
 from ..atomic import write_csv, write_text
 
-#: Per protocol: (measure column, label, higher is better), the paper's figures.
+#: Per protocol: (measure column, label, higher is better), the paper's figures; {trial_s}: the
+#: scene's trial length (the labels of statistics.txt and report.md; the plots' are plot_style's).
 MEASURES = {
-    'speed': [('identified', 'identified target objects per 40 s trial', True)],
+    'speed': [('identified', 'identified target objects per {trial_s:g} s trial', True)],
     'accuracy': [('h_error_deg', 'horizontal error [deg]', False), ('v_error_deg', 'vertical error [deg]', False)],
 }
+
+
+def scene_title(scene) -> str:
+    """The scene as a reader finds it: a package scene (or an unchanged copy) by its name; a
+    changed copy by its file, with the name it carries ('scene-speed.yaml, a changed
+    paper-speed': a study's scene file keeps the name of the scene it was made from)."""
+    from ..sim.scene import SceneError, load_scene, scene_names
+    path = Path(scene.source)
+    if scene.name in scene_names():
+        try:
+            if load_scene(scene.name).replace(source=scene.source) == scene:
+                return scene.name
+        except (SceneError, OSError):
+            pass
+        return f'{path.name}, a changed {scene.name}'
+    return scene.name if path.stem == scene.name or not path.name else f'{path.name} ({scene.name})'
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -46,6 +63,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    from ..core.plot_style import measure_label
     from ..sim.protocols import format_summary, run_protocol, trials_frame
     from ..sim.scene import SceneError, load_scene
     from .violin_plots import violin_plot
@@ -71,7 +89,9 @@ def run(args) -> int:
         return 2
     out.mkdir(parents=True, exist_ok=True)
     n = args.subjects or scene.population.subjects
-    print(f'scene {scene.name}: {scene.protocol.kind} protocol, {n} wearers, conditions {list(scene.conditions)}, '
+    title = scene_title(scene)
+    trial_s = getattr(scene.protocol, 'trial_s', None)
+    print(f'scene {title}: {scene.protocol.kind} protocol, {n} wearers, conditions {list(scene.conditions)}, '
           f'{scene.repetitions} repetitions, effects: {", ".join(scene.effect_names) or "none"}', flush=True)
     started = time.monotonic()
 
@@ -92,6 +112,7 @@ def run(args) -> int:
 
     analyses, plots, texts = {}, {}, []
     for measure, label, higher in MEASURES[scene.protocol.kind]:
+        label = label.format(trial_s=trial_s)
         try:
             analysis = analyze_trials(frame, measure, higher_is_better=higher)
         except ValueError as exc:      # e.g. fewer than 2 wearers or conditions left
@@ -99,15 +120,16 @@ def run(args) -> int:
             continue
         analyses[label] = analysis
         texts.append(f'== {label} ==\n{format_analysis(analysis)}')
-        plots[label] = violin_plot(frame, label, out / f'{measure}.png', significance=analysis, measure=measure,
-                                   title=f'{scene.name}: {label}')
+        plots[label] = violin_plot(frame, measure_label(measure, trial_s), out / f'{measure}.png',
+                                   significance=analysis, measure=measure,
+                                   title=f'{title}: {scene.protocol.kind} experiment')
     write_text(out / 'statistics.txt', '\n\n'.join(texts) + '\n')
-    notes = [f'Scene `{scene.name}`; effects: {", ".join(scene.effect_names) or "none (ideal wearer)"}.',
+    notes = [f'Scene `{title}`; effects: {", ".join(scene.effect_names) or "none (ideal wearer)"}.',
              f'{len({r.subject for r in results})} wearers analysed, {len(results.exclusions)} excluded.',
              *[f'Excluded {e.wearer}: {e.reason}' for e in results.exclusions],
              f'{results.sim_s:.0f} simulated seconds in {results.wall_s:.1f} wall seconds.',
              'Simulated wearers, not people: the numbers show what the model implies, not what a lab will measure.']
-    report = markdown_report(f'{scene.protocol.kind.capitalize()} experiment in simulation: {scene.name}',
+    report = markdown_report(f'{scene.protocol.kind.capitalize()} experiment in simulation: {title}',
                              analyses, plots, notes, relative_to=out)
     write_text(out / 'report.md', report)
     print('\n\n'.join(texts))

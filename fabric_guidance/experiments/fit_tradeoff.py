@@ -90,31 +90,46 @@ def report(rows: list[dict], table: np.ndarray, draws: int) -> str:
     return '\n'.join(lines) + '\n'
 
 
+#: What each group of the fit's statistics is (population_fit.GROUPS), for the legend.
+GROUP_NAMES = {'means': 'the four conditions\' means', 'sds': 'the SDs of the subjects\' means',
+               'best': 'how often each condition is best', 'corr': 'the correlations between conditions'}
+
+
 def plot(rows: list[dict], table: np.ndarray, path: Path) -> None:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    """Left: what the fit reaches per weight of the correlations (model against paper for three
+    pairs, and the predicted share of draws with Friedman p < 0.05); right: what it costs each
+    group of statistics. One weight axis for both (log, the weights as ticks), the legends under
+    the panels in words, pairs and groups in colours no condition has (plot_style)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..core import plot_style as style
     target = pf.table_statistics(table)
     k = [r['emphasis'] for r in rows]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    fig = Figure(figsize=(11, 5.4), layout='constrained')
+    FigureCanvasAgg(fig)
+    a, b = fig.subplots(1, 2)
+    colours = iter(style.SERIES_COLOURS)
     for i, pair in ((1, '1-3'), (5, '3-4'), (0, '1-2')):
-        line, = a.plot(k, [r['stats']['corr'][i] for r in rows], 'o-', label=f'model {pair}')
-        a.axhline(target['corr'][i], color=line.get_color(), ls=':', label=f'paper {pair}')
-    a.plot(k, [r['friedman'] for r in rows], 's-k', label='P(Friedman p < 0.05), 15 people')
-    a.set(xscale='log', xlabel='weight of the correlations in the fit (x)', ylabel='correlation / probability',
-          ylim=(0, 1.02), title='What the fit reaches')
+        colour = next(colours)
+        a.plot(k, [r['stats']['corr'][i] for r in rows], 'o-', color=colour,
+               label=f'correlation of conditions {pair}: the fitted model')
+        a.axhline(target['corr'][i], color=colour, ls=':', label=f'correlation of conditions {pair}: the paper')
+    n = table.shape[0]
+    a.plot(k, [r['friedman'] for r in rows], 's-k', label=f'share of draws of {n} people with Friedman p < 0.05')
+    a.set(ylabel='correlation, or share of draws', ylim=(0, 1.02), title='What the fit reaches')
+    for g in pf.GROUPS:
+        b.plot(k, [r['parts'][g] for r in rows], 'o-', color=next(colours), label=GROUP_NAMES.get(g, g))
+    b.set(ylabel='squared standardized distance (sum over the group)', title='What it costs each group',
+          ylim=(0, None))
     for ax in (a, b):
+        ax.set_xscale('log')
         ax.set_xticks(k, labels=[f'{x:g}' for x in k])
         ax.minorticks_off()
-    a.legend(fontsize=7, loc='lower right')
-    for g in pf.GROUPS:
-        b.plot(k, [r['parts'][g] for r in rows], 'o-', label=g)
-    b.set(xscale='log', xlabel='weight of the correlations in the fit (x)',
-          ylabel='squared standardized distance (sum over the group)', title='What it costs')
-    b.legend(fontsize=8)
-    fig.tight_layout()
+        ax.set_xlabel('weight of the correlations in the fit (x)')
+        ax.grid(alpha=0.3)
+        style.legend_below(ax, ncol=1)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:

@@ -38,6 +38,7 @@ SPEED_TRIAL_SD = {1: 3.0, 2: 3.3, 3: 4.0, 4: 1.4}
 SPEED_BEST_COUNTS = {1: 10, 2: 4, 3: 1, 4: 1}
 SPEED_SUBJECTS = 15
 SPEED_REPETITIONS = 6
+SPEED_TRIAL_S = 40.0        # the length of a speed trial (s)
 ACCURACY_REPETITIONS = 10
 ACCURACY_LIMIT_DEG = 30.0
 
@@ -107,5 +108,6 @@ def speed_standard_errors() -> dict[int, float]:
 
 
 __all__ = ['ACCURACY_CLAIMS', 'ACCURACY_LIMIT_DEG', 'ACCURACY_REPETITIONS', 'CONDITIONS', 'Claim', 'SPEED_BEST_COUNTS',
-           'SPEED_CLAIMS', 'SPEED_REPETITIONS', 'SPEED_SUBJECTS', 'SPEED_TABLE_ROWS', 'SPEED_TRIAL_SD',
+           'SPEED_CLAIMS', 'SPEED_REPETITIONS', 'SPEED_SUBJECTS', 'SPEED_TABLE_ROWS', 'SPEED_TRIAL_S',
+           'SPEED_TRIAL_SD',
            'speed_means', 'speed_standard_errors', 'speed_table']

@@ -247,17 +247,26 @@ def comparison_markdown(results: Sequence[SeedResult], speed_name: str | None, a
 
 def plot_comparison(results: Sequence[SeedResult], path: Path, dpi: int = 120) -> Path:
     """Left: identified targets per condition, the paper (per-subject points, mean +- SD) and
-    each seed (mean +- SD over wearers). Right: the accuracy protocol's errors per condition
-    and seed (mean +- SD over wearers), with the paper's 30 deg bound."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    each seed (mean +- SD over wearers, as the paper gives its spread). Right: the accuracy
+    protocol's errors per condition and seed: each wearer's mean, the mean over wearers, and
+    whiskers from the 10th to the 90th percentile of the wearers (errors are positive: an
+    interval as asymmetric as they are), with the paper's 30 deg bound. The conditions under
+    plot_style's names, the legends under the panels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from ..core import plot_style as style
 
     seeds = [r for r in results if r.speed is not None]
     acc = [r for r in results if r.accuracy]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.6), constrained_layout=True)
+    fig = Figure(figsize=(12.5, 6.2), layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
     conds = list(CONDITIONS)
     x = np.arange(len(conds), dtype=float)
+    ticks = [style.wrap(style.condition_label(c)) for c in conds]
+    colour = {r.seed: style.SERIES_COLOURS[i % len(style.SERIES_COLOURS)] for i, r in enumerate(results)}
     ax = axes[0]
     table = paper.speed_table()
     width = 0.8 / (1 + max(len(seeds), 1))
@@ -267,43 +276,64 @@ def plot_comparison(results: Sequence[SeedResult], path: Path, dpi: int = 120) -
         values = table[CONDITIONS[c]].to_numpy()
         ax.scatter(x[k] + offsets[0] + jitter, values, s=10, color='0.6', zorder=1,
                    label='paper: subjects' if k == 0 else None)
-    ax.errorbar(x + offsets[0], [table[CONDITIONS[c]].mean() for c in conds],
-                yerr=[table[CONDITIONS[c]].std(ddof=1) for c in conds], fmt='s', color='black', capsize=4,
-                markersize=7, zorder=3, label='paper: mean +- SD')
-    colors = plt.cm.tab10.colors
+    cut = _mean_sd(ax, x + offsets[0], [table[CONDITIONS[c]] for c in conds], 'black', 's',
+                   'paper: mean +- SD')
     for i, r in enumerate(seeds):
-        ax.errorbar(x + offsets[i + 1], [r.speed.means[CONDITIONS[c]] for c in conds],
-                    yerr=[r.speed.sds[CONDITIONS[c]] for c in conds], fmt='o', color=colors[i], capsize=3,
-                    zorder=3, label=f'model seed {r.seed}: mean +- SD')
-    ax.set_xticks(x, [f'{c}\n{CONDITIONS[c].replace("_", " ")}' for c in conds])
-    ax.set_ylabel('identified targets per 40 s trial')
+        cut |= _mean_sd(ax, x + offsets[i + 1], [r.speed.table[CONDITIONS[c]] for c in conds], colour[r.seed],
+                        'o', f'model seed {r.seed}: mean +- SD over wearers')
+    if cut:
+        ax.plot([], [], ls='none', marker='v', color='black', label='SD bar cut at 0 (reaches below)')
+    ax.set_xticks(x, ticks)
+    ax.set_ylabel(style.measure_label('identified', paper.SPEED_TRIAL_S))
     ax.set_title('Speed experiment: identified targets')
     ax.grid(axis='y', alpha=0.3)
-    # Below the axes: inside, the legend would hide points whatever corner it took.
-    ax.legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2)
+    style.from_zero(ax, x=False)
+    style.legend_below(ax, ncol=2)
     ax = axes[1]
     if acc:
         pairs = [(m, r) for r in acc for m in ACCURACY_MEASURES]
         width = 0.8 / len(pairs)
         for i, (measure, r) in enumerate(pairs):
             a = r.accuracy[measure]
-            ax.errorbar(x + (i - (len(pairs) - 1) / 2.0) * width, [a.means[CONDITIONS[c]] for c in conds],
-                        yerr=[a.sds[CONDITIONS[c]] for c in conds],
-                        fmt='o' if measure == 'h_error_deg' else '^', color=colors[acc.index(r)], capsize=2,
-                        label=f'seed {r.seed}, {"horizontal" if measure == "h_error_deg" else "vertical"}')
-        ax.axhline(paper.ACCURACY_LIMIT_DEG, color='black', linestyle='--', linewidth=1)
-        ax.text(x[-1] + 0.45, paper.ACCURACY_LIMIT_DEG, "paper: every mean < 30 deg", ha='right', va='bottom',
-                fontsize=8)
-        top = max(float(r.accuracy[m].means.max() + r.accuracy[m].sds.max()) for m, r in pairs)
-        ax.set_ylim(0, max(paper.ACCURACY_LIMIT_DEG, top) * 1.1)
-        ax.legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=3)
-    ax.set_xticks(x, [f'{c}\n{CONDITIONS[c].replace("_", " ")}' for c in conds])
-    ax.set_ylabel('absolute error at the key press (deg)')
-    ax.set_title('Accuracy experiment: model mean +- SD over wearers')
+            at = x + (i - (len(pairs) - 1) / 2.0) * width
+            marker = 'o' if measure == 'h_error_deg' else '^'
+            lo, hi = zip(*(style.quantile_interval(a.table[CONDITIONS[c]]) for c in conds))
+            style.interval_bars(ax, at, lo, hi, colour=colour[r.seed], lw=1.2, cap=5, zorder=3)
+            for k, c in enumerate(conds):
+                wearers = a.table[CONDITIONS[c]].to_numpy(float)
+                ax.scatter(np.full(len(wearers), at[k]), wearers, s=9, marker=marker, color=colour[r.seed],
+                           alpha=0.35, lw=0, zorder=2)
+            ax.scatter(at, [a.means[CONDITIONS[c]] for c in conds], s=40, marker=marker, color=colour[r.seed],
+                       edgecolor='black', zorder=4,
+                       label=f'seed {r.seed}, {"horizontal" if measure == "h_error_deg" else "vertical"}: '
+                             'mean, wearers, p10-p90')
+        ax.axhline(paper.ACCURACY_LIMIT_DEG, color='black', linestyle='--', linewidth=1,
+                   label=f'the paper: every mean < {paper.ACCURACY_LIMIT_DEG:g} deg')
+        ax.set_ylim(0, None)
+    ax.set_xticks(x, ticks)
+    ax.set_ylabel(style.with_unit('absolute error at the key press', 'deg'))
+    ax.set_title('Accuracy experiment: the model over its wearers')
     ax.grid(axis='y', alpha=0.3)
+    if acc:
+        style.legend_below(ax, ncol=1)
+    else:
+        ax.legend(handles=[Line2D([], [], ls='none')], labels=['no accuracy scene run'], loc='center')
     atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format=Path(path).suffix.lstrip('.') or 'png'))
-    plt.close(fig)
     return path
+
+
+def _mean_sd(ax, at, columns, colour, marker: str, label: str) -> bool:
+    """Means +- SD (ddof 1) of the columns at `at`; a bar reaching below 0 is cut there and marked
+    (counts are never negative). True when one was cut."""
+    from ..core import plot_style as style
+    means = np.array([float(np.mean(c)) for c in columns])
+    sds = np.array([float(np.std(c, ddof=1)) if len(c) > 1 else 0.0 for c in columns])
+    bounds = [style.within_range(m - s, m + s, 0.0) for m, s in zip(means, sds)]
+    lo, hi, cut = (np.array(v) for v in zip(*bounds))
+    style.interval_bars(ax, at, lo, hi, colour=colour, lw=1.4, cap=7, zorder=3)
+    ax.scatter(at, means, s=45, marker=marker, color=colour, edgecolor='black', zorder=4, label=label)
+    style.mark_cut(ax, np.asarray(at)[cut.astype(bool)], lo[cut.astype(bool)], colour=colour)
+    return bool(cut.any())
 
 
 # ---------------------------------------------------------------------------------------------

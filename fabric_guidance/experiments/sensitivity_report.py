@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_write, write_csv, write_text
+from ..core.plot_style import condition_label, measure_label, wrap
 from .analysis_report import image_path, md_table
 from .sensitivity_runs import HEADLINE_TITLES, HEADLINES, MEASURED, SensitivityResult
 
@@ -59,30 +60,52 @@ def markdown_table(result: SensitivityResult) -> str:
     return '\n'.join(md_table(header, rows, 'lrr' + 'r' * len(HEADLINES) + 'l'))
 
 
+#: Per headline figure: (condition(s), what it is on the x axis, never negative). The targets
+#: are per 40 s whatever the trials' length (sensitivity_runs scales them so).
+PANELS = {'c1_targets': ((1,), measure_label('identified', 40.0), True),
+          'c1_minus_c2': ((1, 2), 'difference in ' + measure_label('identified', 40.0), False),
+          'c4_targets': ((4,), measure_label('identified', 40.0), True),
+          'c1_error_deg': ((1,), 'error at the key press (deg, hypot of h and v)', True),
+          'c4_error_deg': ((4,), 'error at the key press (deg, hypot of h and v)', True)}
+
+
+def _panel_title(conditions) -> str:
+    if len(conditions) == 2:
+        return f'condition {conditions[0]} minus condition {conditions[1]}'
+    return wrap(f'condition {condition_label(conditions[0])}', 30)
+
+
 def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
-    """One panel per figure: for each parameter (sorted by its largest move, the largest on
-    top) a bar from the baseline to the low run (blue) and to the high run (orange); the grey
-    band is +-2 seed SDs of the baseline."""
+    """One panel per figure (its conditions in plot_style's names, the figure with its unit on
+    the x axis): for each parameter (sorted by its largest move, the largest on top) a bar from
+    the baseline to the low run (blue) and to the high run (orange); the grey band is the noise
+    (+-2 seed SDs of the baseline), the hatched one the interval of the baseline's mean; a band
+    of a figure that cannot be negative is cut at 0, and the legend says so."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
     ranking = [k for k, _, _ in result.ranking()]
     n = max(len(ranking), 1)
-    fig = Figure(figsize=(3.3 * len(HEADLINES) + 2.6, 1.6 + 0.32 * n), layout='constrained')
+    fig = Figure(figsize=(3.3 * len(HEADLINES) + 2.6, 2.6 + 0.32 * n), layout='constrained')
     FigureCanvasAgg(fig)
     by = {(r.parameter, r.side): r for r in result.runs}
     base, sd = result.baseline, result.seed_sd()
     iv = result.seed_interval()
     axes = fig.subplots(1, len(HEADLINES), sharey=True)
     ypos = {k: n - 1 - i for i, k in enumerate(ranking)}
+    cut = False
     for ax, h in zip(np.atleast_1d(axes), HEADLINES):
+        conditions, xlabel, positive = PANELS[h]
+        floor = 0.0 if positive else -math.inf
         b = base[h]
         noise = result.noise(h, sd)
         if math.isfinite(noise):
-            ax.axvspan(b - noise, b + noise, color='0.85', zorder=0)
+            cut |= b - noise < floor
+            ax.axvspan(max(b - noise, floor), b + noise, color='0.85', zorder=0)
         if math.isfinite(iv[h][1]):
-            ax.axvspan(iv[h][1], iv[h][2], fill=False, hatch='///', ec='0.45', lw=0, zorder=0)
+            cut |= iv[h][1] < floor
+            ax.axvspan(max(iv[h][1], floor), iv[h][2], fill=False, hatch='///', ec='0.45', lw=0, zorder=0)
         ax.axvline(b, color='black', lw=1.0, zorder=1)
         for key in ranking:
             y = ypos[key]
@@ -90,9 +113,12 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
                 r = by.get((key, side))
                 if r is not None and math.isfinite(r.figures[h]):
                     ax.barh(y + dy, r.figures[h] - b, left=b, height=0.34, color=colour, zorder=2)
-        ax.set_title(HEADLINE_TITLES[h], fontsize=9)
+        ax.set_title(_panel_title(conditions), fontsize=9)
+        ax.set_xlabel(wrap(xlabel, 34), fontsize=8)
         ax.grid(axis='x', alpha=0.3)
         ax.tick_params(axis='x', labelsize=8)
+        if positive:
+            ax.set_xlim(left=max(ax.get_xlim()[0], 0.0))
     first = np.atleast_1d(axes)[0]
     first.set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=8)
     first.set_ylim(-0.7, n - 0.3)
@@ -100,18 +126,17 @@ def plot_tornado(result: SensitivityResult, path: Path, dpi: int = 120) -> Path:
     k = len(result.baselines)
     band = (f'grey band: the noise, +-{result.noise_sds():.2f} seed SDs (95 % prediction interval of one '
             f'seed from {k})' if k > 1 else 'one seed: no interval, no noise band')
-    fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters '
-                 f'(x{s.low:g} blue, x{s.high:g} '
-                 f'orange; black line: baseline at seed {result.baselines[0].seed}; {band})\n'
-                 f'{s.subjects} wearers, scenes {result.scenes[0].name} / '
-                 f'{result.scenes[1].name}; '
+    fig.suptitle(f'Sensitivity of the headline figures to the assumed parameters: x{s.low:g} blue, '
+                 f'x{s.high:g} orange; black line: the baseline at seed {result.baselines[0].seed}\n'
+                 f'{band}; {s.subjects} wearers, scenes {result.scenes[0].name} / {result.scenes[1].name}; '
                  'sorted by the largest move in seed SDs', fontsize=10)
-    fig.legend(handles=[Patch(color='tab:blue', label=f'low (x{s.low:g})'),
-                        Patch(color='tab:orange', label=f'high (x{s.high:g})'),
-                        Patch(color='0.85', label='baseline +- noise (one seed\'s 95 % prediction interval)'),
-                        Patch(fill=False, hatch='///', ec='0.45',
-                              label=f'95 % interval of the mean over {k} seeds')],
-               loc='outside lower center', ncol=4, fontsize=8, frameon=False)
+    handles = [Patch(color='tab:blue', label=f'low (x{s.low:g})'),
+               Patch(color='tab:orange', label=f'high (x{s.high:g})'),
+               Patch(color='0.85', label='baseline +- noise (one seed\'s 95 % prediction interval)'),
+               Patch(fill=False, hatch='///', ec='0.45', label=f'95 % interval of the mean over {k} seeds')]
+    if cut:
+        handles.append(Patch(color='white', label='bands cut at 0: targets and errors are never negative'))
+    fig.legend(handles=handles, loc='outside lower center', ncol=3, fontsize=8, frameon=False)
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, dpi=dpi, format='png'))
     return path

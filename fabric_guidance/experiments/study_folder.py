@@ -53,6 +53,8 @@ class StudyData:
     protocol: str
     conditions: tuple[str, ...]
     notes: list[str] = field(default_factory=list)
+    #: the speed trials' length when every session of the protocol ran one (the plots' labels)
+    trial_s: float | None = None
 
 
 def check_description(root: Path) -> dict:
@@ -162,7 +164,7 @@ def read_study(root: Path, protocol: str | None = None) -> StudyData:
     files = sorted(root.glob(TRIALS_GLOB))
     if not files:
         raise StudyFolderError(f'{root}: no trials yet (no {TRIALS_GLOB})')
-    kept, notes, conditions, seen = [], [], {}, set()
+    kept, notes, conditions, seen, lengths = [], [], {}, set(), {}
     for path in files:
         header, rows = read_lines(path)
         absent = [c for c in REQUIRED if c not in header]
@@ -186,6 +188,7 @@ def read_study(root: Path, protocol: str | None = None) -> StudyData:
             notes.append(f'{path}: block {block} did not finish: its {n} trial(s) are left out until it is run again')
         if task is not None:
             conditions.setdefault(task, set()).update(parameters.get('conditions') or [])
+            lengths.setdefault(task, set()).add(parameters.get('trial_s'))
     if not seen:
         raise StudyFolderError(f'{root}: no trials recorded yet (every trials file holds only its header)')
     protocols = sorted({r['protocol'] for r in kept})
@@ -203,7 +206,9 @@ def read_study(root: Path, protocol: str | None = None) -> StudyData:
     frame['subject'] = frame['wearer']
     frame['condition'] = frame['condition'].astype(int).map(CONDITION_NAMES)
     names = tuple(CONDITION_NAMES[int(c)] for c in sorted(conditions.get(protocol) or CONDITION_NAMES))
-    return StudyData(frame.reset_index(drop=True), protocol, names, notes)
+    length = lengths.get(protocol, set())
+    trial_s = next(iter(length)) if len(length) == 1 and isinstance(next(iter(length)), (int, float)) else None
+    return StudyData(frame.reset_index(drop=True), protocol, names, notes, trial_s)
 
 
 def complete(data: StudyData, measure: str) -> tuple[pd.DataFrame, list[str]]:

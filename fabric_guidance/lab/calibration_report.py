@@ -36,6 +36,7 @@ from ..paths import share_dir
 from ..core.calibration import NOT_MEASURED, Calibration, CalibrationFileError
 from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw, law_uncertainty
+from ..core.plot_style import legend_clear, with_unit
 from ..core.power_law_fit import BAND_COVERAGE
 from ..core.safe_input import check_wearer
 
@@ -178,6 +179,7 @@ def draw_fit_figure(calibration: Calibration):
 
     fig = Figure(figsize=(11, 8.5), layout='constrained')
     outer = fig.add_gridspec(2, 2)
+    with_legend = []        # the legends once the layout is whole: where each covers no data
     for i, f in enumerate(direction_fits(calibration)):
         inner = GridSpecFromSubplotSpec(2, 1, subplot_spec=outer[i // 2, i % 2], height_ratios=(3, 1), hspace=0.05)
         ax = fig.add_subplot(inner[0])
@@ -218,17 +220,28 @@ def draw_fit_figure(calibration: Calibration):
             ax.text(0.98, 0.04, f'REFUSED\n{reason}', transform=ax.transAxes,
                     ha='right', va='bottom', color='tab:red', fontsize=8, fontweight='bold',
                     bbox=dict(facecolor='white', edgecolor='tab:red', alpha=0.9))
-        ax.set_ylabel('pressure P [kPa]')
+        ax.set_ylabel(with_unit('pressure P', 'kPa'))
         ax.set_ylim(bottom=0.0, top=calibration.p_max * 1.1)
-        ax.legend(loc='upper left', fontsize=8)
+        with_legend.append(ax)
         ax.grid(alpha=0.3)
         ax.tick_params(labelbottom=False)
-        ax_res.set_ylabel('residual\n[kPa]', fontsize=8)
-        ax_res.set_xlabel('gaze angle θ [deg]')
+        ax_res.set_ylabel(with_unit('residual', 'kPa').replace(' (', '\n('), fontsize=8)
+        ax_res.set_xlabel(with_unit('gaze angle θ', 'deg'))
         ax_res.grid(alpha=0.3)
     fig.suptitle(f'Calibration of {calibration.wearer} ({calibration.created or "-"}): '
                  'measured points, fitted curve, residuals (measured - fitted)')
+    renderer = _drawn(fig)
+    for ax in with_legend:
+        legend_clear(ax, fontsize=8, renderer=renderer)
     return fig
+
+
+def _drawn(fig):
+    """The renderer of a draw of the figure (on an Agg canvas)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return canvas.get_renderer()
 
 
 def report_paths(calibration: Calibration, folder: str | Path) -> tuple[Path, Path]:

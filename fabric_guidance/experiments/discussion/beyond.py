@@ -69,9 +69,10 @@ def analyze(results) -> dict:
 # Plots
 
 
-def make_plots(parts: dict, out: Path) -> dict:
+def make_plots(parts: dict, out: Path, trial_s: float | None = None) -> dict:
+    """The violin plots; trial_s: the speed trials' length (the label of targets per trial)."""
     plots = {}
-    gain_plots(parts, out, plots)
+    gain_plots(parts, out, plots, trial_s)
     moving_plots(parts, out, plots)
     return plots
 
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         for name in ('gain_grid', 'gain_trials', 'gain_choice', 'moving_trials'):
             write_csv(out / f'{name}.csv', parts[name])
-        plots = make_plots(parts, out)
+        plots = make_plots(parts, out, results.scene.protocol.trial_s)
         write_text(out / 'beyond.md', report_text(results, parts, plots, out))
     except OSError as exc:
         _error(f'cannot write {exc.filename or "output"}: {exc.strerror or exc}')

@@ -162,14 +162,16 @@ def analyze_moving(results, out: dict) -> None:
 
 
 def moving_plots(parts: dict, out: Path, plots: dict) -> None:
+    from ...core.plot_style import measure_label
     from ..violin_plots import violin_plot
     for (scenario, speed, measure), a in parts['moving'].items():
         if a is None:
             continue
         name = f'moving_{scenario}_{speed:g}dps_{measure}.png'
         plots[(scenario, speed, measure)] = violin_plot(
-            a, f'{MOVING_MEASURES[measure]} (per wearer)', out / name, significance=a,
-            title=f'Target moving {speed:g} deg/s, {scenario}: {MOVING_MEASURES[measure]}')
+            a, measure_label(measure, per='mean per wearer'), out / name, significance=a,
+            title=f'Target moving {speed:g} deg/s, {scenario}: {MOVING_MEASURES[measure]}',
+            point="one wearer's mean")
 
 
 def moving_summary(results, parts: dict, lines: list[str]) -> None:

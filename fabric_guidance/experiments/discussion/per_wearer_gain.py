@@ -123,12 +123,14 @@ def analyze_gain(results, out: dict) -> None:
             out['tuned_vs_oracle'] = None
 
 
-def gain_plots(parts: dict, out: Path, plots: dict) -> None:
+def gain_plots(parts: dict, out: Path, plots: dict, trial_s: float | None = None) -> None:
+    from ...core.plot_style import condition_label, measure_label
     from ..violin_plots import violin_plot
     if parts.get('gain') is not None:
-        plots['gain'] = violin_plot(parts['gain'], 'identified targets per 40 s trial (per wearer)',
+        plots['gain'] = violin_plot(parts['gain'], measure_label('identified', trial_s, 'mean per wearer'),
                                     out / 'gain_identified.png', significance=parts['gain'],
-                                    title='Condition 1: paper G vs own G')
+                                    title=f"{condition_label(1)}: the paper's G against the wearer's own",
+                                    point="one wearer's mean")
 
 
 def _fmt_gains(values) -> str:

@@ -7,6 +7,7 @@ sweeps and what it writes). One module per job, each importing only the ones abo
   sweep     run_sweep: every knob value on the same wearers, as rows
   intervals the sweep over seeds or over variants of the scenes' values: t intervals, headlines
   reading   read_curve: the generated prose of tradeoff.md
+  plot_marks what the plots draw at a point: its intervals (within range) and value labels
   plots     accuracy against time per knob, and the plane of all knobs and conditions
   report    tradeoff.csv, the markdown table, tradeoff.md
   command   the subcommand (configure, run, main)
