@@ -34,7 +34,8 @@ VENV312 := .venv-py312
 # The core and node tests (no graph of several processes): what 3.12 could break.
 PY312_TESTS ?= test/test_package.py test/test_power_law.py test/test_geometry.py \
   test/test_feedback.py test/test_channels.py test/test_calibration.py test/test_gaze_wire.py \
-  test/test_core_properties.py test/test_guidance_properties.py test/test_speech_task_conditions.py \
+  test/test_gaze_sequence.py test/test_core_properties.py test/test_guidance_properties.py \
+  test/test_speech_task_conditions.py \
   test/test_plc_register_map.py test/test_plc_sequence.py test/test_plc_modbus.py test/test_node_pressure_controller.py \
   test/test_node_target_selector.py test/test_node_gaze_bridge.py test/test_node_plc.py \
   test/test_shutdown.py
