@@ -136,7 +136,7 @@ test-py312: $(VENV312)/.installed
 # and the contract suite's mock half (the PLC program's half uses no pymodbus). Under 2 minutes.
 PYMODBUS_VERSIONS ?= 3.6.9 latest
 MODBUS_TESTS ?= test/test_plc_modbus.py test/test_plc_endpoints.py test/test_node_plc.py::TestCommands \
-                $(wildcard test/test_plc_contract.py)
+                $(wildcard test/test_plc_contract.py test/test_plc_safety.py)
 MODBUS_SELECT ?= not program
 SITE_PACKAGES = $(shell $(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 # The ROS wheels find their shared libraries through sys.prefix (ros_wheels_bootstrapper), which

@@ -19,11 +19,13 @@ BIDS_VALIDATOR = Path(__file__).resolve().parent.parent / '.npm-bids' / 'node_mo
 GROUPS = (
     ("the headset's C# library and its graph tests (make test-hololens, test_hololens_core, test_headset_graph)",
      'mono-mcs, mono-runtime', lambda: not (shutil.which('mcs') and shutil.which('mono'))),
-    ("the PLC program's host build: its contract, scan and graph tests (test_plc_contract, test_plc_program_graph)",
+    ("the PLC program's host build: its contract, scan and graph tests "
+     "(test_plc_contract, test_plc_safety, test_plc_program_graph)",
      'g++, make', lambda: not (shutil.which('g++') and shutil.which('make'))),
     ("the PLC program's AVR build (test_plc_firmware)", 'gcc-avr, avr-libc, arduino-core-avr',
      lambda: not (shutil.which('avr-g++') and shutil.which('avr-size') and ARDUINO_AVR_CORE.exists())),
-    ('mbpoll as a foreign Modbus client (test_plc_contract)', 'mbpoll', lambda: not shutil.which('mbpoll')),
+    ('mbpoll as a foreign Modbus client (test_plc_contract, test_plc_safety)', 'mbpoll',
+     lambda: not shutil.which('mbpoll')),
     ("npm's BIDS validator on the study folder (test_study_bids; make bids-validator installs it)", 'nodejs, npm',
      lambda: not (shutil.which('node') and BIDS_VALIDATOR.exists())),
     ('the loopback socket check (test_bad_input)', 'iproute2', lambda: not shutil.which('ss')),
