@@ -3,13 +3,14 @@ extreme content, ends in one line naming the file, the field and the reason, a n
 (a vent for a running node), nothing written where it should not be, and bounded memory.
 
 The first part holds one regression test per defect of the issue; the second drives every
-file reader with hypothesis-generated broken files in-process under tracemalloc.
+file reader with hypothesis-generated broken files in-process under tracemalloc. Recorded bags
+and their replay are in test_bad_bags.py; the CLI runner, the one-line check and the mutations
+both use are in bad_input_support.py.
 """
 from __future__ import annotations
 
 import os
 from pathlib import Path
-import random
 import resource
 import subprocess
 import sys
@@ -17,11 +18,11 @@ import sys
 import pytest
 import yaml
 
+from bad_input_support import cli, mutate, one_line_error, PEAK_BYTES, SETTINGS, SIM_CAL
 from rosgraph import CONFIG, ROOT
 
 pytestmark = pytest.mark.graph  # starts a process graph with DDS
 
-SIM_CAL = CONFIG / 'calibrations' / 'sim-wearer.yaml'
 #: Address-space cap of a CLI under test: far above what it needs (~0.6 GB with matplotlib),
 #: far below what an alias bomb expands to.
 MEMORY_CAP = 2 * 1024 ** 3
@@ -31,50 +32,11 @@ def _cap_memory():
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_CAP, MEMORY_CAP))
 
 
-def cli(*args) -> subprocess.CompletedProcess:
-    """fabric-guidance ARGS in this process (the imports are paid once): its exit code and
-    output; an exception that escapes is reported as the traceback a user would see."""
-    import contextlib
-    import io
-    import traceback
-    from fabric_guidance.commands.cli import main
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            if args[0] == 'replay':   # replay.run binds sys.stdout at import: hand it the stream
-                import argparse
-                from fabric_guidance.commands import replay
-                parser = argparse.ArgumentParser(prog='fabric-guidance')
-                replay.add_parser(parser.add_subparsers(dest='command', required=True))
-                code = replay.run(parser.parse_args([str(a) for a in args]), stream=out)
-            else:
-                code = main([str(a) for a in args])
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else 1
-        except Exception:  # noqa: BLE001 - what the user would get
-            traceback.print_exc(file=err)
-            code = 1
-    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
-
-
 def cli_process(*args, cwd=None, timeout=120) -> subprocess.CompletedProcess:
     """fabric-guidance ARGS in a process of bounded memory."""
     env = {**os.environ, 'MPLBACKEND': 'Agg'}
     return subprocess.run([sys.executable, '-m', 'fabric_guidance.commands.cli', *map(str, args)], cwd=cwd or ROOT,
                           env=env, capture_output=True, text=True, timeout=timeout, preexec_fn=_cap_memory)
-
-
-def one_line_error(proc: subprocess.CompletedProcess, *words: str) -> str:
-    """The process failed with exactly one line on stderr/stdout naming each of `words`."""
-    out = (proc.stderr + proc.stdout).strip()
-    assert proc.returncode != 0, out[-2000:]
-    assert 'Traceback' not in out, out[-2000:]
-    lines = [line for line in out.splitlines() if line.strip()]
-    assert len(lines) == 1, out[-2000:]
-    for w in words:
-        assert w in lines[0], lines[0]
-    assert len(lines[0]) < 400, lines[0]
-    return lines[0]
 
 
 def calibration_dict(**changes) -> dict:
@@ -231,132 +193,6 @@ def test_nodes_refuse_bad_files_and_parameters_at_start_up_in_one_line(tmp_path)
     assert not (tmp_path.parent / 'victim.yaml').exists()
 
 
-# ---- defects 4, 6 (replay), 7 (replay options): a damaged bag is never called exact
-
-def write_session_bag(folder: Path, steps: int = 4000) -> Path:
-    """A bag as pressure_controller records it (parameters, then each step's input and command),
-    computed offline with the node's own step code: its offline replay is exact. Large enough
-    for several of the writer's 1 MiB chunks."""
-    import math
-    import numpy as np
-    from std_msgs.msg import Float64MultiArray as _unused  # noqa: F401 (the types are rosbags')
-    from fabric_guidance.bag.controller_io import (CONTROLLER_INPUT, CONTROLLER_PARAMETERS, encode_input,
-                                                   setup_to_dict)
-    from fabric_guidance.core.control_step import ControllerSetup, StepInput, guidance_step, safe_command
-    from fabric_guidance.bag.writer import BagWriter, typestore
-    from fabric_guidance.core import Calibration, ChannelMap
-    store = typestore()
-    F64 = store.types['std_msgs/msg/Float64MultiArray']
-    MAD = store.types['std_msgs/msg/MultiArrayLayout']
-    STR = store.types['std_msgs/msg/String']
-
-    def f64(values):
-        msg = F64(layout=MAD(dim=[], data_offset=0), data=np.asarray(values, dtype=float))
-        return store.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
-
-    setup = ControllerSetup(calibration=Calibration.load(SIM_CAL),
-                            channel_map=ChannelMap.load(CONFIG / "hardware/channel_map.yaml"))
-    controller = setup.make_controller()
-    params = setup_to_dict(setup)
-    params['from_step'] = 0
-    bag = folder / 'session'
-    with BagWriter(bag) as w:
-        par, inp_t, cmd = (w.add_package_topic(n) for n in (CONTROLLER_PARAMETERS, CONTROLLER_INPUT,
-                                                            'pressure_command'))
-        w.write(par, 0, store.serialize_cdr(STR(data=yaml.safe_dump(params)), 'std_msgs/msg/String'))
-        for k in range(steps):
-            t = 1.0 + k / 30.0
-            yaw = math.radians(30.0 * math.sin(t / 3.0))
-            inp = StepInput(t, np.zeros(3), np.array([math.cos(yaw), math.sin(yaw), 0.0]),
-                            np.array([1.0, -1.0, 0.2]), True, True, True, k == 0, False, 1, k, k)
-            if inp.reset:
-                controller.vent()
-            channels, _, _ = guidance_step(setup, controller, inp)
-            ns = int(t * 1e9)
-            w.write(inp_t, ns, f64(encode_input(inp)))
-            w.write(cmd, ns + 1000, f64(safe_command(channels, setup.p_max_kpa)))
-    return bag
-
-
-@pytest.fixture(scope='module')
-def session_bag(tmp_path_factory):
-    return write_session_bag(tmp_path_factory.mktemp('bag'))
-
-
-def _copy_bag(bag: Path, dest: Path) -> tuple[Path, Path]:
-    import shutil
-    shutil.copytree(bag, dest)
-    return dest, next(dest.glob('*.mcap'))
-
-
-def test_defect4_offline_replay_of_an_intact_bag_is_exact(session_bag):
-    proc = cli('replay', session_bag, '--offline')
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert 'bit for bit' in proc.stdout and 'UNREADABLE' not in proc.stdout
-
-
-def test_defect4_offline_replay_of_a_bag_with_a_corrupted_chunk_is_not_exact(session_bag, tmp_path):
-    from mcap.reader import make_reader
-    bag, mcap = _copy_bag(session_bag, tmp_path / 'bag')
-    with open(mcap, 'rb') as f:
-        chunks = make_reader(f).get_summary().chunk_indexes
-    assert len(chunks) >= 2
-    data = bytearray(mcap.read_bytes())
-    # Garbage over the middle of the second chunk's records (rosbags writes no chunk CRC); seeded,
-    # as every input of the suite (30 seeds tried by hand: each detected by both replays).
-    c = chunks[1]
-    start = c.chunk_start_offset + c.chunk_length // 3
-    data[start:start + 4096] = random.Random(4).randbytes(4096)
-    mcap.write_bytes(bytes(data))
-    proc = cli('replay', bag, '--offline')
-    out = proc.stdout + proc.stderr
-    assert proc.returncode not in (0, 1) and 'Traceback' not in out, out
-    assert 'bit for bit' not in out or 'readable part only' in out, out
-    assert 'UNREADABLE' in out or 'damaged' in out or 'chunk' in out, out
-    # the graph replay refuses the damaged bag instead of republishing part of it in silence
-    proc = cli('replay', bag, '--wait', '0.1', '--topics', 'controller_input', 'pressure_command')
-    line = one_line_error(proc, str(mcap))
-    assert 'chunk' in line or 'summary counts' in line, line
-
-
-def _broken_bags(session_bag: Path, tmp_path: Path):
-    bag, mcap = _copy_bag(session_bag, tmp_path / 'base')
-    original = mcap.read_bytes()
-    cases = {
-        'truncated': original[:len(original) // 2],
-        'empty': b'',
-        'bad magic': b'\x00' * 8 + original[8:],
-        'random': random.Random(5).randbytes(4096),
-        '8 bytes': original[:8],
-    }
-    for name, content in cases.items():
-        dest, file = _copy_bag(bag, tmp_path / name.replace(' ', '_'))
-        file.write_bytes(content)
-        yield name, dest, file
-    dest, file = _copy_bag(bag, tmp_path / 'missing_file')
-    file.unlink()
-    yield 'metadata names a missing file', dest, file
-
-
-@pytest.mark.parametrize('mode', [['--offline'], ['--wait', '0.1']])
-def test_defect6_replay_of_a_broken_bag_is_one_line(session_bag, tmp_path, mode):
-    for name, bag, file in _broken_bags(session_bag, tmp_path):
-        proc = cli('replay', bag, *mode)
-        line = one_line_error(proc, file.name)
-        print(f'[{name}] {line}')
-
-
-@pytest.mark.parametrize('args, words', [
-    (['--offline', '--set', 'gain=abc'], ['gain', 'number']),
-    (['--offline', '--set', 'follow_moving_target=3'], ['follow_moving_target', 'true or false']),
-    (['--offline', '--set', 'condition=1.5'], ['condition', 'whole number']),
-    (['--rate', 'nan'], ['--rate']),
-    (['--rate', '-1'], ['--rate']),
-])
-def test_defect7_replay_options_name_the_parameter(session_bag, args, words):
-    one_line_error(cli('replay', session_bag, *args), *words)
-
-
 # ---- defect 6 and 7: calibration-report and analyze
 
 @pytest.mark.parametrize('change', [
@@ -497,12 +333,7 @@ def test_defect8_nothing_of_the_simulated_graph_listens_beyond_loopback(tmp_path
 
 # ---- every file reader on generated broken files (hypothesis): one line, bounded memory
 
-from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
-
-#: A reader of a few-kB file stays far below this, whatever the file holds.
-PEAK_BYTES = 64 * 1024 ** 2
-_SETTINGS = settings(derandomize=True, max_examples=30, deadline=None,
-                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+from hypothesis import given, strategies as st  # noqa: E402
 
 _extreme = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True), st.integers(min_value=-10 ** 30, max_value=10 ** 30),
@@ -551,34 +382,18 @@ def _refuses_in_one_line(reader, path: Path) -> None:
     assert peak < PEAK_BYTES, f'{peak / 1e6:.0f} MB'
 
 
-def _mutate(original: bytes, data) -> bytes:
-    kind = data.draw(st.sampled_from(['truncate', 'flip', 'splice', 'random']))
-    if kind == 'truncate':
-        return original[:data.draw(st.integers(0, len(original)))]
-    if kind == 'flip':
-        out = bytearray(original)
-        for _ in range(data.draw(st.integers(1, 8))):
-            i = data.draw(st.integers(0, len(out) - 1))
-            out[i] = data.draw(st.integers(0, 255))
-        return bytes(out)
-    if kind == 'splice':
-        i = data.draw(st.integers(0, len(original)))
-        return original[:i] + data.draw(st.binary(max_size=64)) + original[i:]
-    return data.draw(st.binary(max_size=2048))
-
-
 @pytest.mark.parametrize('name', sorted(READERS))
-@_SETTINGS
+@SETTINGS
 @given(data=st.data())
 def test_every_file_reader_refuses_mutated_files_in_one_line(tmp_path, name, data):
     reader, original = READERS[name]
     path = tmp_path / f'broken{original.suffix}'
-    path.write_bytes(_mutate(original.read_bytes(), data))
+    path.write_bytes(mutate(original.read_bytes(), data))
     _refuses_in_one_line(reader, path)
 
 
 @pytest.mark.parametrize('name', sorted(set(READERS) - {'analyze table'}))
-@_SETTINGS
+@SETTINGS
 @given(data=st.data())
 def test_every_yaml_reader_refuses_wrong_values_in_one_line(tmp_path, name, data):
     """The real file with a generated value in one of its fields (or as the whole document)."""
@@ -598,36 +413,6 @@ def test_every_yaml_reader_refuses_wrong_values_in_one_line(tmp_path, name, data
     path = tmp_path / 'broken.yaml'
     path.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
     _refuses_in_one_line(reader, path)
-
-
-@settings(_SETTINGS, max_examples=12)
-@given(data=st.data())
-def test_bag_reader_refuses_mutated_bags_in_one_line(session_bag, tmp_path_factory, data):
-    from fabric_guidance.bag.offline import load
-    bag, mcap = _copy_bag(session_bag, tmp_path_factory.mktemp('mut') / 'bag')
-    original = mcap.read_bytes()
-    # mutations anywhere, mostly in the summary at the end where one byte can mislead the index
-    if data.draw(st.booleans()):
-        out = bytearray(original)
-        for _ in range(data.draw(st.integers(1, 16))):
-            i = data.draw(st.integers(max(0, len(out) - 4096), len(out) - 1))
-            out[i] = data.draw(st.integers(0, 255))
-        content = bytes(out)
-    else:
-        content = _mutate(original, data)
-    mcap.write_bytes(content)
-    import tracemalloc
-    tracemalloc.start()
-    try:
-        rec = load(bag)
-        # damage is reported, or (the summary damaged) the file was read from its start and says so
-        assert rec.problems or rec.recovered or content == original or len(rec.inputs) == 4000, 'damage not reported'
-    except ValueError as exc:
-        assert '\n' not in str(exc) and len(str(exc)) < 2000, str(exc)[:3000]
-    finally:
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-    assert peak < 4 * PEAK_BYTES, f'{peak / 1e6:.0f} MB'
 
 
 def test_a_missing_field_is_named_missing_not_got_none(tmp_path):
