@@ -62,7 +62,8 @@ demo: $(STAMP)
 # pytest runs on PYTEST_WORKERS pytest-xdist workers, each taking whole files (module fixtures
 # and module-end reports stay in one process); graph tests mostly wait on DDS and the clock, so
 # two workers use two cores. Tests marked serial run alone (test/conftest.py). PYTEST_WORKERS=0:
-# one process, as before.
+# one process, as before. --durations: the slowest tests named in every run's log (the suite's
+# length is watched there).
 PYTEST_WORKERS ?= 2
 # Each stage's time is printed as it ends and all of them at the end (test/stage.sh).
 STAGES := .test-stages
@@ -72,7 +73,7 @@ test: $(STAMP)
 	@$(STAGE) system-deps $(MAKE) --no-print-directory system-deps-if-root
 	@$(STAGE) bids-validator $(MAKE) --no-print-directory bids-validator
 	@$(STAGE) hololens $(MAKE) --no-print-directory test-hololens
-	@$(STAGE) pytest $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
+	@$(STAGE) pytest $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --durations=15
 	@$(STAGE) pymodbus $(MAKE) --no-print-directory test-pymodbus
 	@if [ -d "$(ROS_TOOLING)" ]; then $(STAGE) launch-kilted $(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=kilted && \
 	  $(STAGE) launch-jazzy $(MAKE) --no-print-directory test-launch LAUNCH_DISTRO=jazzy; else \
