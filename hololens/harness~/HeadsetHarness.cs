@@ -30,8 +30,12 @@ static class HeadsetHarness
   --culture NAME          the thread's culture (e.g. de-DE): the wire must not depend on it
   --log FILE              JSON lines of what was sent (with its stamp), skipped, received and dropped
   --confirm-at S[,S...]   press confirm at these seconds after the start (the clicker / air tap)
-  --commands stdin        read commands from standard input, one a line: ""confirm"" presses confirm
-  Presses are logged as {""t"":..,""confirm"":press_id,""stamp"":..}; the main thread sends them, as in the app.";
+  --commands stdin        read commands from standard input, one a line: ""confirm"" presses confirm;
+                          ""look X Y Z"" (Unity world frame, from the gaze origin) sets where the eyes look:
+                          every frame from then on carries that direction (normalised), the head turns with
+                          it (yaw and pitch, no roll) and stays where the pose puts it; a lost eye stays lost
+  Presses are logged as {""t"":..,""confirm"":press_id,""stamp"":..}, looks as {""t"":..,""look"":[x,y,z]};
+  the main thread sends them, as in the app.";
 
     static int Main(string[] args)
     {
@@ -115,6 +119,7 @@ static class HeadsetHarness
         var watch = System.Diagnostics.Stopwatch.StartNew();
         long frame = 0;
         double period = 1.0 / rate;
+        Vec3? look = null;   // where the eyes look (a `look` command), in place of the poses' direction
         while (watch.Elapsed.TotalSeconds < duration)
         {
             // A frame only once its time has come: the loop wakes every 5 ms at most.
@@ -123,7 +128,13 @@ static class HeadsetHarness
                 if (restartAfter >= 0 && frame == restartAfter)
                     link.Restart(new StopwatchClock(offset / 2.0, drift));   // a new app: seq 0, another clock origin
                 uint seq = link.NextSeq;
-                if (link.SendGaze(poses[(int)(frame % poses.Count)]))
+                GazeFrame pose = poses[(int)(frame % poses.Count)];
+                if (look.HasValue && pose.GazeDirection.IsFinite)
+                {
+                    pose.GazeDirection = look.Value;
+                    pose.HeadOrientation = Facing(look.Value);
+                }
+                if (link.SendGaze(pose))
                     write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"sent\":" + seq.ToString(inv) +
                           ",\"stamp\":" + Json.Number(link.LastStamp) + "}");
                 else
@@ -136,8 +147,17 @@ static class HeadsetHarness
             string command;
             while (commands.TryDequeue(out command))
             {
+                Vec3 direction;
                 if (command == "confirm") presses++;
-                else if (command != "") stderr.WriteLine("HeadsetHarness: unknown command '" + command + "' (commands: confirm)");
+                else if (command.StartsWith("look", StringComparison.Ordinal) && Look(command, out direction))
+                {
+                    look = direction;
+                    write("{\"t\":" + Json.Number(link.Clock.Now()) + ",\"look\":[" + Json.Number(direction.X) + "," +
+                          Json.Number(direction.Y) + "," + Json.Number(direction.Z) + "]}");
+                }
+                else if (command.StartsWith("look", StringComparison.Ordinal))
+                    stderr.WriteLine("HeadsetHarness: command '" + command + "' needs three finite numbers, not all 0 (look X Y Z)");
+                else if (command != "") stderr.WriteLine("HeadsetHarness: unknown command '" + command + "' (commands: confirm, look X Y Z)");
             }
             for (int i = 0; i < presses; i++)
             {
@@ -174,6 +194,30 @@ static class HeadsetHarness
             return false;
         ep = new IPEndPoint(a, port);
         return true;
+    }
+
+    /// <summary>`look X Y Z`: the direction, normalised (false: not three finite numbers, or too short).</summary>
+    static bool Look(string command, out Vec3 direction)
+    {
+        direction = new Vec3();
+        string[] words = command.Split(new[] { ' ', '\t' }, StringSplitOptions.RemoveEmptyEntries);
+        if (words.Length != 4 || words[0] != "look") return false;
+        var v = new double[3];
+        for (int i = 0; i < 3; i++)
+            if (!double.TryParse(words[i + 1], NumberStyles.Float, CultureInfo.InvariantCulture, out v[i]) || double.IsNaN(v[i]) || double.IsInfinity(v[i])) return false;
+        double norm = Math.Sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        if (!(norm > GazeFrames.MinDirection)) return false;
+        direction = new Vec3(v[0] / norm, v[1] / norm, v[2] / norm);
+        return true;
+    }
+
+    /// <summary>The head facing `d` (unit, Unity world) without roll: Unity's Quaternion.Euler(pitch, yaw, 0),
+    /// a yaw about y (positive turns right) after a pitch about x (positive looks down).</summary>
+    static Quat Facing(Vec3 d)
+    {
+        double yaw = Math.Atan2(d.X, d.Z), pitch = -Math.Asin(Math.Max(-1.0, Math.Min(1.0, d.Y)));
+        double sy = Math.Sin(yaw / 2), cy = Math.Cos(yaw / 2), sx = Math.Sin(pitch / 2), cx = Math.Cos(pitch / 2);
+        return new Quat(cy * sx, sy * cx, -sy * sx, cy * cx);
     }
 
     static GazeFrame Still()
