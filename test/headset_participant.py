@@ -1,10 +1,10 @@
 """A scripted participant wearing the compiled C# headset (headset_harness.Harness, started with
 `--commands stdin`): it reads the harness's log as it grows, and on each new target the display
-shows it turns its eyes to it from the eye (docs/headset.md: Unity (0, eye_height, 0)) in a few
-steps, as a person turns, waits until the harness has sent frames of the settled gaze, and presses
-confirm; when the target goes (found, or its trial over) it looks back straight ahead. It only
-knows what a headset knows: the display messages, and what it did itself, which it records
-(Seen, Pressed) for a test to hold the session's records against.
+shows it takes a moment to find it, turns its eyes to it from the eye (docs/headset.md: Unity
+(0, eye_height, 0)) in a few steps, as a person turns, waits until the harness has sent frames
+of the settled gaze, and presses confirm; when the target goes (found, or its trial over) it
+looks back straight ahead. It only knows what a headset knows: the display messages, and what
+it did itself, which it records (Seen, Pressed) for a test to hold the session's records against.
 
     person = HeadsetParticipant(harness, eye_height_m=1.2)
     person.start()
@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import json
 import math
+import random
 import threading
 import time
 
@@ -69,14 +70,17 @@ class Pressed:
 
 
 class HeadsetParticipant:
-    """See the module docstring. miss_deg: look that far to the left of every target (a test of
-    the test); steps: the turn's steps; step_frames, settle_frames: frames the harness must have
-    sent after a step, and after the last one before the press."""
+    """See the module docstring. reaction_s: (shortest, longest) time to find a target among the
+    dummies before turning to it, drawn uniformly (seeded); miss_deg: look that far to the left of
+    every target (a test of the test); steps: the turn's steps; step_frames, settle_frames: frames
+    the harness must have sent after a step, and after the last one before the press."""
 
-    def __init__(self, harness, eye_height_m: float = 1.2, miss_deg: float = 0.0, steps: int = 3,
-                 step_frames: int = 3, settle_frames: int = 10, poll_s: float = 0.005):
+    def __init__(self, harness, eye_height_m: float = 1.2, reaction_s: tuple[float, float] = (0.3, 1.2),
+                 miss_deg: float = 0.0, steps: int = 3, step_frames: int = 3, settle_frames: int = 10,
+                 seed: int = 1, poll_s: float = 0.005):
         self.harness = harness
         self.eye = (0.0, float(eye_height_m), 0.0)
+        self.reaction_s, self.rng = reaction_s, random.Random(seed)
         self.miss_deg, self.steps = float(miss_deg), int(steps)
         self.step_frames, self.settle_frames, self.poll_s = int(step_frames), int(settle_frames), poll_s
         self.seen: list[Seen] = []
@@ -179,6 +183,9 @@ class HeadsetParticipant:
                 if not self._wait(lambda: self._shown is not None):
                     return
                 version, target = self._version, self.seen[-1]
+                # the search among the dummies: the display watched meanwhile, not slept through
+                if self._wait(lambda: self._version != version, self.rng.uniform(*self.reaction_s)):
+                    continue           # gone or moved before it was found
                 goal = turned_left(direction_to(target.position, self.eye), self.miss_deg)
                 if not self._turn_to(goal, version):
                     continue           # another target (or none) now: aim again

@@ -1,9 +1,10 @@
-"""A live speed session (`fabric-guidance study --participant P01 --press-source headset`) on the
-study's lab graph (guidance.yaml with study-speed.yaml: gaze_bridge, target_selector,
-headset_display, pressure_controller; no wearer_sim) with the compiled C# headset as the
-participant: a scripted person reads what the harness receives, looks at each target it is
-shown and presses confirm (headset_participant.py). What it got and what it did are then held
-against the session's records:
+"""A live speed session, as `fabric-guidance study --participant P01 --press-source headset` runs
+it (run_live_session, the headset the only press source), on the study's lab graph
+(guidance.yaml with study-speed.yaml: gaze_bridge, target_selector, headset_display,
+pressure_controller; no wearer_sim) with the compiled C# headset as the participant: a scripted
+person reads what the harness receives, looks at each target it is shown and presses confirm
+(headset_participant.py). What it got and what it did are then held against the session's
+records:
 
 (a) a `found` event reaches the headset for each target the rows count as identified, after the
     press that found it;
@@ -14,6 +15,7 @@ against the session's records:
 """
 from __future__ import annotations
 
+from datetime import datetime
 import json
 import math
 from pathlib import Path
@@ -30,6 +32,7 @@ from fabric_guidance.graph.process_graph import loopback_dds_env
 from fabric_guidance.live_study.live_session import run_live_session
 from fabric_guidance.live_study.operator import TARGET_DISTANCE_M
 from fabric_guidance.sim.scene import load_scene, scene_path
+from fabric_guidance.sim.wearer import angle_between_deg
 from fabric_guidance.study.store import read_tsv
 from headset_harness import Harness, build_harness
 from headset_participant import HeadsetParticipant, direction_to, yaw_pitch_deg
@@ -149,7 +152,6 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
     events = [e for path in sorted(beh.glob('*_events.tsv')) for e in read_tsv(path)[1]]
     assert len(rows) == len(CONDITIONS) * TRIALS and all(r['status'] == 'ok' for r in rows), rows
     identified = sum(int(r['identified']) for r in rows)
-    assert identified >= len(rows), rows                  # a target or more found in every trial
     presses = [e for e in events if e['trial_type'] == 'press']
     mine = person.presses
     # the presses recorded are its presses: as many, all from the headset (in its order below)
@@ -162,7 +164,7 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
     # press that found it and before the next (the harness's clock: its log's receive times and
     # its presses' stamps)
     found = person.events('found')
-    assert len(found) == identified and {m['target'] for m in found} == {'study'}, found
+    assert len(found) == identified and all(m['target'] == 'study' for m in found), found
     for i, ((_, press), flash) in enumerate(zip(accepted, found)):
         assert press.stamp < flash['t'], (press, flash)
         if i + 1 < len(accepted):
@@ -198,24 +200,28 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
         assert 0.0 <= number(e['press_latency_s']) < 0.5, e
     for (e0, m0), (e1, m1) in zip(zip(presses, mine), zip(presses[1:], mine[1:])):
         assert number(e1['steady_s']) - number(e0['steady_s']) == pytest.approx(m1.stamp - m0.stamp, abs=0.02)
-    # ... each judged against the target it looked at, with an error as small as its aim; a press
-    # refused only when it came in its trial's last half second (the trial over before its sample)
+    # ... each judged against the target it pressed on, with the error of the direction it
+    # looked, as small as its aim; a press refused only when it came in its trial's last half
+    # second (the trial over before its gaze sample)
     trials = [(number(r['trial_start_s']), number(r['trial_end_s'])) for r in rows]
     target, k = None, 0
     for e in events:
         if e['trial_type'] == 'target_shown':
             target = (number(e['target_h_deg']), number(e['target_v_deg']))
         elif e['trial_type'] == 'press':
-            looked = yaw_pitch_deg(mine[k].direction)
-            k += 1
-            assert abs(looked[0] - target[0]) <= ANGLE_TOL_DEG and abs(looked[1] - target[1]) <= ANGLE_TOL_DEG, \
-                (e, looked, target)
+            m, k = mine[k], k + 1
+            aimed = yaw_pitch_deg(direction_to(m.target.position, eye))
+            assert abs(aimed[0] - target[0]) <= ANGLE_TOL_DEG and abs(aimed[1] - target[1]) <= ANGLE_TOL_DEG, \
+                (e, aimed, target)
+            if number(e['error_deg']) is not None:
+                looked = angle_between_deg(*yaw_pitch_deg(m.direction), *target)
+                assert number(e['error_deg']) == pytest.approx(looked, abs=ANGLE_TOL_DEG), (e, looked)
             inside = any(start <= number(e['steady_s']) < end - 0.5 for start, end in trials)
             if e['accepted'] == 'True' or inside:
                 assert e['accepted'] == 'True' and number(e['error_deg']) <= MAX_ERROR_DEG, e
     stamps = [number(e['steady_s']) for e, _ in accepted]
-    for r in rows:       # a trial's press_s: its last accepted press
-        assert r['press_source'] == 'headset' and number(r['press_s']) in stamps, r
+    for r in rows:       # a target or more found in every trial; its press_s the last accepted press
+        assert int(r['identified']) >= 1 and r['press_source'] == 'headset' and number(r['press_s']) in stamps, r
 
     # the trial timing as the headset saw it: reported, not asserted (the session's timing has
     # its own tests)
@@ -229,9 +235,11 @@ def trial_timing(person: HeadsetParticipant, rows: list[dict], shown: list[dict]
     """From the harness's log, the display's send stamps on the steady clock [s]: each trial's
     first target shown minus its trial_start_s; each target shown minus its target_shown event;
     for a trial whose target was still up at its end, the first message with nothing shown after
-    the end minus trial_end_s."""
+    the end minus trial_end_s; each row's recorded_utc minus its trial_end_s, and the next
+    trial's start minus it."""
     out: dict[str, list[float]] = {'shown_minus_trial_start': [], 'shown_minus_target_shown': [],
-                                   'hidden_minus_trial_end': []}
+                                   'hidden_minus_trial_end': [], 'written_minus_trial_end': [],
+                                   'next_start_minus_written': []}
     targets = [(m['stamp'] - pc_minus_steady, m['active']) for m in person.messages('targets')]
     for r in rows:
         start, end = number(r['trial_start_s']), number(r['trial_end_s'])
@@ -243,6 +251,11 @@ def trial_timing(person: HeadsetParticipant, rows: list[dict], shown: list[dict]
         hidden = next((t for t, active in targets if t > end and not active), None)
         if before and before[-1] and hidden is not None:
             out['hidden_minus_trial_end'].append(hidden - end)
+    for r, following in zip(rows, rows[1:] + [None]):
+        written = datetime.fromisoformat(r['recorded_utc']).timestamp() - pc_minus_steady    # to the ms
+        out['written_minus_trial_end'].append(written - number(r['trial_end_s']))
+        if following is not None:
+            out['next_start_minus_written'].append(number(following['trial_start_s']) - written)
     decided = [number(e['steady_s']) for e in shown]
     for s in person.seen:
         t = s.stamp - pc_minus_steady
