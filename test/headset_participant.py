@@ -9,8 +9,8 @@ it did itself, which it records (Seen, Pressed) for a test to hold the session's
     person = HeadsetParticipant(harness, eye_height_m=1.2)
     person.start()
     ...                                  # the session runs
-    person.stop()
-    person.seen, person.presses, person.found_events()
+    person.stop()                        # then the harness's, then person.read_log()
+    person.seen, person.presses, person.events('found')
 """
 from __future__ import annotations
 
@@ -186,6 +186,8 @@ class HeadsetParticipant:
                 # the search among the dummies: the display watched meanwhile, not slept through
                 if self._wait(lambda: self._version != version, self.rng.uniform(*self.reaction_s)):
                     continue           # gone or moved before it was found
+                if self._stop.is_set():
+                    return
                 goal = turned_left(direction_to(target.position, self.eye), self.miss_deg)
                 if not self._turn_to(goal, version):
                     continue           # another target (or none) now: aim again
@@ -201,8 +203,13 @@ class HeadsetParticipant:
         return self
 
     def stop(self) -> None:
+        """Stop acting (before the harness stops: its standard input is still open)."""
         self._stop.set()
         self._thread.join(10.0)
+        self.read_log()
+
+    def read_log(self) -> None:
+        """What the harness logged since the last read (once it has stopped: the rest)."""
         self._pump()
 
     # ---- what the headset got

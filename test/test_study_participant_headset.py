@@ -144,6 +144,8 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
         if harness is not None:
             harness.stop()
             harness.close()
+            if person is not None:
+                person.read_log()         # the harness's log complete
         graph.stop_all()
     assert not person.errors, person.errors
 
@@ -196,7 +198,7 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
     # ... each press stamped where it pressed: the files' steady clock against the monotonic time
     # it sent `confirm`, the intervals between presses against the harness's own stamps
     for e, m in zip(presses, mine):
-        assert -0.05 <= number(e['steady_s']) - m.sent_s <= 0.5, (e, m)
+        assert -0.1 <= number(e['steady_s']) - m.sent_s <= 0.5, (e, m)
         assert 0.0 <= number(e['press_latency_s']) < 0.5, e
     for (e0, m0), (e1, m1) in zip(zip(presses, mine), zip(presses[1:], mine[1:])):
         assert number(e1['steady_s']) - number(e0['steady_s']) == pytest.approx(m1.stamp - m0.stamp, abs=0.02)
