@@ -49,6 +49,15 @@ CONDITIONS, TRIALS, TRIAL_S = [1, 2], 2, 8.0
 ANGLE_TOL_DEG, DISTANCE_TOL_M = 0.05, 1e-3
 #: The participant aims at the target it sees: the session's error of its accepted presses [deg].
 MAX_ERROR_DEG = 0.5
+#: How far a press's recorded stamp may lie from when the participant typed `confirm` [s]: before
+#: it by the error of gaze_bridge's clock mapping (half its best ping's round trip), after it by
+#: the harness's threads on a loaded machine. Loose on purpose: the bounds say "stamped at the
+#: press, on the mapped headset clock", not how fast a loaded machine is.
+STAMP_BEFORE_S, STAMP_AFTER_S = 0.25, 2.0
+#: Between two presses the mapping may have moved by a better ping (half a round trip) [s].
+MAPPING_MOVE_S = 0.1
+#: A press judged within this of its stamp (the gaze sample after it, on a loaded machine) [s].
+JUDGED_WITHIN_S = 2.0
 
 
 @pytest.fixture(scope='module', autouse=True)
@@ -198,10 +207,11 @@ def test_the_c_sharp_headset_as_a_scripted_participant_in_a_live_speed_session(t
     # ... each press stamped where it pressed: the files' steady clock against the monotonic time
     # it sent `confirm`, the intervals between presses against the harness's own stamps
     for e, m in zip(presses, mine):
-        assert -0.1 <= number(e['steady_s']) - m.sent_s <= 0.5, (e, m)
-        assert 0.0 <= number(e['press_latency_s']) < 0.5, e
+        assert -STAMP_BEFORE_S <= number(e['steady_s']) - m.sent_s <= STAMP_AFTER_S, (e, m)
+        assert 0.0 <= number(e['press_latency_s']) < JUDGED_WITHIN_S, e
     for (e0, m0), (e1, m1) in zip(zip(presses, mine), zip(presses[1:], mine[1:])):
-        assert number(e1['steady_s']) - number(e0['steady_s']) == pytest.approx(m1.stamp - m0.stamp, abs=0.02)
+        between = number(e1['steady_s']) - number(e0['steady_s'])
+        assert between == pytest.approx(m1.stamp - m0.stamp, abs=MAPPING_MOVE_S), (e0, e1, m0, m1)
     # ... each judged against the target it pressed on, with the error of the direction it
     # looked, as small as its aim; a press refused only when it came in its trial's last half
     # second (the trial over before its gaze sample)
