@@ -12,6 +12,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 import transforms3d
@@ -29,6 +30,11 @@ FILES = ('params/guidance.yaml',)
 GERMAN = {'LANG': 'de_DE.UTF-8', 'LC_ALL': 'de_DE.UTF-8'}
 #: Measured clock errors, printed at the end of the module (the figures the closing note quotes).
 CLOCK_FIGURES: list[str] = []
+
+#: calibration_state as the controller publishes it, every state kept until taken (transient local as
+#: the topic, a deeper history than the nodes' one).
+EVERY_STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @pytest.fixture(scope='module', autouse=True)
@@ -369,7 +375,7 @@ def test_calibration_prompts_reach_the_headset_from_a_real_calibration(tmp_path)
         # 'still' has no calibration yet (sim-wearer's file is another person's: refused).
         ('pressure_controller', FILES, dict(calibration_file='',
                                             calibration_dir=str(tmp_path / 'cal'), calibration_steps=3,
-                                            calibration_dwell_s=0.4, calibration_rest_s=0.3,
+                                            calibration_dwell_s=0.4, calibration_rest_s=1.0,
                                             calibration_window_s=0.1, wearer='still'))],
             '--uplink', f'127.0.0.1:{gaze_port}', '--rate', '30') as (graph, harness), \
             Probe(graph.domain_id) as probe:
