@@ -7,52 +7,21 @@ import os
 from pathlib import Path
 import re
 import signal
-import subprocess
-import sys
-import threading
 
 import pytest
 
+from cli_support import Command
 from rosgraph import fresh_domain_id, wait_until
 
 pytestmark = pytest.mark.graph   # the commands start process graphs
 
 #: A cold start of the graph on a loaded 2-core machine, to its first guided target.
 STARTED_S = 90.0
-#: Signal -> the command's exit, its graph stopped (each node vents within its bounded teardown).
-EXIT_S = 60.0
 
 
-class Command:
-    """A `fabric-guidance` command in a process of its own, its output gathered line by line."""
-
-    def __init__(self, *argv: str):
-        env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), PYTHONUNBUFFERED='1')
-        # SIGINT at its default, as in a terminal: a child of a shell's background job ignores it.
-        self.proc = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.commands.cli', *argv],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip('\n'))
-
-    def text(self) -> str:
-        return '\n'.join(self.lines)
-
-    def stop(self, sig: int) -> int:
-        self.proc.send_signal(sig)
-        wait_until(lambda: self.proc.poll() is not None, EXIT_S, what=f'the command to exit after signal {sig}')
-        self._reader.join(5.0)
-        return self.proc.returncode
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+def command(*argv: str) -> Command:
+    """A `fabric-guidance` command on a fresh ROS domain of its own."""
+    return Command(list(argv), dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()), PYTHONUNBUFFERED='1'))
 
 
 def _node_processes(parent: int) -> list[int]:
@@ -84,7 +53,7 @@ def _graph_of(entry: Path) -> bytes:
 
 @pytest.mark.parametrize('sig, named', [(signal.SIGINT, 'Ctrl-C'), (signal.SIGTERM, 'SIGTERM')])
 def test_a_stopped_demo_says_so_in_one_line_and_leaves_nothing_running(sig, named):
-    cmd = Command('demo')
+    cmd = command('demo')
     try:
         wait_until(lambda: re.search(r'target \S+ active', cmd.text()), STARTED_S, what='the demo guiding')
         logs = re.search(r'logs in (\S+) \(removed at the end', cmd.text())
@@ -101,7 +70,7 @@ def test_a_stopped_demo_says_so_in_one_line_and_leaves_nothing_running(sig, name
 
 
 def test_a_stopped_simulated_study_says_how_to_go_on(tmp_path):
-    cmd = Command('study', '--simulated', '--participants', '1', '--out', str(tmp_path / 'study'))
+    cmd = command('study', '--simulated', '--participants', '1', '--out', str(tmp_path / 'study'))
     try:
         wait_until(lambda: 'recording block 1' in cmd.text(), STARTED_S, what='the first block under way')
         code = cmd.stop(signal.SIGINT)

@@ -9,12 +9,12 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 
 import pytest
 
 from fabric_guidance.commands import dry_run
 from fabric_guidance.paths import config_path
+from cli_support import Command
 from rosgraph import free_port, fresh_domain_id, log_tails, wait_until
 
 #: Marks the command's environment, so its nodes (which inherit it) can be found, and their end seen.
@@ -23,41 +23,7 @@ MARK = 'FABRIC_GUIDANCE_TEST_MARK'
 STARTED_S = 90.0
 #: Discovery, a published status, a restart 2 s after a death and the new process's start.
 SEEN_S = 60.0
-#: Signal -> the command's exit, every node stopped (each within its bounded teardown).
-EXIT_S = 60.0
 SIM_CALIBRATION = str(config_path('calibrations/sim-wearer.yaml'))
-
-
-class Command:
-    """`fabric-guidance dry-run` in a session of its own, its output gathered line by line."""
-
-    def __init__(self, argv: list[str], env: dict):
-        # SIGINT at its default, as in a terminal: a child of a shell's background job ignores it.
-        self.proc = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.commands.cli', 'dry-run', *argv],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                                     start_new_session=True,
-                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip('\n'))
-
-    def text(self) -> str:
-        return '\n'.join(self.lines)
-
-    def stop(self, sig: int) -> int:
-        self.proc.send_signal(sig)
-        wait_until(lambda: self.proc.poll() is not None, EXIT_S, what=f'the command to exit after signal {sig}')
-        self._reader.join(5.0)
-        return self.proc.returncode
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
 
 
 #: Asks pressure_controller to arm, as `ros2 service call .../enable` does, from a process with
@@ -116,10 +82,10 @@ def test_dry_run_runs_the_lab_graph_on_a_mock_plc_disarmed_and_stops_it_vented(t
     mark, logs = f'dry-run-{os.getpid()}-{domain_id}', tmp_path / 'logs'
     operator_env = _operator_env(domain_id)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED='1', **{MARK: mark})
-    cmd = Command(['--headset-address', '127.0.0.2', '--bind-address', '127.0.0.1', '--study', 'speed',
+    cmd = Command(['dry-run', '--headset-address', '127.0.0.2', '--bind-address', '127.0.0.1', '--study', 'speed',
                    '--plc-port', str(plc_port), '--gaze-port', str(gaze_port), '--display-port', str(display_port),
                    '--calibration-file', SIM_CALIBRATION, '--wearer', 'sim-wearer', '--condition', '2',
-                   '--logs', str(logs)], env)
+                   '--logs', str(logs)], env, new_session=True)
     regmap = RegisterMap.load(config_path('hardware/plc_register_map.yaml'),
                               expected_channels=ChannelMap.load(config_path('hardware/channel_map.yaml')).channels)
     try:
