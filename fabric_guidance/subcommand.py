@@ -51,12 +51,23 @@ def main(prog: str, doc: str | None, configure: Configure,
     return run_until_stopped(prog, run, configure(parser).parse_args(argv))
 
 
+#: The shell's status of a command that SIGPIPE ended (128 + 13): what `... | head` leaves.
+BROKEN_PIPE = 141
+
+
 def run_until_stopped(prog: str, run: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
-    """run(args); Ctrl-C or SIGTERM: one line (with its module's ON_STOP) and 130, no traceback."""
+    """run(args); Ctrl-C or SIGTERM: one line (with its module's ON_STOP) and 130, no traceback.
+    The reader of its output gone (`... | head`): quietly BROKEN_PIPE, as any Unix filter."""
     try:
         return run(args)
     except KeyboardInterrupt as exc:
         return interrupted(prog, exc, getattr(sys.modules.get(run.__module__), 'ON_STOP', ''))
+    except BrokenPipeError:
+        # The command's finally blocks have run (its graph stopped). Python flushes stdout once
+        # more at exit, into the closed pipe: point it at /dev/null so that flush is quiet too.
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return BROKEN_PIPE
 
 
 def writable_folder(path) -> str:

@@ -105,6 +105,19 @@ def test_sigterm_ends_a_command_as_ctrl_c_does_so_its_clean_up_runs():
     assert cleaned == [True]
 
 
+def test_a_reader_that_goes_away_ends_a_command_quietly_as_a_unix_filter():
+    """`fabric-guidance example | head -1`: the pipe closes under the command's next line. It
+    stops with the shell's SIGPIPE status (141) and nothing on stderr (it printed a traceback)."""
+    from fabric_guidance.subcommand import BROKEN_PIPE
+    proc = subprocess.Popen([sys.executable, '-m', 'fabric_guidance.commands.cli', 'example'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline()
+    proc.stdout.close()                     # what head does after its line
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == BROKEN_PIPE, err
+    assert first.startswith('fabric_guidance worked example') and err == '', err
+
+
 @pytest.mark.parametrize('option', ['--record', '--out'])
 def test_a_demo_folder_it_cannot_write_is_refused_before_any_graph_starts(tmp_path, capsys, option):
     """`demo --record /proc/nope` started the graph, waited 45 s for a recorder that could not
