@@ -234,7 +234,8 @@ def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.n
     cov = (w[:, None] * d).T @ d
     sds = np.sqrt(np.diag(cov))
     best = n * (w @ design.best())
-    corr = (cov / np.outer(sds, sds))[_PAIRS]
+    with np.errstate(invalid='ignore', divide='ignore'):   # no spread, no correlation: nan
+        corr = (cov / np.outer(sds, sds))[_PAIRS]
     return {'means': means, 'sds': sds, 'best': best, 'corr': corr}
 
 
@@ -297,7 +298,8 @@ def objective_function(design: Design, target: dict, n: int,
         dev = y - means
         cov = (w[:, None] * dev).T @ dev
         sds = np.sqrt(cov.diagonal())
-        corr = cov[i, j] / (sds[i] * sds[j])
+        with np.errstate(invalid='ignore', divide='ignore'):   # as weighted_statistics: nan without spread
+            corr = cov[i, j] / (sds[i] * sds[j])
         z = np.arctanh(corr.clip(-0.99, 0.99)) - z_target
         total = 0.0
         for gk, v in zip(g, ((means - t_means) / se_mean, (sds - t_sds) / se_sd, (n * (w @ best) - t_best) / se_best,
