@@ -60,6 +60,49 @@ def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
     assert proc.returncode == 0, out.read_text()
 
 
+GIL_HELD = textwrap.dedent('''
+    import ctypes
+    from rclpy.node import Node
+    from fabric_guidance.nodes.spin import run
+
+    class HeldTeardown(Node):
+        def __init__(self):
+            super().__init__('held_teardown')
+            print('ready', flush=True)
+
+        def safe_shutdown(self):
+            print('vented', flush=True)
+
+        def destroy_node(self):
+            # A call into C that keeps the GIL (PyDLL does not release it) and does not return:
+            # what a DDS entity's destruction waiting on a thread that waits for the GIL would be.
+            ctypes.PyDLL(None).sleep(600)
+
+    raise SystemExit(run(HeldTeardown))
+''')
+
+
+def test_a_teardown_that_holds_the_gil_still_ends_and_says_where(tmp_path):
+    """The teardown's timer needs the GIL; faulthandler's watchdog does not: the process ends
+    within the backstop with status 1, every thread's stack in its output."""
+    import os
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
+    out = tmp_path / 'out.txt'
+    with open(out, 'w') as f:
+        proc = subprocess.Popen([sys.executable, '-c', GIL_HELD], stdout=f, stderr=subprocess.STDOUT, env=env)
+    try:
+        wait_until(lambda: 'ready' in out.read_text(), EXIT_DEADLINE_S, what='the node up')
+        proc.send_signal(signal.SIGINT)
+        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S, what='the process ending after its vent')
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = out.read_text()
+    assert 'vented' in text and proc.returncode == 1, (proc.returncode, text)
+    assert 'Timeout (0:00:03.500000)!' in text and 'in destroy_node' in text, text
+
+
 BUSY_START = textwrap.dedent('''
     import time
     from rclpy.node import Node

@@ -5,6 +5,7 @@ Nodes stay thin: they parse parameters, wire topics and services, and call the c
 """
 from __future__ import annotations
 
+import faulthandler
 import gc
 import os
 import signal
@@ -25,6 +26,10 @@ from .parameters import check_params_files
 #: Once a node has vented, its teardown (destroying the node, the ROS context, the interpreter's
 #: exit) gets this long before the process ends itself [s]; `ros2 launch` escalates after 5 s.
 TEARDOWN_LIMIT_S = 2.0
+#: ... and if the timer that ends it cannot run (it needs the GIL, which a call into C may hold
+#: while it waits), faulthandler's watchdog, a C thread, ends it this much later with status 1,
+#: writing every thread's stack to stderr (the node's log) first [s].
+TEARDOWN_BACKSTOP_S = 1.5
 
 
 def _end_process(code: int) -> None:
@@ -134,6 +139,9 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
         limit = threading.Timer(TEARDOWN_LIMIT_S, _end_process, args=(1 if failing else code,))
         limit.daemon = True
         limit.start()
+        # A launch test saw headset_display outlive SIGINT and then SIGTERM by 15 s (where it hung
+        # is not known): should the teardown hold the GIL, the stacks say where, and it still ends.
+        faulthandler.dump_traceback_later(TEARDOWN_LIMIT_S + TEARDOWN_BACKSTOP_S, exit=True)
         if node is not None:
             node.destroy_node()
         if rclpy.ok():
