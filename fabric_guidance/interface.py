@@ -167,7 +167,8 @@ TOPICS: tuple[Topic, ...] = (
           '`failed: <reason>; the previous calibration is kept (<its wearer>)` or, with none, '
           '`failed: <reason>; no previous calibration of <wearer>: no guidance until one succeeds`'),
     Topic(CALIBRATION_STATE, 'std_msgs/msg/String', LATCHED, 'pressure_controller',
-          'headset_display, wearer_sim (lets the suit pull while a calibration runs), the study session',
+          'headset_display, wearer_sim (goes with the suit while a calibration step pulls, faces the front '
+          'in its rests), the study session',
           "the live calibration's progress and outcome as fields: phase (`idle`, `rest`, `apply`, `done`, "
           '`failed`, `refused`), direction, step of steps, pressure [kPa], progress 0..1, file, report, error, '
           'previous_kept ([calibration state](#calibration-state)); the sentence on `calibration_status` is '

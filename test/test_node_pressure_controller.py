@@ -281,8 +281,9 @@ ALICE = [PowerLaw(18.0, 0.7, 22.0), PowerLaw(25.0, 0.6, 18.0), PowerLaw(45.0, 0.
 SIGN = {'left': (1, 0), 'right': (-1, 0), 'down': (0, -1), 'up': (0, 1)}
 
 
-def answer_as(upstream, probe, laws, stop):
-    """Play the wearer: for each command, look at the angle this wearer's law gives it."""
+def answer_as(upstream, probe, laws, stop, stays=False):
+    """Play the wearer: for each command, look at the angle this wearer's law gives it; vented,
+    look at the front again (or, `stays`, stay where the last pull left them)."""
     while not stop.is_set():
         now = latest(probe)
         if now is not None:
@@ -293,18 +294,19 @@ def answer_as(upstream, probe, laws, stop):
                     angle = law.theta(p, 375.0)
                     yaw += SIGN[d][0] * angle
                     pitch += SIGN[d][1] * angle
-            upstream.yaw, upstream.pitch = yaw, pitch
+            if not (stays and not np.any(per_dir > 0)):
+                upstream.yaw, upstream.pitch = yaw, pitch
         time.sleep(0.01)
 
 
 @contextlib.contextmanager
-def wearer_answering(controller, laws=ALICE):
+def wearer_answering(controller, laws=ALICE, stays=False):
     """calibration_status subscribed (yielded: the messages so far), and a wearer of `laws`
     answering the controller's pressures (answer_as) until the block ends."""
     _, probe, upstream, _ = controller
     status = probe.subscribe(String, interface.CALIBRATION_STATUS, qos.EVENT_QOS)
     stop = threading.Event()
-    wearer = threading.Thread(target=answer_as, args=(upstream, probe, laws, stop), daemon=True)
+    wearer = threading.Thread(target=answer_as, args=(upstream, probe, laws, stop, stays), daemon=True)
     wearer.start()
     try:
         yield status
@@ -340,6 +342,27 @@ def test_live_calibration_writes_the_wearers_file_and_a_failed_one_keeps_it(cont
     wait_until(lambda: any(m.data.startswith('failed') for m in status[n:]), 60.0, what='the refused calibration')
     assert 'distinct angles' in status[-1].data
     assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize('controller', [dict(FAST_CAL, calibration_max_rest_s=2.0)], indirect=True)
+def test_a_wearer_who_does_not_come_back_to_rest_gets_no_calibration(controller, tmp_path):
+    """Algorithm 1's rest check, on by default: after the first direction this wearer stays where
+    the last pull left them (about 30 deg left), so the second direction's rest is repeated until
+    calibration_max_rest_s and the calibration fails naming the direction and how far; nothing is
+    written, and no step of the second direction was pulled on a rest offset."""
+    graph, probe, upstream, _ = controller
+    with wearer_answering(controller, stays=True) as status:
+        wait_until(lambda: probe.call(Trigger, interface.START_CALIBRATION, Trigger.Request()).success, 15.0,
+                   what='start_calibration accepted')
+        wait_until(lambda: any(m.data.startswith(('done', 'failed')) for m in status), 60.0, what='calibration end')
+    texts = [m.data for m in status]
+    assert texts[-1].startswith('failed'), texts
+    assert 'right: the gaze did not come back to rest within 2 s' in texts[-1], texts[-1]
+    assert 'deg from the rest gaze > 3 deg' in texts[-1], texts[-1]
+    assert any(t.startswith('apply left step 5/5') for t in texts), texts
+    assert not any(t.startswith('apply right') for t in texts), texts
+    assert not (tmp_path / 'calibrations' / 'alice.yaml').exists()
+    wait_until(lambda: channels_equal(probe, {}), 5.0, what='vented after the failed calibration')
 
 
 @pytest.mark.parametrize('controller', [{'send_gaze': False}], indirect=True)

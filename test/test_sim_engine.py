@@ -268,6 +268,31 @@ def test_algorithm_1_with_noise_and_lag_recovers_the_law_within_1_5_degrees():
                for d, t, f in zip(('left', 'right', 'down', 'up'), w.suit_laws, out.calibration.laws))
 
 
+@pytest.mark.parametrize('name', ['paper-fitted-speed', 'gaze-noise-speed'])
+def test_the_scenes_wearers_are_back_at_rest_so_the_nodes_rest_check_changes_no_fit(name, monkeypatch):
+    """The engine calibrates without pressure_controller's rest check (docs/calibration.md):
+    with it, the same laws, to the bit, for the first five wearers of the fitted scene and of the
+    noisiest one: no rest was repeated, none failed."""
+    from fabric_guidance.core import calibration as core_calibration
+    from fabric_guidance.sim import engine
+    from fabric_guidance.sim.population import sample_population
+    from fabric_guidance.sim.scene import load_scene
+
+    sc = load_scene(name)
+    wearers = sample_population(sc)[:5]
+    without = [calibrate_wearer(sc, w) for w in wearers]
+
+    class Checked(core_calibration.CalibrationProcedure):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, rest_tolerance_deg=core_calibration.REST_TOLERANCE_DEG, **kwargs)
+    monkeypatch.setattr(engine, 'CalibrationProcedure', Checked)
+    checked = [calibrate_wearer(sc, w) for w in wearers]
+    for a, b in zip(without, checked):
+        assert a.ok and b.ok, (a.error, b.error)
+        assert [(law.a, law.b, law.c) for law in a.calibration.laws] == \
+            [(law.a, law.b, law.c) for law in b.calibration.laws], a.wearer
+
+
 def test_calibration_failure_is_an_outcome_with_its_reason():
     sc = scene([{'datagram_loss': {'probability': 1.0}}])
     out = calibrate_wearer(sc, sample_wearer(sc, 0))

@@ -355,8 +355,9 @@ class Calibration:
 #: CalibrationProcedure(rest_tolerance_deg=...): a direction's steps start only when the gaze at
 #: the end of its rest is steady and within this of the first direction's rest gaze (deg; 2x
 #: the HoloLens 2's 1.5 deg accuracy); otherwise the rest is repeated, up to MAX_REST_S in all,
-#: and then the calibration fails. Off by default (None) until the node and wearer_sim use it:
-#: wearer_sim's wearer does not come back to within it between directions (docs/calibration.md).
+#: and then the calibration fails. pressure_controller's default (calibration_rest_tolerance_deg);
+#: the class's own default (None, no check) is the simulator engine's, whose scenes' calibrations
+#: stay as they were fitted (docs/calibration.md).
 REST_TOLERANCE_DEG = 3.0
 MAX_REST_S = 30.0
 

@@ -24,6 +24,7 @@ from typing import Any, Callable, Mapping
 import warnings
 
 from ..interface import markdown_main
+from .calibration import MAX_REST_S, REST_TOLERANCE_DEG
 from .feedback import (ESTIMATORS, FILTERED, FRAMES, PAPER_GAIN, PAPER_P_MAX, RATE_FILTER_TAU_S,
                        RATE_THRESHOLD_DPS, REST, SIGN, STALL_TIMEOUT_S, TARGET)
 
@@ -136,6 +137,11 @@ PARAMETERS: tuple[Parameter, ...] = (
               'below an earlier one', 'deg', 0.0, 180.0, live=_NEXT_CAL),
     Parameter('calibration_max_rmse_kpa', PAPER_P_MAX / 10.0, 'refuse a direction whose fit RMSE is larger',
               'kPa', 0.0, 1000.0, live=_NEXT_CAL),
+    Parameter('calibration_rest_tolerance_deg', REST_TOLERANCE_DEG, "a direction's steps start only when the "
+              'gaze at the end of its rest is steady and within this of the first rest gaze; else the rest is '
+              'repeated (0 = no check: a rest offset goes into the fit)', 'deg', 0.0, 90.0, live=_NEXT_CAL),
+    Parameter('calibration_max_rest_s', MAX_REST_S, "one direction's rests, repeats included, before the "
+              'calibration fails for a gaze that did not come back to rest', 's', 0.05, 600.0, live=_NEXT_CAL),
     Parameter('channel_map_file', '', "channel map (YAML); '' = the package's config/hardware/channel_map.yaml "
               '(the channel order is fixed for the process: restart the node to change it)', read_only=True),
     Parameter('speak', True, 'condition 4: also speak the phrase with espeak-ng if installed',

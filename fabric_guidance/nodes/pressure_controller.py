@@ -392,7 +392,8 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
                 rest_s=v['calibration_rest_s'],
                 record_window_s=min(v['calibration_window_s'], v['calibration_dwell_s'], v['calibration_rest_s']),
                 acceptance=Acceptance(v['calibration_min_r2'], v['calibration_min_span_deg'],
-                                      v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa']))
+                                      v['calibration_max_reversal_deg'], v['calibration_max_rmse_kpa']),
+                rest_tolerance_deg=v['calibration_rest_tolerance_deg'] or None, max_rest_s=v['calibration_max_rest_s'])
         except ValueError as exc:
             response.success, response.message = False, f'cannot calibrate: {exc}'
             return response

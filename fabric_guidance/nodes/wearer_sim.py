@@ -145,7 +145,8 @@ class WearerSim(Node):
         self.pressures = np.zeros(4)
         self.pressures_received = -float('inf')
         self.active = ''
-        self.calibrating = False     # a live calibration runs: let the suit pull (Algorithm 1)
+        self.calibrating = False     # a live calibration's step pulls: go with the suit (Algorithm 1)
+        self.calibration_rest = False   # its vented rest: face the front, as its prompt asks
         self.target: tuple[float, float] | None = None   # active target (yaw, pitch) from the eye, degrees
         self.seq = 0
         self.last_step = self.start = time.monotonic()
@@ -231,12 +232,19 @@ class WearerSim(Node):
         self.pressures_received = time.monotonic()
 
     def on_calibration_state(self, msg: String) -> None:
-        # During a calibration the wearer goes where the suit pulls, as a person being calibrated
-        # does; otherwise, with return_to_front, they face the front when no target is active.
+        # While a calibration step pulls, the wearer goes where the suit pulls, as a person being
+        # calibrated does; in its vented rests they face the front whatever return_to_front says
+        # ("Face front and rest": the controller checks that they came back before the next
+        # direction); otherwise, with return_to_front, they face the front when no target is active.
         try:
-            self.calibrating = calibration_state.decode(msg.data).phase in calibration_state.RUNNING
+            phase = calibration_state.decode(msg.data).phase
         except calibration_state.CalibrationStateError:
-            self.calibrating = False
+            phase = calibration_state.IDLE
+        self.calibrating = phase == calibration_state.APPLY
+        rest = phase == calibration_state.REST
+        if rest and not self.calibration_rest and self.scene_side is not None:
+            self.scene_side.withdraw()      # the torso's goal is the front again (the engine's go_front)
+        self.calibration_rest = rest
 
     def on_active_target(self, msg: String) -> None:
         if msg.data == self.active:
@@ -277,7 +285,7 @@ class WearerSim(Node):
         """The simple wearer: SimulatedWearer on the measured time step."""
         now = time.monotonic()
         dt, self.last_step = now - self.last_step, now
-        if self.return_to_front and not self.active and not self.calibrating:
+        if self.calibration_rest or (self.return_to_front and not self.active and not self.calibrating):
             gaze = self.wearer.return_to_front(dt)
         else:
             gaze = self.wearer.step(self.felt(now), dt)
@@ -303,7 +311,7 @@ class WearerSim(Node):
         if due > MAX_CATCH_UP_STEPS:        # a stall: do not replay it
             due = MAX_CATCH_UP_STEPS
             self.start = now - (side.step_index + due) * self.dt
-        follow = bool(self.active) or self.calibrating or not self.return_to_front
+        follow = not self.calibration_rest and (bool(self.active) or self.calibrating or not self.return_to_front)
         felt = self.felt(now)
         for _ in range(due):
             sample = side.step(felt, follow, self.target if self.active else None)
