@@ -237,5 +237,6 @@ RUNS ?= 3
 LOAD ?= $(shell nproc)
 flakes: $(STAMP)
 	@$(MAKE) --no-print-directory system-deps-if-root
+	@$(MAKE) --no-print-directory bids-validator
 	@$(MAKE) --no-print-directory -C hololens all >/dev/null 2>&1 || true
 	$(PY) test/flake_finder.py --runs $(RUNS) --load $(LOAD) $(if $(FLAKE_ARGS),-- $(FLAKE_ARGS))
