@@ -10,7 +10,7 @@ import signal
 
 import pytest
 
-from cli_support import Command
+from cli_support import EXIT_S, Command
 from rosgraph import fresh_domain_id, wait_until
 
 pytestmark = pytest.mark.graph   # the commands start process graphs
@@ -67,6 +67,26 @@ def test_a_stopped_demo_says_so_in_one_line_and_leaves_nothing_running(sig, name
     assert cmd.lines[-1].startswith(f'fabric-guidance demo: stopped ({named}): the simulated graph is stopped'), out
     assert not Path(logs.group(1)).exists(), f'{logs.group(1)} left behind'
     assert not _node_processes(cmd.proc.pid), 'nodes of the demo still running'
+
+
+def test_a_demo_whose_nodes_die_says_so_in_lines_without_a_traceback():
+    """The nodes (the mock PLC among them) killed under a running demo, as a Ctrl-C that reached
+    them and not the demo would (a demo started from a script's background job ignores SIGINT):
+    it says which ended and that the PLC could not be read back, and exits 1 (it printed a
+    PlcLinkError traceback)."""
+    cmd = command('demo')
+    try:
+        wait_until(lambda: re.search(r'target \S+ active', cmd.text()), STARTED_S, what='the demo guiding')
+        for pid in _node_processes(cmd.proc.pid):
+            os.kill(pid, signal.SIGKILL)
+        wait_until(lambda: cmd.proc.poll() is not None, EXIT_S, what='the demo to end')
+    finally:
+        cmd.close()
+    cmd._reader.join(5.0)
+    out = cmd.text()
+    assert 'Traceback' not in out, out
+    assert cmd.proc.returncode == 1, out
+    assert 'exited early' in out and 'the PLC registers could not be read back after shutdown' in out, out
 
 
 def test_a_stopped_simulated_study_says_how_to_go_on(tmp_path):

@@ -32,7 +32,7 @@ from ..core.geometry import DIRECTIONS
 from ..core.feedback import PAPER_P_MAX
 from ..core.task import angular_error_deg
 from ..paths import config_path, node_parameters
-from ..plc import PlcClient, RegisterMap
+from ..plc import PlcClient, PlcLinkError, RegisterMap
 from ..graph.process_graph import FILES, NODES, Graph, Probe, sim_lab, start_nodes, start_task, wait_until
 from ..sim.scene_plan import ScenePlan, plan_scene
 
@@ -283,8 +283,12 @@ def _run_demo(condition, timeout_s, log_dir: Path, say, scene, record_dir, kept:
             graph.stop('bag_recorder')
             say(f'session recorded: {bag}' if (bag / 'metadata.yaml').is_file()
                 else f'the recording failed; see {log_dir}/bag_recorder.log')
-        with PlcClient(regmap, '127.0.0.1', lab.plc_port, timeout_s=1.0) as client:
-            after = client.read_commands_kpa()
+        try:
+            with PlcClient(regmap, '127.0.0.1', lab.plc_port, timeout_s=1.0) as client:
+                after = client.read_commands_kpa()
+        except PlcLinkError as exc:    # mock_plc itself ended early (killed, or a Ctrl-C it alone saw)
+            say(f'the PLC registers could not be read back after shutdown: {exc}; see the logs in {log_dir}')
+            return 1
         graph.stop('mock_plc')
         code = report(watch, cond, after, say, plan)
         if not complete:
