@@ -37,11 +37,15 @@ class Command:
     def text(self) -> str:
         return '\n'.join(self.lines)
 
-    def stop(self, sig: int) -> int:
-        self.proc.send_signal(sig)
-        wait_until(lambda: self.proc.poll() is not None, EXIT_S, what=f'the command to exit after signal {sig}')
+    def wait(self, what: str) -> int:
+        """Its exit status once it has ended (within EXIT_S) and its last line is read."""
+        wait_until(lambda: self.proc.poll() is not None, EXIT_S, what=what)
         self._reader.join(5.0)
         return self.proc.returncode
+
+    def stop(self, sig: int) -> int:
+        self.proc.send_signal(sig)
+        return self.wait(f'the command to exit after signal {sig}')
 
     def close(self) -> None:
         if self.proc.poll() is None:

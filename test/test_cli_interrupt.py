@@ -10,7 +10,7 @@ import signal
 
 import pytest
 
-from cli_support import EXIT_S, Command
+from cli_support import Command
 from rosgraph import fresh_domain_id, wait_until
 
 pytestmark = pytest.mark.graph   # the commands start process graphs
@@ -79,13 +79,12 @@ def test_a_demo_whose_nodes_die_says_so_in_lines_without_a_traceback():
         wait_until(lambda: re.search(r'target \S+ active', cmd.text()), STARTED_S, what='the demo guiding')
         for pid in _node_processes(cmd.proc.pid):
             os.kill(pid, signal.SIGKILL)
-        wait_until(lambda: cmd.proc.poll() is not None, EXIT_S, what='the demo to end')
+        code = cmd.wait('the demo to end')
     finally:
         cmd.close()
-    cmd._reader.join(5.0)
     out = cmd.text()
     assert 'Traceback' not in out, out
-    assert cmd.proc.returncode == 1, out
+    assert code == 1, out
     assert 'exited early' in out and 'the PLC registers could not be read back after shutdown' in out, out
 
 

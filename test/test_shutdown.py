@@ -40,24 +40,29 @@ NODE = textwrap.dedent('''
 ''')
 
 
-def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
+def _stopped_with_sigint(script: str, tmp_path) -> tuple[int, str]:
+    """Run a node script in its own process; once it says 'ready', SIGINT it and wait for its
+    end: (exit status, everything it printed)."""
     import os
     env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
     out = tmp_path / 'out.txt'
     with open(out, 'w') as f:
-        proc = subprocess.Popen([sys.executable, '-c', NODE], stdout=f, stderr=subprocess.STDOUT,
-                                env=env)
+        proc = subprocess.Popen([sys.executable, '-c', script], stdout=f, stderr=subprocess.STDOUT, env=env)
     try:
         wait_until(lambda: 'ready' in out.read_text(), EXIT_DEADLINE_S, what='the node up')
         proc.send_signal(signal.SIGINT)
-        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S,
-                   what='the process exiting after its vent')
+        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S, what='the process ending after its vent')
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert 'vented' in out.read_text()
-    assert proc.returncode == 0, out.read_text()
+    return proc.returncode, out.read_text()
+
+
+def test_a_stuck_teardown_does_not_hold_the_process_after_its_vent(tmp_path):
+    code, text = _stopped_with_sigint(NODE, tmp_path)
+    assert 'vented' in text
+    assert code == 0, text
 
 
 GIL_HELD = textwrap.dedent('''
@@ -85,21 +90,8 @@ GIL_HELD = textwrap.dedent('''
 def test_a_teardown_that_holds_the_gil_still_ends_and_says_where(tmp_path):
     """The teardown's timer needs the GIL; faulthandler's watchdog does not: the process ends
     within the backstop with status 1, every thread's stack in its output."""
-    import os
-    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
-    out = tmp_path / 'out.txt'
-    with open(out, 'w') as f:
-        proc = subprocess.Popen([sys.executable, '-c', GIL_HELD], stdout=f, stderr=subprocess.STDOUT, env=env)
-    try:
-        wait_until(lambda: 'ready' in out.read_text(), EXIT_DEADLINE_S, what='the node up')
-        proc.send_signal(signal.SIGINT)
-        wait_until(lambda: proc.poll() is not None, EXIT_DEADLINE_S, what='the process ending after its vent')
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    text = out.read_text()
-    assert 'vented' in text and proc.returncode == 1, (proc.returncode, text)
+    code, text = _stopped_with_sigint(GIL_HELD, tmp_path)
+    assert 'vented' in text and code == 1, (code, text)
     assert 'Timeout (0:00:03.500000)!' in text and 'in destroy_node' in text, text
 
 
