@@ -14,9 +14,9 @@ Every test holds its safety limits (pressure_controller's held limits, nodes/hel
 a folder of its own (`held_limits_apart` below): a limit one test tightens is never in force in
 another's controller. A process graph keeps its own folder too (process_graph.Graph).
 
-`make test` runs pytest on two pytest-xdist workers (whole files to a worker). A test marked
+`make test` runs pytest on three pytest-xdist workers (whole files to a worker). A test marked
 `serial` claims something of a quiet machine (a soak run that loses nothing): while it runs, the
-other worker runs no test (the `serial_lock` fixture below).
+other workers run no test (the `serial_lock` fixture below).
 """
 import fcntl
 import os
