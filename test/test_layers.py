@@ -13,8 +13,9 @@ From the bottom up (docs/architecture.md):
     5  study                              a live study with people: plan, session, study folder
     6  nodes                              the ROS nodes: thin wiring over the layers below
     7  graph                              starting the nodes as processes; launch files' helpers
-    8  bench, live_study                  measurements; the study session through the graph
-    9  commands                           what a person runs: the entry point (it imports a
+    8  live_study                         the study session through the graph
+    9  bench                              measurements; the chaos and soak runs
+    10 commands                           what a person runs: the entry point (it imports a
                                           subcommand's module by name), demo, example, replay, recover
 
 A module may import its own package and any lower layer; packages of the same layer do not
@@ -36,8 +37,9 @@ LAYERS = {
     'study': 5,
     'nodes': 6,
     'graph': 7,
-    'bench': 8, 'live_study': 8,
-    'commands': 9,
+    'live_study': 8,
+    'bench': 9,
+    'commands': 10,
 }
 #: The top level: interface.py, the package's centre, and at most five small utilities.
 TOP_LEVEL_MODULES = {'interface', 'paths', 'atomic', 'subcommand', 'workers'}

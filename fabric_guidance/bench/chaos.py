@@ -21,13 +21,13 @@ calibration (start_calibration), then healed (for the operator's calls: by the o
 
 Invariants, from the register log alone (plc/register_log.py), checked after every fault and
 again at the end: no command above P_MAX ever sent; every fault that must vent has every
-register at 0 within its deadline (docs/safety.md); after a controller restart, once vented,
-nothing nonzero is applied before the operator's enable, and the same after the operator's
-`enable false` or `vent` (deactivate and activate included); at the end no process of the graph is
-left (every pid gone, children included); a second writer is refused while plc_output holds the
-PLC, and once it holds it and dies the suit vents within the watchdog's deadline and its command
-never comes back. Output: progress per fault, then a table of every
-fault kind with its deadline and worst measured time, as Markdown and JSON in --out.
+register at 0 within its deadline (docs/safety.md); after a controller restart, the operator's
+`enable false` or `vent` (deactivate and activate included), nothing nonzero is applied before the
+operator's enable; at the end no process of the graph is left; a second writer is refused while
+plc_output holds the PLC, and once it holds it and dies the suit vents within the watchdog's
+deadline and its command never comes back. Output: progress per fault, then a table of every
+fault kind with its deadline and worst measured time, as Markdown and JSON in --out. --study:
+the same with the study session running (bench/chaos_study.py).
 """
 from __future__ import annotations
 
@@ -43,16 +43,17 @@ import signal
 import socket
 import sys
 import tempfile
-import threading
 import time
 
 from .. import interface, subcommand
 from ..atomic import write_text
-from ..core.gaze_wire import encode_datagram
 from ..plc.register_log import Fault, RegisterLog, fault_vent, gate_breaches, late_vents, over_p_max, vent_time
 from ..graph.process_graph import CONFIG, Graph, PlcInvariantError, free_port, wait_until
 from . import second_writer
+from .deadlines import (CONTROLLER_VENT_S, GAZE_STALE_VENT_S, LINK_DELAY_S, LINK_DELAY_VENT_S,
+                        OPERATOR_VENT_S, WATCHDOG_VENT_S)
 from .faultproxy import FaultProxy
+from .gaze_stub import FLOOD_RATE_HZ, GazeStub
 from .graphs import state
 
 HELP = 'a seeded schedule of faults on the lab graph, invariants checked from the PLC register log'
@@ -63,26 +64,6 @@ NODES = ('pressure_controller', 'plc_output', 'gaze_bridge', 'target_selector', 
 #: real one outlives the PC's processes; its log is what the run is judged by) and never restarts.
 SUPERVISED = NODES
 
-# ---- parameters the deadlines come from (config/params/guidance.yaml, sim.yaml)
-COMMAND_TIMEOUT_S = 0.5    # plc_output
-WRITE_PERIOD_S = 1 / 50    # plc_output write_rate_hz
-MODBUS_TIMEOUT_S = 0.2     # plc_output
-WATCHDOG_S = 0.5           # mock_plc
-SCAN_S = 1 / 100           # mock_plc update_hz
-GAZE_TIMEOUT_S = 0.3       # pressure_controller
-CONTROL_PERIOD_S = 1 / 30  # pressure_controller control_rate_hz
-
-# ---- deadlines, from the fault to every command register at 0 (the same as docs/safety.md's)
-#: The controller gone or frozen: plc_output's command_timeout_s, a write cycle, delivery slack.
-CONTROLLER_VENT_S = COMMAND_TIMEOUT_S + WRITE_PERIOD_S + 0.5
-#: plc_output gone or frozen, or the link dead: the PLC's watchdog at its next scan, slack.
-WATCHDOG_VENT_S = WATCHDOG_S + SCAN_S + 0.5
-#: No gaze reaches the controller: gaze_timeout_s, a control period, a write cycle, slack.
-GAZE_STALE_VENT_S = GAZE_TIMEOUT_S + CONTROL_PERIOD_S + WRITE_PERIOD_S + 0.6
-#: How late the delayed link delivers every byte, each way: beyond the request timeout.
-LINK_DELAY_S = 0.5
-#: A delayed link: what was sent before lands LINK_DELAY_S late, then the watchdog.
-LINK_DELAY_VENT_S = LINK_DELAY_S + WATCHDOG_VENT_S
 #: Per node, the deadline of a SIGKILL or SIGSTOP; None: the suit need not vent (the controller
 #: keeps the latched target when target_selector dies silently; headset_display and
 #: bag_recorder only listen).
@@ -95,9 +76,6 @@ RECOVERY_DEADLINE_S = 45.0
 #: A restarted controller is watched this long, vented and disabled, before the operator's
 #: enable: the window in which the enable gate must hold.
 GATE_WATCH_S = 1.0
-#: The operator's enable false or vent: the controller publishes zeros in the service call,
-#: plc_output writes them at its next cycle; delivery slack.
-OPERATOR_VENT_S = WRITE_PERIOD_S + 0.5
 #: How long a lasting fault (a stop, a link or gaze fault) holds [s]: longer than any deadline,
 #: so that the vent is seen to hold.
 HOLD_S = (1.6, 2.6)
@@ -105,8 +83,6 @@ HOLD_S = (1.6, 2.6)
 #: meanwhile queue in the frozen process), and plc_output continued at the end of the hold.
 FREEZE_KILL = ('plc_output', 'pressure_controller')
 FREEZE_KILL_AFTER_S = 0.3
-#: Gaze datagrams per second while the stream is flooded (the HoloLens sends 30 to 60).
-FLOOD_RATE_HZ = 2000.0
 
 #: The line a lifecycle node logs once active (nodes/managed.py), by itself or by a transition.
 ACTIVE = re.compile(r'\]: (configured and )?active( \(autostart\))?$', re.M)
@@ -183,41 +159,6 @@ def schedule(seed: int, faults: int) -> list[Planned]:
         out.append(Planned('two_writers', ('plc_output',), extra.choice(('guidance', 'calibration')),
                            round(extra.uniform(HOLD_S[0], HOLD_S[1]), 2)))
     return out[:faults]
-
-
-class GazeStub:
-    """The HoloLens stand-in: valid gaze datagrams (looking ahead) at 60 Hz to gaze_bridge;
-    `mode` 'send', 'pause' (nothing) or 'flood' (FLOOD_RATE_HZ)."""
-
-    def __init__(self, port: int):
-        self.port, self.seq, self.mode, self.sent = port, 0, 'send', 0
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='gaze-stub', daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        next_s = time.monotonic()
-        while not self._stop.is_set():
-            mode = self.mode
-            if mode != 'pause':
-                datagram = encode_datagram(self.seq, time.monotonic(), (0.0, 1.2, 0.0), (0.0, 0.0, 1.0),
-                                           (0.0, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0), True)
-                try:
-                    self.sock.sendto(datagram, ('127.0.0.1', self.port))
-                    self.sent += 1
-                except OSError:   # the bridge restarting: the datagram is lost, as on Wi-Fi
-                    pass
-                self.seq += 1
-            next_s += 1 / FLOOD_RATE_HZ if mode == 'flood' else 1 / 60
-            self._stop.wait(max(0.0, next_s - time.monotonic()))
-            if next_s < time.monotonic() - 0.1:   # fell behind (loaded machine): resume from now
-                next_s = time.monotonic()
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        self.sock.close()
 
 
 @dataclass
@@ -573,9 +514,10 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument('--seed', type=int, required=True,
                         help='the schedule of faults (the same seed, the same faults)')
     parser.add_argument('--faults', type=int, default=20, help='how many faults (default 20)')
-    parser.add_argument('--out', default=None,
-                        help='folder for chaos.md, chaos.json, the register log, the bags and the node logs '
-                             '(default: a new temporary folder)')
+    parser.add_argument('--out', default=None, help='folder for chaos.md, chaos.json, the register log, the bags '
+                        'and the node logs (default: a new temporary folder)')
+    parser.add_argument('--study', action='store_true', help='with the study session running: outside vents, '
+                        'controller restarts, foreign Modbus writers mid-trial (bench/chaos_study.py)')
     return parser
 
 
@@ -589,7 +531,11 @@ def run(args, stream=sys.stdout) -> int:
         subcommand.error('fabric-guidance chaos', f'--faults must be 1 or more, got {args.faults}')
         return 2
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='fabric-guidance-chaos-'))
-    rows, violations = run_chaos(args.seed, args.faults, out, say)
+    if args.study:
+        from .chaos_study import run_study_chaos
+        rows, violations = run_study_chaos(args.seed, args.faults, out, say)
+    else:
+        rows, violations = run_chaos(args.seed, args.faults, out, say)
     say('')
     say((out / 'chaos.md').read_text())
     say(f'written: {out / "chaos.md"}, {out / "chaos.json"}')

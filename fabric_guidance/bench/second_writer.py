@@ -89,8 +89,9 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
         w['t_die'] = time.monotonic()
         writer.silence()
         wait_until(lambda: g.restart_count('plc_output') > restarts, RECOVERY_S, what='plc_output restarted')
-        # Its command is still the last in the log: guidance is back once something else is.
-        wait_until(lambda: any(e.t > w['t_die'] and e.vented for e in log.poll().entries), RECOVERY_S,
+        # Its command is still the last in the log (guidance is back once something else is),
+        # unless the respawned plc_output's vent request has vented the PLC already.
+        wait_until(lambda: vent_time(log.poll().entries, w['t_die']) is not None, RECOVERY_S,
                    what=f'fault {index}: the vent after the second writer fell silent')
 
         def back():
