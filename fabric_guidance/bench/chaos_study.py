@@ -102,8 +102,8 @@ class StudyOutcome:
     problems: list[str] = field(default_factory=list)     # broken invariants of the session
 
     def fault(self) -> Fault:
-        if self.writer is not None:       # judged by second_writer.breaches
-            return Fault(TITLE[self.planned.kind], self.t, None, self.t, self.t_enable)
+        if self.writer is not None:       # judged by second_writer.breaches, not by a deadline or gate here
+            return Fault(TITLE[self.planned.kind], self.t, None, self.t)
         return Fault(TITLE[self.planned.kind], self.t, DEADLINE_S[self.planned.kind], self.t_enable, self.t_enable)
 
 
@@ -143,7 +143,7 @@ class StudyChaosLab:
         self.part.lab.overrides['mock_plc']['register_log_file'] = str(self.log_path)
         self.planned_trials = len(blocks) * design.trials
         self.session = Session(design, blocks, {'gaze_source': 'wearer_sim'})
-        self._blocks, self._store = blocks, store
+        self._store = store
         self._driver_cls, self._keys = SessionDriver, operator_keys
         self.driver = self.officer = None
         self.errors: list[BaseException] = []
