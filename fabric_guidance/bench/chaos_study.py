@@ -172,12 +172,16 @@ class StudyChaosLab:
         at the suit for OPERATOR_S[0] (an enable while the foreign writer still holds the PLC
         leaves the PLC's vent latch set: once plc_output has the PLC back it vents the controller
         again, and the session holds again). The time of the first press."""
-        if self._operator is None:
-            self._operator = threading.Thread(target=self._operator_loop, name='operator', daemon=True)
-            self._operator.start()
+        self.operator_stays()
         wait_until(lambda: self.check() or self._presses, SESSION_HOLD_S + PRESSURE_S,
                    what="the operator's key e after plc_output vented the controller")
         return self._presses[0]
+
+    def operator_stays(self) -> None:
+        """From now until operator_leaves(), the operator presses e whenever the session holds."""
+        if self._operator is None:
+            self._operator = threading.Thread(target=self._operator_loop, name='operator', daemon=True)
+            self._operator.start()
 
     def _operator_loop(self) -> None:
         held_since = None
@@ -326,8 +330,17 @@ class StudyChaosLab:
         cut = [r['status'] for r in self.driver.rows[in_trial:]]
         out.note = f"the trial it cut recorded {', '.join(cut)}" if cut else ''
         out.t_enable = self.operator_arms(f'fault {index}')
-        wait_until(self.pressurised, PRESSURE_S, what=f'fault {index}: pressure again after the operator armed')
+        # Should the session hold again (a respawned controller's first trial gate not answered),
+        # the operator presses e again, as at the terminal.
+        self.operator_stays()
+        try:
+            wait_until(self.pressurised, PRESSURE_S, what=f'fault {index}: pressure again after the operator armed')
+        finally:
+            again = self.operator_leaves()
+        self.check()
         out.recovery_s = time.monotonic() - out.t_enable
+        if again:
+            out.note += f'; the session held again and the operator pressed e {again} more time(s)'
         wait_until(lambda: self.register_log.poll().drained >= out.fault().held_until, 10.0,
                    what='the register log drained')
         out.vent_s, _ = fault_vent(self.register_log.entries, out.fault())
