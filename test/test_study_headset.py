@@ -52,13 +52,19 @@ def test_the_headsets_confirm_is_judged_on_its_gaze_at_the_press(tmp_path):
         op = Operator(graph.domain_id)
         wait_until(lambda: op.clock_state() == 'synced', 30.0, what="gaze_bridge's clock synchronised")
         wait_until(lambda: len(op.gaze) > 10, 20.0, what="the harness's gaze at the operator")
+        # The controller up and armed (guidance.yaml starts it enabled) before the session starts, as
+        # the live session waits for the operator's arm. A session whose gate call meets a controller
+        # still starting (unanswered for 5 s) holds, as it must: in a fresh run the controller came up
+        # 6.5 s after the other nodes and the trial never showed its target.
+        wait_until(lambda: op.armed is True, 60.0, what="pressure_controller's diagnostics saying armed")
 
         design = StudyDesign('accuracy', seed=7, conditions=(1,), trials=1, rest_s=0.5, timeout_s=20.0)
         study = Study.open(tmp_path / 'study')
         study.add_participant('01')
         store = study.session('01', 1, design)
+        lines: list[str] = []
         driver = SessionDriver(op, Session(design, participant_blocks(design, '01', 0), {'gaze_source': 'headset'}),
-                               store)
+                               store, lines.append)
         rows, errors = [], []
 
         def run():
@@ -68,7 +74,10 @@ def test_the_headsets_confirm_is_judged_on_its_gaze_at_the_press(tmp_path):
                 errors.append(exc)
         thread = threading.Thread(target=run, daemon=True)
         thread.start()
-        wait_until(lambda: op.target is not None or errors, 30.0, what='the trial showing its target')
+        try:
+            wait_until(lambda: op.target is not None or errors, 30.0, what='the trial showing its target')
+        except AssertionError as exc:
+            raise AssertionError(f'{exc}; the session said: {lines}') from None
         wait_until(lambda: len(op.gaze) > 0 and op.gaze[-1][0] > op.now_ns() - 200_000_000, 10.0,
                    what='fresh gaze during the trial')
         harness.command('confirm')
