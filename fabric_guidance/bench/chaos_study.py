@@ -60,8 +60,10 @@ SESSION_HOLD_S = 15.0
 OPERATOR_S = (1.5, 3.0)
 #: Into a trial's pressure before the fault [s], drawn per fault.
 INTO_TRIAL_S = (0.0, 0.4)
-#: The session's row of the trial a fault cut, once it holds [s] (its loop writes it to disk).
-ROW_S = 5.0
+#: The session's row of the trial a fault cut, once it holds [s]: the driver writes it after its
+#: own vent call, which waits for a controller that may be restarting (Operator.call_begin: up to
+#: 15 s for the service, then 5 s for the answer).
+ROW_S = 30.0
 #: The operator presses e again after this while the session still holds [s].
 PRESS_AGAIN_S = 3.0
 #: Graph start-up, a trial under pressure again, the session's end [s] (a loaded machine).
@@ -214,12 +216,13 @@ class StudyChaosLab:
         pressed again every PRESS_AGAIN_S while the session holds (a respawned controller's
         enable service not yet discovered: the key's line says so); the first press's time."""
         press = self._keys(self.part.op, self.driver, self._line)
-        t = last = time.monotonic()
-        press('arm')
+        t = time.monotonic()
+        press('arm')     # its calls may wait for a restarting controller: the deadline from here
+        last = pressed = time.monotonic()
         while self.session.phase == 'held':
             self.check()
             now = time.monotonic()
-            if now > t + PRESSURE_S:
+            if now > pressed + PRESSURE_S:
                 raise AssertionError(f'{what}: the session did not resume within {PRESSURE_S:g} s of the key e')
             if now > last + PRESS_AGAIN_S:
                 last = now
