@@ -8,7 +8,7 @@ did between targets.
 Two wearers:
 
 - scene_file '' (default): fabric_guidance.sim.wearer.SimulatedWearer with the parameters
-  `laws` and `tau_s`: deterministic, no noise, no delay (what `make demo` runs).
+  `laws`, `tau_s` and `pull_memory_s`: deterministic, no noise, no delay (what `make demo` runs).
 - scene_file set: wearer `wearer_index` of the scene's population with the scene's
   wearer-side effects: fabric_guidance.sim.scene_wearer.SceneSide (the order of the effects, the
   seeding and what the graph realises elsewhere are described there), stepped at
@@ -58,7 +58,7 @@ from ..core.gaze_wire import (WireFormatError, encode_confirm, encode_datagram, 
 from ..core.geometry import GeometryError, azimuth_deg, elevation_deg
 from ..paths import resolve
 from ..sim.scene_wearer import REALISED_ELSEWHERE, KeyPress, SceneSide, load_scene_file
-from ..sim.wearer import SimulatedWearer, gaze_from_angles
+from ..sim.wearer import PULL_MEMORY_S, SimulatedWearer, gaze_from_angles
 from ..core import calibration_state
 from ..interface import ACTIVE_TARGET, CALIBRATION_STATE, CONFIRM, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
 from .parameters import declare, declare_config_file
@@ -84,6 +84,8 @@ class WearerSim(Node):
         rate = declare(self, 'gaze_rate_hz', 60.0, 'gaze datagrams per second (with a scene: simulation steps '
                        'per second)', 'Hz', low=1.0, high=2000.0)
         tau = declare(self, 'tau_s', 0.4, 'torso/gaze time constant (simple wearer only)', 's', low=0.01, high=10.0)
+        memory = declare(self, 'pull_memory_s', PULL_MEMORY_S, 'a pause in the pull shorter than this is the same '
+                         'pull resumed (simple wearer only)', 's', low=0.0, high=60.0)
         self.layout = declare(self, 'layout', 'suit', 'which channels the wearer feels: suit or arm')
         laws = declare(self, 'laws', [20.0, 0.65, 25.0, 22.0, 0.62, 20.0, 40.0, 0.55, 30.0, 38.0, 0.58, 35.0],
                        "the wearer's own power law a, b, c per direction (left, right, down, up); simple wearer "
@@ -141,7 +143,8 @@ class WearerSim(Node):
         elif condition == 4:
             raise ValueError('parameter condition: 4 (speech) needs scene_file; the simple wearer does not hear')
         else:
-            self.wearer = SimulatedWearer([PowerLaw(*laws[i:i + 3]) for i in range(0, 12, 3)], tau_s=tau)
+            self.wearer = SimulatedWearer([PowerLaw(*laws[i:i + 3]) for i in range(0, 12, 3)], tau_s=tau,
+                                          pull_memory_s=memory)
         self.pressures = np.zeros(4)
         self.pressures_received = -float('inf')
         self.active = ''

@@ -5,12 +5,17 @@ SimulatedWearer reads the suit's pressure per direction (left, right, down, up),
 it through their own power law (their sensitivity, which the calibration has to discover) as
 an angle to turn, and turns torso and gaze toward it as a first-order lag. The turn is
 relative to the posture they held when the suit started pulling (the anchor); while they feel
-nothing (every pressure below their threshold c) they hold still. Gaze = torso (no separate
-eye or head movement in this model). No noise and no delays.
+nothing (every pressure below their threshold c) they hold still. A pause shorter than
+pull_memory_s (a link vent of a few tenths of a second) is the same pull interrupted: when
+it comes back they go on counting from the anchor, not from where the pause found them
+(which would read the whole pull again as a further turn). After a longer pause the next pull
+counts from where they are. Gaze = torso (no separate eye or head movement in this model). No
+noise and no delays.
 
-SceneWearer is the same wearer without a built-in lag: the effects a scene calls for
-(effects.py: perception, reaction delay, body dynamics with visual capture) are composed
-around it by engine.py.
+SceneWearer is the same wearer without a built-in lag and without the pull memory (a pause
+re-anchors it at once; its cue effects decide what it makes of a pull): the effects a scene
+calls for (effects.py: perception, reaction delay, body dynamics with visual capture) are
+composed around it by engine.py.
 """
 from __future__ import annotations
 
@@ -31,16 +36,26 @@ def gaze_from_angles(yaw_deg: float, pitch_deg: float) -> np.ndarray:
     return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
 
 
+#: How long a pause in the pull the simple wearer still takes for the same pull, s. An
+#: assumption: longer than a lost Modbus request's vent and resume (0.2-0.5 s), shorter than
+#: Algorithm 1's rest (3 s), so calibration is unchanged.
+PULL_MEMORY_S = 1.0
+
+
 class SimulatedWearer:
     def __init__(self, laws: Sequence[PowerLaw], tau_s: float = 0.4, p_max: float = PAPER_P_MAX,
-                 yaw_deg: float = 0.0, pitch_deg: float = 0.0):
+                 yaw_deg: float = 0.0, pitch_deg: float = 0.0, pull_memory_s: float = PULL_MEMORY_S):
         if len(laws) != len(DIRECTIONS):
             raise ValueError(f'need one power law per direction {DIRECTIONS}')
         if not (math.isfinite(tau_s) and tau_s > 0):
             raise ValueError(f'tau_s must be finite and > 0, got {tau_s}')
+        if not (math.isfinite(pull_memory_s) and pull_memory_s >= 0):
+            raise ValueError(f'pull_memory_s must be finite and >= 0, got {pull_memory_s}')
         self.laws, self.tau_s, self.p_max = list(laws), tau_s, p_max
+        self.pull_memory_s = pull_memory_s
         self.yaw, self.pitch = yaw_deg, pitch_deg
         self._anchor: tuple[float, float] | None = None
+        self._unfelt_s = 0.0      # how long nothing has been felt since the last pull
 
     @property
     def gaze(self) -> np.ndarray:
@@ -50,6 +65,7 @@ class SimulatedWearer:
         """Be back at the starting posture at once."""
         self.yaw = self.pitch = 0.0
         self._anchor = None
+        self._unfelt_s = 0.0
 
     def return_to_front(self, dt: float) -> np.ndarray:
         """Turn back toward the front on one's own, ignoring the suit, as the paper's wearers
@@ -69,10 +85,13 @@ class SimulatedWearer:
         p = np.nan_to_num(np.asarray(pressures, dtype=float), nan=0.0)
         perceived = self.perceived_angles(p)
         if not np.any(perceived > 0):
-            # Nothing felt (every pressure below the wearer's threshold c): hold still, and the
-            # next pull counts from here.
-            self._anchor = None
+            # Nothing felt (every pressure below the wearer's threshold c): hold still; once the
+            # pause outlasts the pull's memory, the next pull counts from here.
+            self._unfelt_s += max(dt, 0.0)
+            if self._unfelt_s >= self.pull_memory_s:
+                self._anchor = None
             return self.gaze
+        self._unfelt_s = 0.0
         if self._anchor is None:
             self._anchor = (self.yaw, self.pitch)
         left, right, down, up = perceived
