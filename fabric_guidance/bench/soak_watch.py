@@ -45,7 +45,7 @@ class SoakWatch:
         node.create_subscription(PoseStamped, interface.GAZE, self.on_gaze, qos.SENSOR_QOS)
         node.create_subscription(Float64MultiArray, interface.CONTROLLER_INPUT, self.on_input, qos.COMMAND_QOS)
         node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self.on_command, qos.COMMAND_QOS)
-        node.create_subscription(String, interface.ACTIVE_TARGET, self.on_active, qos.LATCHED_QOS)
+        node.create_subscription(String, interface.ACTIVE_TARGET, self.on_active, qos.LATCHED_ALL_QOS)
         node.create_subscription(String, interface.TARGET_FOUND, self.on_found, qos.EVENT_QOS)
         node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS, self.on_diagnostics, 10)
 

@@ -55,8 +55,9 @@ class SessionWatch:
     """What the demo reads off the graph: targets activated and found, gaze, commands."""
 
     def __init__(self, probe: Probe, channel_map: ChannelMap, layout: str, sequence: list[str], say):
-        from geometry_msgs.msg import PointStamped, PoseStamped
+        from geometry_msgs.msg import PoseStamped
         from std_msgs.msg import Float64MultiArray, String
+        from visualization_msgs.msg import MarkerArray
 
         from .. import interface
         from ..nodes import qos
@@ -64,7 +65,8 @@ class SessionWatch:
         self.sequence = sequence
         self.lock = threading.Lock()
         self.records: list[TargetRecord] = []
-        self.gaze = self.origin = self.target = None
+        self.gaze = self.origin = None
+        self.positions: dict[str, np.ndarray] = {}   # target name -> position (target_markers)
         self.finished = threading.Event()
         self.start = time.monotonic()
         self.max_command = 0.0
@@ -74,8 +76,9 @@ class SessionWatch:
         self.max_written: list[float] = []        # mock_plc/max_written_kpa, latest
         self.view: list[tuple[float, str]] = []   # headset_view: what the simulated headset showed
         probe.subscribe(PoseStamped, interface.GAZE, qos.SENSOR_QOS, self.on_gaze)
-        probe.subscribe(PointStamped, interface.TARGET, qos.LATCHED_QOS, self.on_target)
-        probe.subscribe(String, interface.ACTIVE_TARGET, qos.LATCHED_QOS, self.on_active)
+        # Every change in turn: a target active and found while this process was late still counts.
+        probe.subscribe(String, interface.ACTIVE_TARGET, qos.LATCHED_ALL_QOS, self.on_active)
+        probe.subscribe(MarkerArray, interface.TARGET_MARKERS, qos.LATCHED_QOS, self.on_markers)
         probe.subscribe(String, interface.TARGET_FOUND, qos.EVENT_QOS, self.on_found)
         probe.subscribe(Float64MultiArray, interface.PRESSURE_COMMAND, qos.COMMAND_QOS, self.on_command)
         probe.subscribe(Float64MultiArray, interface.MEASURED_PRESSURE, qos.COMMAND_QOS)
@@ -100,9 +103,12 @@ class SessionWatch:
         with self.lock:
             self.gaze, self.origin = ray_direction([q.x, q.y, q.z, q.w]), np.array([p.x, p.y, p.z])
 
-    def on_target(self, msg) -> None:
+    def on_markers(self, msg) -> None:
         with self.lock:
-            self.target = np.array([msg.point.x, msg.point.y, msg.point.z])
+            for m in msg.markers:
+                if m.text:
+                    p = m.pose.position
+                    self.positions[m.text] = np.array([p.x, p.y, p.z])
 
     def on_active(self, msg) -> None:
         with self.lock:
@@ -116,8 +122,10 @@ class SessionWatch:
             if rec is None or rec.found is not None:
                 return
             rec.found = time.monotonic()
-            if self.gaze is not None and self.target is not None:
-                rec.final_error_deg = angular_error_deg(self.gaze, target_direction(self.origin, self.target))
+            # The found target's own position: `target` may already be the next one's.
+            position = self.positions.get(msg.data)
+            if self.gaze is not None and position is not None:
+                rec.final_error_deg = angular_error_deg(self.gaze, target_direction(self.origin, position))
             self.say(f'[{self.t():5.1f} s] target {msg.data} found after {rec.found - rec.activated:.2f} s')
             if [r.name for r in self.records if r.found is not None] == self.sequence:
                 self.finished.set()

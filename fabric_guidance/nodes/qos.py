@@ -8,3 +8,11 @@ SENSOR_QOS = qos_profile(SENSOR)
 COMMAND_QOS = qos_profile(COMMAND)
 LATCHED_QOS = qos_profile(LATCHED)
 EVENT_QOS = qos_profile(EVENT)
+
+#: A latched topic read for every value in turn, not only the latest (active_target where each
+#: change matters: the wearer's return to the front, a monitor's count of targets): the reader
+#: keeps the last 10, so a process not scheduled for a moment still sees X, '' and Y in order
+#: (with depth 1 the newest overwrites an unread one). Matches the latched publishers: depth is
+#: not part of QoS compatibility.
+LATCHED_ALL_QOS = qos_profile(LATCHED)
+LATCHED_ALL_QOS.depth = 10

@@ -62,7 +62,7 @@ from ..sim.wearer import PULL_MEMORY_S, SimulatedWearer, gaze_from_angles
 from ..core import calibration_state
 from ..interface import ACTIVE_TARGET, CALIBRATION_STATE, CONFIRM, HEADSET_VIEW, MEASURED_PRESSURE, SPEECH, TARGET
 from .parameters import declare, declare_config_file
-from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_ALL_QOS, LATCHED_QOS
 from .spin import run
 
 #: Measured pressures older than this are not felt any more (the PLC link is gone) [s].
@@ -77,8 +77,8 @@ CONFIRM_REPEATS, CONFIRM_REPEAT_S = 3, 0.02
 
 
 class WearerSim(Node):
-    def __init__(self):
-        super().__init__('wearer_sim')
+    def __init__(self, **kwargs):
+        super().__init__('wearer_sim', **kwargs)
         self.address = (declare(self, 'bridge_host', '127.0.0.1', 'where gaze_bridge listens'),
                         declare(self, 'bridge_port', 5005, 'gaze_bridge UDP port', low=1, high=65535))
         rate = declare(self, 'gaze_rate_hz', 60.0, 'gaze datagrams per second (with a scene: simulation steps '
@@ -148,6 +148,8 @@ class WearerSim(Node):
         self.pressures = np.zeros(4)
         self.pressures_received = -float('inf')
         self.active = ''
+        #: Steps at the front since the last target ended (None: one is active or none ended yet).
+        self.front_steps: int | None = None
         self.calibrating = False     # a live calibration's step pulls: go with the suit (Algorithm 1)
         self.calibration_rest = False   # its vented rest: face the front, as its prompt asks
         self.target: tuple[float, float] | None = None   # active target (yaw, pitch) from the eye, degrees
@@ -175,7 +177,8 @@ class WearerSim(Node):
             self._display_thread = threading.Thread(target=self._display_loop, name='headset_display', daemon=True)
             self._display_thread.start()
         self.create_subscription(Float64MultiArray, MEASURED_PRESSURE, self.on_pressure, COMMAND_QOS)
-        self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_QOS)
+        # Every change in turn (LATCHED_ALL_QOS): the wearer turns back to the front at each ''.
+        self.create_subscription(String, ACTIVE_TARGET, self.on_active_target, LATCHED_ALL_QOS)
         self.create_subscription(String, CALIBRATION_STATE, self.on_calibration_state, LATCHED_QOS)
         if self.scene_side is not None:
             self.create_subscription(PointStamped, TARGET, self.on_target, LATCHED_QOS)
@@ -255,14 +258,27 @@ class WearerSim(Node):
         self.active = msg.data
         self.target = None          # the new target's position comes on `target`
         side = self.scene_side
-        if side is not None:
-            if self.active:
-                side.present()
-                self.key.present(side.t, None)
-            else:
+        if not self.active:
+            if side is not None:
                 self.key.withdraw()
-                if self.return_to_front:
+            if self.return_to_front:
+                self.front_steps = 0
+                if side is not None:
                     side.withdraw()
+            return
+        if self.front_steps == 0:
+            # The gap between two targets passed while this process was not scheduled ('' and the
+            # next target came together): the wearer, who faces the front in every gap, is put
+            # there at once; following from the last target's posture would read the new pull
+            # from the wrong place.
+            self.get_logger().warning(f"target '{self.active}' came before a step at the front since the last "
+                                      'one (this process was late): the wearer faces the front at once',
+                                      throttle_duration_sec=10.0)
+            (side.wearer if side is not None else self.wearer).face_front()
+        self.front_steps = None
+        if side is not None:
+            side.present()
+            self.key.present(side.t, None)
 
     def on_target(self, msg: PointStamped) -> None:
         if not self.active:
@@ -290,6 +306,8 @@ class WearerSim(Node):
         dt, self.last_step = now - self.last_step, now
         if self.calibration_rest or (self.return_to_front and not self.active and not self.calibrating):
             gaze = self.wearer.return_to_front(dt)
+            if self.front_steps is not None:
+                self.front_steps += 1
         else:
             gaze = self.wearer.step(self.felt(now), dt)
         self.send(self.seq, now, gaze, gaze)
@@ -315,6 +333,8 @@ class WearerSim(Node):
             due = MAX_CATCH_UP_STEPS
             self.start = now - (side.step_index + due) * self.dt
         follow = not self.calibration_rest and (bool(self.active) or self.calibrating or not self.return_to_front)
+        if not follow and self.front_steps is not None:
+            self.front_steps += due
         felt = self.felt(now)
         for _ in range(due):
             sample = side.step(felt, follow, self.target if self.active else None)
