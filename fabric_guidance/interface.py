@@ -138,7 +138,10 @@ TOPICS: tuple[Topic, ...] = (
           'pressure_controller, wearer_sim (with a scene)',
           'active target position [m]; republished at 10 Hz'),
     Topic(ACTIVE_TARGET, 'std_msgs/msg/String', LATCHED, 'target_selector',
-          'pressure_controller, wearer_sim, headset_display', "name of the active target, `''` for none"),
+          'pressure_controller, wearer_sim, headset_display',
+          "name of the active target, `''` for none; a reader that must see every change in turn (wearer_sim, "
+          'the demo) keeps 10 (nodes/qos.py LATCHED_ALL_QOS): a reader of depth 1 late to take them keeps only '
+          'the newest'),
     Topic(TARGET_FOUND, 'std_msgs/msg/String', EVENT, 'target_selector', 'headset_display',
           'a target the wearer just found'),
     Topic(TARGET_MARKERS, 'visualization_msgs/msg/MarkerArray', LATCHED, 'target_selector',
