@@ -210,3 +210,17 @@ def test_the_operators_enable_false_and_vent_cycle_hold_until_enable(tmp_path):
         assert f['enabled_after_s'] is not None and f['enabled_after_s'] >= 1.6, f
         print(f"{f['kind']} ({f['phase']}): registers at 0 {f['vent_s']:.3f} s after the call "
               f"(deadline {chaos.OPERATOR_VENT_S:.3f} s)")
+
+
+def test_a_foreign_writers_command_is_judged_held_out_only_while_plc_outputs_claim_held():
+    """Fresh run 80: plc_output's own request timed out under load during the writer's refusals;
+    its dropped connection freed the PLC's claim and the writer's command was applied before the
+    kill. With inject's claim_freed that is no breach; without it, it is one."""
+    from fabric_guidance.bench.second_writer import breaches
+    pattern = (2000, 2000, 2000)
+    log = entries((1.0, ON), (3.0, pattern), (4.0, OFF), (9.0, ON))
+    w = {'t_start': 2.0, 't_kill': 5.0, 't_die': 6.0, 't_closed': 6.5, 'refused': 40, 'codes': [6],
+         'pattern': pattern}
+    found = breaches(log, [('a foreign Modbus writer', w)], 1.01, 10.0)
+    assert len(found) == 1 and 'applied at t=3.000 s while plc_output held the PLC' in found[0]
+    assert breaches(log, [('a foreign Modbus writer', {**w, 'claim_freed': 3.0})], 1.01, 10.0) == []

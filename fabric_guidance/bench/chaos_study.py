@@ -299,10 +299,13 @@ class StudyChaosLab:
                 presses = self.operator_leaves()
             self.check()
             # 0.0: vented before it fell silent (the respawned plc_output's vent request).
+            note = (f'plc_output kept out until it requested the PLC vent: the operator pressed e {presses} time(s)'
+                    if presses else 'plc_output back before its vent request')
+            if 'claim_freed' in w:
+                note += "; plc_output's own link failed during the refusals and the writer took the freed claim"
             return StudyOutcome(index, p, w['t_die'], t_enable=w.get('operator_enable'), writer=w,
                                 recovery_s=w['recovery_s'], vent_s=vent_time(self.register_log.entries, w['t_die']),
-                                note=f'plc_output kept out until it requested the PLC vent: the operator pressed e '
-                                f'{presses} time(s)' if presses else 'plc_output back before its vent request')
+                                note=note)
         g = self.graph
         restarts = g.restart_count('pressure_controller')
         t0 = time.monotonic()

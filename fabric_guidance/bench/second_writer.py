@@ -67,13 +67,16 @@ class SecondWriter:
 def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) -> dict:
     """The fault on a ChaosLab (its graph, register log, PLC port); returns its timeline: t_start,
     t_kill, t_die (the fault's time), refusals before the kill and their codes, the command
-    pattern in counts, recovery_s (guidance back after t_die), t_closed (its connection closed)."""
+    pattern in counts, recovery_s (guidance back after t_die), t_closed (its connection closed),
+    and claim_freed when plc_output's own link failed before the kill and the writer's command
+    was applied from then (the claim it held was freed with its connection)."""
     from ..plc import PlcClient, RegisterMap
     g, log = lab.graph, lab.register_log
     regmap = RegisterMap.load(CONFIG / 'hardware' / 'plc_register_map.yaml')
     pattern = tuple(regmap.encode([SECOND_WRITER_KPA] * len(regmap)))
     writer = SecondWriter(PlcClient(regmap, '127.0.0.1', lab.plc_port, timeout_s=MODBUS_TIMEOUT_S))
     t_start = time.monotonic()
+    before = len(g.log('plc_output'))
     try:
         time.sleep(hold_s / 2)   # refused all along (a fixed span, not a wait for anything)
         w = {'t_start': t_start, 'refused': writer.refused, 'codes': sorted(writer.refused_codes),
@@ -82,9 +85,16 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
         lab.mark_log('plc_output')
         logged = len(g.log('plc_output'))
         w['t_kill'] = time.monotonic()
+        # plc_output's own link may have failed meanwhile (a request timing out on a loaded
+        # machine: its client drops the connection, and a closed connection frees the PLC's
+        # claim), and the writer taken the freed claim before the kill (fresh run 80).
+        early = [e.t for e in log.poll().entries if t_start <= e.t <= w['t_kill'] and e.counts == pattern]
+        if early and 'link lost' in g.log('plc_output')[before:logged]:
+            w['claim_freed'] = early[0]
         os.kill(g.processes['plc_output'].pid, signal.SIGKILL)
-        wait_until(lambda: any(e.counts == pattern for e in log.poll().entries if e.t > w['t_kill']),
-                   TAKEOVER_S, what=f'fault {index}: the second writer holding the PLC after plc_output died')
+        if 'claim_freed' not in w:
+            wait_until(lambda: any(e.counts == pattern for e in log.poll().entries if e.t > w['t_kill']),
+                       TAKEOVER_S, what=f'fault {index}: the second writer holding the PLC after plc_output died')
         time.sleep(max(0.0, w['t_kill'] + hold_s / 2 - time.monotonic()))
         w['t_die'] = time.monotonic()
         writer.silence()
@@ -96,8 +106,9 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
 
         def back():
             # A plc_output kept out by this writer for two PLC watchdog times wrote the PLC's vent
-            # request and vented the controller: the stop holds until the operator's enable.
-            if 'operator_enable' not in w and 'controller vented:' in g.log('plc_output')[logged:]:
+            # request and vented the controller: the stop holds until the operator's enable. (The
+            # one killed may have, after its own link failed: from the fault's start.)
+            if 'operator_enable' not in w and 'controller vented:' in g.log('plc_output')[before:]:
                 w['operator_enable'] = lab.enable()
             return not log.poll().entries[-1].vented and log.entries[-1].counts != pattern
         wait_until(back, RECOVERY_S, what=f'fault {index}: {kind}: guidance back')
@@ -121,7 +132,9 @@ def breaches(entries, faults: list[tuple[str, dict]], vent_deadline_s: float, dr
         if not w['refused'] or w['codes'] != [6]:
             found.append(f'{where}: refused {w["refused"]} times (codes {w["codes"]}) while plc_output held the '
                          f'PLC; every write must get exception 06')
-        applied = [e for e in entries if w['t_start'] <= e.t <= w['t_kill'] and e.counts == w['pattern']]
+        # Until plc_output's own link failure freed the claim, if it did (inject's claim_freed).
+        held_until = w.get('claim_freed', w['t_kill'])
+        applied = [e for e in entries if w['t_start'] <= e.t < held_until and e.counts == w['pattern']]
         if applied:
             found.append(f'{where}: its command applied at t={applied[0].t:.3f} s while plc_output held the PLC')
         seconds = vent_time(entries, t)
