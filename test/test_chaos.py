@@ -213,8 +213,8 @@ def test_the_operators_enable_false_and_vent_cycle_hold_until_enable(tmp_path):
 
 
 def test_a_foreign_writers_command_is_judged_held_out_only_while_plc_outputs_claim_held():
-    """Fresh run 80: plc_output's own request timed out under load during the writer's refusals;
-    its dropped connection freed the PLC's claim and the writer's command was applied before the
+    """plc_output's own request can time out under load during the writer's refusals;
+    its dropped connection frees the PLC's claim and the writer's command is applied before the
     kill. With inject's claim_freed that is no breach; without it, it is one."""
     from fabric_guidance.bench.second_writer import breaches
     pattern = (2000, 2000, 2000)

@@ -106,8 +106,8 @@ def test_dry_run_runs_the_lab_graph_on_a_mock_plc_disarmed_and_stops_it_vented(t
                 try:
                     return client.read_claim_holder()
                 except PlcLinkError:
-                    # Not answered within the client's timeout (fresh run 87: the mock PLC, just
-                    # started beside three test workers, left the first read over 1 s): not yet.
+                    # Not answered within the client's timeout (a mock PLC just started on a
+                    # loaded machine can leave its first read over 1 s): not yet.
                     return ''
             wait_until(claim_holder, SEEN_S, what="plc_output's link to the mock PLC")
             wait_until(lambda: len(commands) >= 10, SEEN_S, what='pressure commands')

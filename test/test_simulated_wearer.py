@@ -1,10 +1,10 @@
 """The simple simulated wearer (sim.wearer.SimulatedWearer, what `make demo` runs): a brief pause
 in the pull is the same pull resumed.
 
-Fresh run 72 of issue 40: one Modbus request of plc_output's timed out under load, the suit vented
-0.3 s as the wearer came within 7 deg of the demo's third target, and the wearer, taking the
-resumed pressure for a new pull counted from where the pause found them, turned the whole angle
-again, past the target; the stall watch vented ten seconds later and the demo never finished.
+Why: under load one Modbus request of plc_output's can time out and the suit vents for about
+0.3 s. A wearer near the target who took the resumed pressure for a new pull, counted from where
+the pause found them, turned the whole angle again, past the target; the stall watch vented ten
+seconds later and the demo never finished.
 """
 import numpy as np
 import pytest
@@ -79,7 +79,7 @@ def guide_through_a_vent(wearer, target, vent_at_deg=7.0, vent_s=0.3, timeout_s=
 def test_the_demo_wearer_finds_each_target_after_a_brief_vent_near_it(target):
     found, t, error = guide_through_a_vent(SimulatedWearer(DEMO_WEARER), target)
     assert found and t < 3.0, (target, t, error)
-    # Without the memory the same vent loses the target (run 72's runaway): the check above
+    # Without the memory the same vent loses the target (the runaway above): the check above
     # is one the old wearer fails.
     lost, _, error = guide_through_a_vent(SimulatedWearer(DEMO_WEARER, pull_memory_s=0.0), target)
     assert not lost and error > 15.0, (target, error)

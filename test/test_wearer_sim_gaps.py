@@ -1,6 +1,6 @@
 """wearer_sim between two targets: the wearer faces the front in every gap, also when the gap
-passed while the node was not scheduled (fresh run 76 of issue 40: '' and the next target came
-together under load, the ideal wearer followed the new pull from the last target's posture and
+passed while the node was not scheduled (under load '' and the next target can come
+together; before this, the ideal wearer followed the new pull from the last target's posture and
 never found it). The node is driven by its callbacks directly, in a context of its own."""
 import pytest
 from rclpy.parameter import Parameter

@@ -87,7 +87,7 @@ def inject(lab, index: int, hold_s: float, kind: str, vent_deadline_s: float) ->
         w['t_kill'] = time.monotonic()
         # plc_output's own link may have failed meanwhile (a request timing out on a loaded
         # machine: its client drops the connection, and a closed connection frees the PLC's
-        # claim), and the writer taken the freed claim before the kill (fresh run 80).
+        # claim), and the writer taken the freed claim before the kill.
         early = [e.t for e in log.poll().entries if t_start <= e.t <= w['t_kill'] and e.counts == pattern]
         if early and 'link lost' in g.log('plc_output')[before:logged]:
             w['claim_freed'] = early[0]

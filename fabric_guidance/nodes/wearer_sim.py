@@ -3,7 +3,8 @@
 It feels the regulators' measured pressures (measured_pressure, from the PLC), turns torso and
 gaze, and sends gaze datagrams (wire format v1, Unity frame) over UDP to gaze_bridge. With
 return_to_front it turns back to the front while no target is active, as the paper's wearers
-did between targets.
+did between targets; a target that comes before it could take a single step at the front (the
+process was late) finds it at the front at once.
 
 Two wearers:
 
