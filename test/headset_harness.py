@@ -11,6 +11,7 @@ import random
 import selectors
 import shutil
 import socket
+import struct
 import subprocess
 import threading
 import time
@@ -104,6 +105,35 @@ def unity_euler_quat(x_deg: float = 0.0, y_deg: float = 0.0) -> tuple:
     return (0.0, math.sin(h), 0.0, math.cos(h))
 
 
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; the socket module does not name it): the kernel
+#: stamps each datagram with CLOCK_REALTIME on arrival, a struct timespec of two longs.
+SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct('@ll')
+
+
+def _kernel_timestamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp each datagram on arrival; False where it cannot."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        return True
+    except OSError:
+        return False
+
+
+def _receive(sock: socket.socket, stamped: bool) -> tuple[bytes, float]:
+    """(datagram, time.time() of its arrival): the kernel's stamp where there is one, so that a
+    thread of this process that runs late on a loaded machine does not date it late."""
+    if stamped:
+        data, ancillary, _, _ = sock.recvmsg(2048, socket.CMSG_SPACE(_TIMESPEC.size))
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= _TIMESPEC.size:
+                sec, nsec = _TIMESPEC.unpack_from(payload)
+                return data, sec + nsec * 1e-9
+        return data, time.time()
+    data, _ = sock.recvfrom(2048)
+    return data, time.time()
+
+
 class DelayProxy:
     """Forwards UDP both ways between a headset and the PC with a delay per direction (plus a
     seeded uniform jitter), and notes when each uplink datagram reached it: the truth of its
@@ -134,14 +164,14 @@ class DelayProxy:
 
     def _read(self, sock: socket.socket, up: bool) -> None:
         sock.settimeout(0.1)
+        stamped = _kernel_timestamps(sock)
         while not self._stop.is_set():
             try:
-                data, _ = sock.recvfrom(2048)
+                data, now = _receive(sock, stamped)
             except socket.timeout:
                 continue
             except OSError:
                 return
-            now = time.time()
             if up and b'"seq"' in data and b'clock_echo' not in data:
                 self.arrivals[json.loads(data)['seq']] = now
             elif up and b'"confirm"' in data:
@@ -150,8 +180,10 @@ class DelayProxy:
                 delay = (self.up_s if up else self.down_s) + self.rng.uniform(0.0, self.jitter_s)
                 dest = self.bridge if up else self.headset
                 if len(self._queue) < self.MAX_QUEUED and dest is not None:
-                    # Out of the uplink socket to the bridge; out of the downlink socket to the headset.
-                    heapq.heappush(self._queue, (time.monotonic() + delay, id(data), data,
+                    # Out of the uplink socket to the bridge; out of the downlink socket to the headset,
+                    # due `delay` after the datagram's arrival, however late this thread ran.
+                    due = time.monotonic() - (time.time() - now) + delay
+                    heapq.heappush(self._queue, (due, id(data), data,
                                                  self.downlink if up else self.uplink, dest))
                     self._lock.notify()
 

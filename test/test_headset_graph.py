@@ -266,12 +266,19 @@ def test_a_confirm_press_arrives_once_with_its_capture_time(tmp_path, bridge_at)
     bound_ms = float(b.values()['clock_bound_ms'])
     for press_id, msg in enumerate(b.confirm):
         assert msg.frame_id == 'headset'
-        pressed = min(t for p, t in proxy.confirms if p == press_id)   # the first send, before the delay
+        # The first send's arrival at the proxy, before the delay (the kernel's stamp: a proxy thread
+        # that runs late on a loaded machine does not date it late).
+        pressed = min(t for p, t in proxy.confirms if p == press_id)
         error_ms = (msg.stamp.sec + msg.stamp.nanosec * 1e-9 - pressed) * 1e3
+        # The harness's own time from the press to just after its send (its log, its clock): a stall
+        # of the harness in between makes the stamp early by up to that much.
+        sending_ms = (presses[press_id]['t'] - presses[press_id]['stamp']) * 1e3
         CLOCK_FIGURES.append(f'confirm press {press_id} behind 100 ms each way: stamp minus the press '
-                             f'{error_ms:+.2f} ms (bound {bound_ms:.2f} ms; a receipt stamp: +100 ms)')
-        # 40 ms: scheduling on a loaded machine (a stall between the press and its send makes it look early).
-        assert abs(error_ms) <= 40.0, (press_id, error_ms, bound_ms)
+                             f'{error_ms:+.2f} ms (the harness took {sending_ms:.2f} ms to send it; bound '
+                             f'{bound_ms:.2f} ms; a receipt stamp: +100 ms)')
+        # 40 ms: the clock estimate's error from the proxy's forwarding on a loaded machine, well
+        # short of the 100 ms a receipt stamp would add.
+        assert -40.0 - sending_ms <= error_ms <= 40.0, (press_id, error_ms, sending_ms, bound_ms)
 
 
 # --- the display downlink -------------------------------------------------------------------
