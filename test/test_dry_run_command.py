@@ -140,6 +140,9 @@ def test_dry_run_runs_the_lab_graph_on_a_mock_plc_disarmed_and_stops_it_vented(t
             os.kill(_node_pid(mark, 'target_selector'), signal.SIGKILL)
             wait_until(lambda: 'target_selector ended (exit code -9) and stays down' in cmd.text(), SEEN_S,
                        what='the ended node said')
+            # On a connection of its own: the mock PLC closes one silent for IDLE_S, as the PLC
+            # program reaps its sockets, and the steps since the last read may take longer.
+            client.close()
             assert not client.read_commands_kpa().any()
         code = cmd.stop(signal.SIGINT)
     except AssertionError as exc:
