@@ -60,6 +60,16 @@ class Suit:
         self.graph.stop_all()
 
 
+def last_statuses(diagnostics) -> str:
+    """Each node's last /diagnostics status, one line each (what a failed wait shows)."""
+    last = {}
+    for array in list(diagnostics):
+        for status in array.status:
+            last[status.name] = status
+    return '\n'.join(f'{name}: {s.message} ' + ', '.join(f'{kv.key}={kv.value}' for kv in s.values)
+                     for name, s in sorted(last.items()))
+
+
 def test_two_namespaced_suits_on_one_domain_never_reach_each_others_registers(tmp_path):
     domain_id = fresh_domain_id()
     a = Suit('suit_a', domain_id, tmp_path)
@@ -78,7 +88,10 @@ def test_two_namespaced_suits_on_one_domain_never_reach_each_others_registers(tm
 
         # A's task: A guided, B's registers untouched.
         a.probe.send(Trigger, interface.NEXT_TARGET, Trigger.Request())
-        wait_until(a.guided, 30.0, what=f'suit_a guided to its target: {GUIDED["suit_a"]}')
+        try:
+            wait_until(a.guided, 30.0, what=f'suit_a guided to its target: {GUIDED["suit_a"]}')
+        except AssertionError as exc:
+            raise AssertionError(f'{exc}\n{last_statuses(diagnostics)}') from None
         assert b.vented() and b.watch.highest == 0.0, 'suit_a guidance reached suit_b registers'
 
         # A vented (its namespace's vent), then B's task: B guided, A holds its vent.
