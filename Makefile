@@ -195,10 +195,10 @@ soak: $(STAMP)
 	$(VENV)/bin/fabric-guidance soak --minutes $(MINUTES) --out soak
 
 # The distribution's packages some tests use (root; `make test` runs this first as root). Without
-# them the PLC program's, mbpoll's, the headset's (C#) and the loopback tests skip with their
-# reason, and `make test` names them at the end (test/skipped_groups.py). Only what is missing is
-# installed: nothing is fetched when all are there.
-SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime nodejs
+# them the PLC program's, mbpoll's, the headset's (C#), the loopback and the future-stamp
+# (faketime) tests skip with their reason, and `make test` names them at the end
+# (test/skipped_groups.py). Only what is missing is installed: nothing is fetched when all are there.
+SYSTEM_DEPS := g++ make gcc-avr avr-libc arduino-core-avr mbpoll iproute2 mono-mcs mono-runtime nodejs faketime
 # npm: Debian's package where no npm is there (NodeSource's nodejs brings its own and conflicts with it).
 system-deps:
 	@if [ "$$(id -u)" != 0 ]; then echo "system-deps: run as root (apt-get install $(SYSTEM_DEPS))"; exit 1; fi

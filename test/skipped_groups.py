@@ -29,6 +29,8 @@ GROUPS = (
     ("npm's BIDS validator on the study folder (test_study_bids; make bids-validator installs it)", 'nodejs, npm',
      lambda: not (shutil.which('node') and BIDS_VALIDATOR.exists())),
     ('the loopback socket check (test_bad_input)', 'iproute2', lambda: not shutil.which('ss')),
+    ("plc_output's vent on a command stamped in the future (test_plc_stop)", 'faketime',
+     lambda: not shutil.which('faketime')),
     ('the graph split over network namespaces (test_netns, test_lab_network)', 'iproute2 and root',
      lambda: not shutil.which('ip') or os.geteuid() != 0),
 )
