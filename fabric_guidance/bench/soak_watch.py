@@ -43,8 +43,12 @@ class SoakWatch:
         self._ray, self._direction, self._step = ray_direction, DIRECTION, STEP
         node = probe.node
         node.create_subscription(PoseStamped, interface.GAZE, self.on_gaze, qos.SENSOR_QOS)
-        node.create_subscription(Float64MultiArray, interface.CONTROLLER_INPUT, self.on_input, qos.COMMAND_QOS)
-        node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self.on_command, qos.COMMAND_QOS)
+        # Deep readers: steps_unseen and the command pairing count what the graph lost, not what a
+        # stall of this process would drop from a reader of depth 10 (qos.deep).
+        node.create_subscription(Float64MultiArray, interface.CONTROLLER_INPUT, self.on_input,
+                                 qos.deep(qos.COMMAND_QOS))
+        node.create_subscription(Float64MultiArray, interface.PRESSURE_COMMAND, self.on_command,
+                                 qos.deep(qos.COMMAND_QOS))
         node.create_subscription(String, interface.ACTIVE_TARGET, self.on_active, qos.LATCHED_ALL_QOS)
         node.create_subscription(String, interface.TARGET_FOUND, self.on_found, qos.EVENT_QOS)
         node.create_subscription(DiagnosticArray, interface.DIAGNOSTICS, self.on_diagnostics, 10)

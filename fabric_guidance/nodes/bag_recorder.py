@@ -28,7 +28,6 @@ import sys
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
 
 from ..bag.recorder_status import STATUS_SUFFIX, count_key
 from ..bag.topics import COMMAND, DEFAULT, EVENT, LATCHED, SENSOR, TOPICS, bag_topic
@@ -36,22 +35,13 @@ from ..bag.writer import BagWriter
 from ..interface import DIAGNOSTICS
 from .diagnostics import publish_diagnostics, status
 from .parameters import declare
-from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS
+from .qos import COMMAND_QOS, EVENT_QOS, LATCHED_QOS, SENSOR_QOS, deep
 from .spin import run
 
-#: A recorder must not lose what it could have buffered: the publishers' reliability and
-#: durability, but a deep history, so a stall of this process (writing, load) costs no message
-#: (offline replay pairs every step's inputs with its command).
-RECORDER_DEPTH = 1000
-
-
-def _deep(profile: QoSProfile) -> QoSProfile:
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORDER_DEPTH, reliability=profile.reliability,
-                      durability=profile.durability)
-
-
-RCLPY_QOS = {SENSOR: _deep(SENSOR_QOS), COMMAND: _deep(COMMAND_QOS), LATCHED: _deep(LATCHED_QOS),
-             EVENT: _deep(EVENT_QOS), DEFAULT: _deep(COMMAND_QOS)}
+#: A recorder must not lose what it could have buffered (offline replay pairs every step's inputs
+#: with its command): the publishers' QoS with a deep history (qos.deep).
+RCLPY_QOS = {SENSOR: deep(SENSOR_QOS), COMMAND: deep(COMMAND_QOS), LATCHED: deep(LATCHED_QOS),
+             EVENT: deep(EVENT_QOS), DEFAULT: deep(COMMAND_QOS)}
 
 
 def _message_class(ros_type: str):
