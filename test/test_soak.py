@@ -10,6 +10,7 @@ import pytest
 
 from fabric_guidance.bench import soak, soak_report
 from fabric_guidance.bench.soak import LatencyMatcher
+from rosgraph import log_tails
 
 MS = 1_000_000
 VENTED = (0, 0)
@@ -107,15 +108,6 @@ def test_a_growing_figure_drifts_and_a_noisy_flat_one_does_not():
 
 
 # ------------------------------------------------------------------ a short run on the graph
-def node_warnings(logs, last=10) -> str:
-    """Each node log's last warnings and errors (its log is gone with the temporary folder)."""
-    out = []
-    for log in sorted(logs.glob('*.log')):
-        hits = [line for line in log.read_text(errors='replace').splitlines() if 'WARN' in line or 'ERROR' in line]
-        out += [f'{log.name}: {line}' for line in hits[-last:]]
-    return '\n'.join(out)
-
-
 @pytest.mark.graph
 @pytest.mark.serial   # a quiet run loses nothing: a test of the other worker beside it is no quiet run
 def test_a_short_soak_run_writes_every_row_figure_verdict_and_plot(tmp_path):
@@ -139,7 +131,7 @@ def test_a_short_soak_run_writes_every_row_figure_verdict_and_plot(tmp_path):
                     'plc_watchdog_trips'):
             # The whole row and the run's lines: pytest would cut a row's repr after a few figures.
             assert float(row[col]) == 0, f'row {row["row"]}: {col} {row[col]}\n{json.dumps(row, indent=1)}\n' + \
-                '\n'.join(lines) + '\n' + node_warnings(out / 'logs')
+                '\n'.join(lines) + '\n' + log_tails(out / 'logs')
         assert int(row['threads.pressure_controller']) > 1 and int(row['fds.gaze_bridge']) > 3
     assert sum(int(r['targets_reached']) for r in written) > 0
     assert not any(r['stall'] for r in rows), [r['stall'] for r in rows]
