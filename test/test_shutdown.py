@@ -95,6 +95,54 @@ def test_a_teardown_that_holds_the_gil_still_ends_and_says_where(tmp_path):
     assert 'Timeout (0:00:03.500000)!' in text and 'in destroy_node' in text, text
 
 
+ORDER = textwrap.dedent('''
+    from rclpy.node import Node
+    from fabric_guidance.nodes import spin
+
+    class Told:
+        """The node's executor, saying when it is shut down."""
+        def __init__(self, executor):
+            self.executor = executor
+
+        def add_node(self, node):
+            return self.executor.add_node(node)
+
+        def spin_once(self, timeout_sec=None):
+            return self.executor.spin_once(timeout_sec=timeout_sec)
+
+        def shutdown(self, timeout_sec=None):
+            print('executor shutdown', flush=True)
+            return self.executor.shutdown(timeout_sec)
+
+    make = spin.make_executor
+    spin.make_executor = lambda kind=spin.DEFAULT_EXECUTOR: Told(make(kind))
+
+    class Ordered(Node):
+        def __init__(self):
+            super().__init__('ordered')
+            print('ready', flush=True)
+
+        def safe_shutdown(self):
+            print('vented', flush=True)
+
+        def destroy_node(self):
+            print('destroy_node', flush=True)
+            super().destroy_node()
+
+    raise SystemExit(spin.run(Ordered))
+''')
+
+
+def test_the_executor_lets_go_of_the_node_before_it_is_destroyed(tmp_path):
+    """rclpy's teardown order: the executor shut down, then the node destroyed (fresh run 115: the
+    events executor's destructor releasing an entity after the node and the context were gone
+    hung with the GIL held)."""
+    code, text = _stopped_with_sigint(ORDER, tmp_path)
+    assert code == 0, text
+    lines = [line for line in text.splitlines() if line in ('vented', 'executor shutdown', 'destroy_node')]
+    assert lines == ['vented', 'executor shutdown', 'destroy_node'], text
+
+
 BUSY_START = textwrap.dedent('''
     import time
     from rclpy.node import Node

@@ -100,7 +100,7 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
     stop = StopRequest()
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
-    node = None
+    node = spinner = None
     code = 0
     try:
         node = make_node()
@@ -142,6 +142,12 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
         # A launch test saw headset_display outlive SIGINT and then SIGTERM by 15 s (where it hung
         # is not known): should the teardown hold the GIL, the stacks say where, and it still ends.
         faulthandler.dump_traceback_later(TEARDOWN_LIMIT_S + TEARDOWN_BACKSTOP_S, exit=True)
+        # rclpy's order: the executor lets go of the node's entities while the node and the context
+        # stand. Left to the events executor's destructor at this function's end, an entity's
+        # release came after both were gone and once hung there holding the GIL (wearer_sim, in
+        # an event handler's __exit__, ended by the backstop with status 1: fresh run 115).
+        if spinner is not None:
+            spinner.shutdown()
         if node is not None:
             node.destroy_node()
         if rclpy.ok():
