@@ -230,6 +230,7 @@ def _rmw_has_security(tmp_path) -> str | None:
     return match.group(0) if match else None
 
 
+@pytest.mark.graph  # starts mock_plc and plc_output with DDS security
 def test_enforced_only_the_controllers_enclave_reaches_the_plc(tmp_path):
     """With a keystore generated from the policy (sros2's generate_artifacts) and security
     enforced: a participant in headset_display's enclave cannot publish pressure_command (the

@@ -8,6 +8,7 @@ and both plc_outputs heard the one `/pressure_command`.
 import socket
 
 from diagnostic_msgs.msg import DiagnosticArray
+import pytest
 from std_srvs.srv import SetBool, Trigger
 
 from fabric_guidance import interface
@@ -15,6 +16,8 @@ from fabric_guidance.core.calibration import Calibration
 from fabric_guidance.core.geometry import DIRECTIONS
 from rosgraph import CONFIG, Graph, Probe, free_port, fresh_domain_id, wait_until
 from test_graph import P_MAX, SIM_CAL, HoloLensStub, RegisterWatch
+
+pytestmark = pytest.mark.graph  # starts two process graphs with DDS (make flakes runs it)
 
 LAWS = Calibration.load(CONFIG / 'calibrations' / 'sim-wearer.yaml').laws
 #: Suit A's target 40 deg left, suit B's 40 deg right (immersive frame, eye height 1.2 m).
