@@ -296,7 +296,9 @@ class Senses:
     relative_perception (suit only) makes them read it again, with the right direction, when
     the pressure rises; and after standing still for cue_misreading.reread_s without seeing the
     visible target they look for (`searching` and `seen`, set by the engine) they read it
-    again. Every read restarts the resistance and the rise detection. In the ROS graph
+    again. Every read restarts the resistance and the rise detection. A read of the arm band's
+    cue (layout 'arm') holds the wearer still for cue_misreading.arm_read_s: they are not yet
+    acting (the accuracy task's press waits) and the stand-still is no reason to read again. In the ROS graph
     (sim.scene_wearer.SceneSide) `seen` comes from visual capture alone: hololens_view is
     headless only.
     """
@@ -325,6 +327,8 @@ class Senses:
         self.heard_phrases: list[str] = []
         self._count = 0
         self._acted_on: int | None = None
+        self._reads = self.cue.reads if self.cue is not None else 0   # reads seen by _read_hold
+        self._reading_until = -math.inf
         if self.delay is not None:
             self.delay.reset((0.0, 0.0, 0.0, 0.0) if haptic else None)
 
@@ -383,6 +387,19 @@ class Senses:
         else:
             self._still_s = 0.0
 
+    def _read_hold(self, t: float, wearer: 'SceneWearer') -> None:
+        """While the arm's cue is being read (arm_read_s after each read) the wearer stands still."""
+        cue = self.cue
+        if cue is None or cue.arm_read_s <= 0.0 or wearer.layout != 'arm':
+            return
+        if cue.reads != self._reads:      # read this step: the first percept or a re-read
+            self._reads = cue.reads
+            self._reading_until = t + cue.arm_read_s
+        if t < self._reading_until - 1e-9 and wearer.anchor is not None:
+            wearer.goal_yaw, wearer.goal_pitch = wearer.torso_yaw, wearer.torso_pitch
+            wearer.acting = False
+            self._still_s = 0.0
+
     def say(self, t: float, text: str) -> None:
         """Condition 4's phrase is spoken at t; the wearer hears it after speech_latency."""
         latency = self.speech.latency(text) if self.speech is not None else 0.0
@@ -411,6 +428,7 @@ class Senses:
                 wearer.feel(p)
                 if self._cue_on:
                     self._cue_step(t, exerted, wearer)
+                    self._read_hold(t, wearer)
             elif self._cue_on:
                 self._prev = None
             return exerted

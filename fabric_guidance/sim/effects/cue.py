@@ -40,10 +40,17 @@ class CueMisreading(Effect):
     reread_s (s, default 1.0): assumption, a second of standing still before doubting the cue.
     still_dps (deg/s, default 5): assumption, "nearly stopped".
     still_gain (-, default 0.25): assumption.
+    arm_read_s (s, default 0): at every read of the arm band's cue (condition 3) the wearer
+    stands still for this long before acting on it, turning a squeeze on the arm into a
+    direction of the torso (a less direct mapping of stimulus to response than the suit's
+    pull on the torso itself). Assumption, no time is published: 0 reads the arm at once,
+    as the suit; fitted with the pace trait by experiments.fit_wearer (the same person
+    searches, confirms and reads the arm slowly or fast), so that condition 3's spread of people is
+    the one conditions 1 and 4 share, as in the paper's table.
 
     Random numbers: two uniform and two normal draws per read from its own streams, whatever
-    the read changes. direction_p = magnitude_sd = 0 leaves every run bit-identical to no
-    effect.
+    the read changes (arm_read_s draws none). direction_p = magnitude_sd = arm_read_s = 0 leaves
+    every run bit-identical to no effect.
     """
 
     name: ClassVar[str] = 'cue_misreading'
@@ -56,6 +63,7 @@ class CueMisreading(Effect):
     reread_s: float = param(1.0, 's', lo=0.0, lo_open=True)
     still_dps: float = param(5.0, 'deg/s', lo=0.0)
     still_gain: float = param(0.25, '-', lo=0.0, hi=10.0)
+    arm_read_s: float = param(0.0, 's', lo=0.0, hi=10.0)
 
     def start(self, ctx: RunContext) -> None:
         self.p = self.direction_p      # the layout's; Senses sets arm_direction_p for the arm
