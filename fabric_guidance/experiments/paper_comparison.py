@@ -10,6 +10,9 @@ paper reports beside the simulation's:
   paper makes (Dunn-Bonferroni), also checked on the paper's own table;
 - not fitted (accuracy): every significance statement of Section V and its 30 deg bound, with
   the simulation's mean and median errors.
+- the whole experiment per seed (paper_consistency): all four means within 2 SE, all four
+  SDs within 0.6-1.6x, condition 1 most often best, Friedman p < 0.05, and how consistent a
+  simulated person is across conditions (the correlations 1-3 and 3-4) against the paper's.
 
 A seed is a new draw of wearers, targets and effect noise (the scene's `seed:`), so the spread
 over seeds is the spread one would see repeating the experiment with other people.
@@ -35,6 +38,7 @@ from ..atomic import atomic_write, write_csv, write_text
 from . import paper
 from .paper import ACCURACY_CLAIMS, CONDITIONS, SPEED_CLAIMS, Claim
 from .analysis_report import md_table
+from .paper_consistency import consistency_section
 from .stats import BlockAnalysis, analyze_blocks, analyze_trials, format_p
 
 PROG = 'fabric-guidance compare-paper'
@@ -232,6 +236,7 @@ def comparison_markdown(results: Sequence[SeedResult], speed_name: str | None, a
     if excluded:
         lines += ['Excluded wearers (calibration failed): ' + '; '.join(excluded), '']
     lines += reading({**speed_score, **acc_score}, len(results))
+    lines += consistency_section([(r.seed, r.speed) for r in results if r.speed is not None])
     lines += speed_lines + acc_lines
     if image:
         lines += [f'![the paper and the model, per seed]({image})', '']
