@@ -97,10 +97,13 @@ def test_the_weighted_fit_recovers_a_known_population(monkeypatch):
 
 def test_fit_wearer_runs_end_to_end_and_writes_scenes_that_load(tmp_path):
     proc = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer',
-                           '--wearers', '2', '--design-seeds', '5,6', '--bootstrap', '2', '--workers', '1',
+                           '--wearers', '2', '--design-seeds', '5,6,7', '--bootstrap', '2', '--workers', '1',
                            '--arm-spread', '0,0.3', '--out', str(tmp_path)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
+    # Three rounds, a seed each, the later two around the fit so far.
+    assert [int(s) for s in re.findall(r'design round (\d) of 3', proc.stdout)] == [1, 2, 3], proc.stdout
+    assert sorted(set(pf.Design.load(tmp_path / 'fit' / 'design-arm_spread-0.npz').round.tolist())) == [0, 1, 2]
     designs = [tmp_path / 'fit' / f'design-arm_spread-{v}.npz' for v in ('0', '0.3')]
     assert proc.stdout.count('objective') == 2 and all(d.exists() for d in designs)
     assert [pf.Design.load(d).arm_spread for d in designs] == [0.0, 0.3]
@@ -152,6 +155,12 @@ def test_the_profile_keeps_the_arm_spread_whose_design_fits_the_table(tmp_path):
     assert load_scene(tmp_path / 'out' / 'paper-fitted-speed.yaml').population.arm_spread == 0.2
     header = (tmp_path / 'out' / 'paper-fitted-speed.yaml').read_text()
     assert re.search(r'arm_spread profiled .*: 0: [0-9.]+, 0\.2: [0-9.]+, 0\.4: [0-9.]+; kept 0\.2', header), header
+
+
+def test_more_rounds_than_design_seeds_is_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, '-m', 'fabric_guidance.experiments.fit_wearer', '--design-seeds', '5,6',
+                           '--rounds', '3', '--out', str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.strip() == '--rounds 3 needs at least as many --design-seeds, got 2'
 
 
 def test_a_design_without_its_arm_spread_or_two_of_one_value_is_one_line(tmp_path):

@@ -12,7 +12,7 @@ How far the arm muscles' law of condition 3 differs from the suit's (population.
 profiled: a design per value (--arm-spread), the fit on each, the lowest objective kept.
 
 The speed protocol runs once on a design population (--design-seeds, --wearers per seed; none
-of them a seed of the validation), every profiled arm_spread on the same wearers (condition 3
+of them a seed of the validation; --rounds, each after the first around the fit so far), every profiled arm_spread on the same wearers (condition 3
 per value, the rest once), then every candidate population is the design reweighted
 (importance weights): a fit takes seconds. A bootstrap (--bootstrap N: design wearers and the
 paper's subjects resampled, the fit repeated on every design, the best kept) gives each fitted
@@ -27,7 +27,7 @@ scenes plus the model's effects at the fitted medians and the population's trait
 both) with comments saying what was fitted, to what, on which seeds, and the statistics reached.
 Validation on other seeds: `fabric-guidance compare-paper --seeds ...`.
 
-    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 40]
+    fabric-guidance fit-wearer [--out config/scenes] [--design-seeds 101,...,106] [--wearers 40] [--rounds 3]
                                [--arm-spread 0,0.1,0.2] [--bootstrap 200] [--design FILE ...]
                                [--workers 2] [--scheduler HOST:PORT] [--table CSV]
     python -m fabric_guidance.experiments.fit_wearer ...
@@ -292,6 +292,9 @@ def configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    help='seeds of the design population (default %(default)s)')
     p.add_argument('--wearers', type=int, default=pf.DESIGN_WEARERS,
                    help='design wearers per seed (default %(default)s)')
+    p.add_argument('--rounds', type=int, default=pf.DESIGN_ROUNDS,
+                   help='design rounds, the seeds split among them in order (default %(default)s; at most '
+                        'one per seed)')
     p.add_argument('--arm-spread', default=','.join(f'{v:g}' for v in pf.ARM_SPREADS),
                    help='values of population.arm_spread to profile, a design each (default %(default)s; '
                         'with --design, the designs\' own)')
@@ -349,23 +352,26 @@ class ProfileFit(NamedTuple):
 
 
 def simulate_designs(bases, seeds, wearers: int, workers: int, target: dict, n: int, say,
-                     scheduler: str | None = None) -> list[pf.Design]:
+                     scheduler: str | None = None, rounds: int = pf.DESIGN_ROUNDS) -> list[pf.Design]:
     """One design per base scene (a value of arm_spread each), simulated together (each wearer's
-    calibration and conditions 1, 2, 4 once: pf.run_designs). Round 1: wide spreads around the
-    design values; round 2: around the best of round 1's fits (the lowest objective over the
-    profiled values), on the other seeds, so that the fitted population has design wearers
-    near it."""
+    calibration and conditions 1, 2, 4 once: pf.run_designs), in `rounds` rounds on the seeds
+    split in order. Round 1: wide spreads around the design values; each later round: around the
+    best fit on the rounds so far (the lowest objective over the profiled values), so that the
+    fitted population has design wearers near it, not only the few far out in round 1's tails
+    whose own trials happened to suit the table."""
+    groups = [tuple(int(s) for s in g) for g in np.array_split(np.array(seeds), min(rounds, len(seeds)))]
     arms = ', '.join(f'{b.population.arm_spread:g}' for b in bases)
-    first, second = seeds[:len(seeds) // 2 or 1], seeds[len(seeds) // 2 or 1:] or seeds
-    print(f'design round 1: the speed protocol on {wearers} wearers of each seed {", ".join(map(str, first))}, '
-          f'condition 3 at arm_spread {arms}', flush=True)
-    round1 = pf.run_designs(bases, first, wearers, workers, say, scheduler=scheduler)
-    fits = [pf.fit_population(d, target, n, restarts=0) for d in round1]     # only to place round 2
-    mu, sd = pf.focused(min(fits, key=lambda f: f[1])[0])
-    print(f'design round 2, around the best first fit: {wearers} wearers of each seed {", ".join(map(str, second))}',
-          flush=True)
-    round2 = pf.run_designs(bases, second, wearers, workers, say, mu, sd, scheduler=scheduler)
-    return [d1.joined(d2) for d1, d2 in zip(round1, round2)]
+    print(f'design round 1 of {len(groups)}: the speed protocol on {wearers} wearers of each seed '
+          f'{", ".join(map(str, groups[0]))}, condition 3 at arm_spread {arms}', flush=True)
+    designs = pf.run_designs(bases, groups[0], wearers, workers, say, scheduler=scheduler)
+    for r, group in enumerate(groups[1:], start=2):
+        fits = [pf.fit_population(d, target, n, restarts=0) for d in designs]     # only to place the round
+        mu, sd = pf.focused(min(fits, key=lambda f: f[1])[0])
+        print(f'design round {r} of {len(groups)}, around the best fit so far: {wearers} wearers of each seed '
+              f'{", ".join(map(str, group))}', flush=True)
+        more = pf.run_designs(bases, group, wearers, workers, say, mu, sd, scheduler=scheduler)
+        designs = [d.joined(m) for d, m in zip(designs, more)]
+    return designs
 
 
 def fit_design(design: pf.Design, target: dict, n: int) -> ProfileFit:
@@ -376,7 +382,7 @@ def fit_design(design: pf.Design, target: dict, n: int) -> ProfileFit:
 
 def run(args) -> int:
     from ..sim.scene import SceneError
-    for name in ('wearers', 'workers'):
+    for name in ('wearers', 'workers', 'rounds'):
         if getattr(args, name) < 1:
             print(f'--{name} must be >= 1, got {getattr(args, name)}', file=sys.stderr)
             return 2
@@ -384,6 +390,9 @@ def run(args) -> int:
         print(f'--bootstrap must be >= 0, got {args.bootstrap}', file=sys.stderr)
         return 2
     seeds = _seeds(args.design_seeds)
+    if args.design is None and args.rounds > len(seeds):
+        print(f'--rounds {args.rounds} needs at least as many --design-seeds, got {len(seeds)}', file=sys.stderr)
+        return 2
     arm_spreads = _arm_spreads(args.arm_spread)
     table = read_table(args.table)
     n = table.shape[0]
@@ -404,7 +413,8 @@ def run(args) -> int:
         except (SceneError, ValueError) as exc:
             print(exc, file=sys.stderr)
             return 2
-        designs = simulate_designs(bases, seeds, args.wearers, args.workers, target, n, say, args.scheduler)
+        designs = simulate_designs(bases, seeds, args.wearers, args.workers, target, n, say, args.scheduler,
+                                   args.rounds)
         for arm, design in zip(arm_spreads, designs):
             design.save(design_path(out, arm))
     designs.sort(key=lambda d: d.arm_spread)     # the profile's order, whatever the command line's

@@ -112,10 +112,11 @@ ASSUMED = (
     AssumedTrait('discrimination', 'log', ('weber_perception.fraction', 'relative_perception.fraction'),
                  0.25, 'assumption: pressure discrimination thresholds differ between people by about 25 %'),
 )
-#: The design: seeds (the first half for round 1, the rest for round 2) and wearers per seed;
-#: none of these seeds is used for validation.
+#: The design: seeds (split in order among the rounds: round 1 wide, each later round around the
+#: fit on the rounds before it) and wearers per seed; none of these seeds is used for validation.
 DESIGN_SEEDS = (101, 102, 103, 104, 105, 106)
 DESIGN_WEARERS = 40
+DESIGN_ROUNDS = 3
 #: The profiled values of population.arm_spread (lognormal sigma of the arm law's a against the
 #: suit's; 0: the arm feels as the calibrated suit law says).
 ARM_SPREADS = (0.0, 0.1, 0.2)
@@ -528,14 +529,14 @@ def run_design(base, seeds: Sequence[int] = DESIGN_SEEDS, wearers: int = DESIGN_
 
 
 def focused(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The proposal of a second round around a fit: its medians, spreads 1.5 times the fitted ones
+    """The proposal of a later design round around a fit: its medians, spreads 1.5 times the fitted ones
     (at least 0.15, at most the first round's)."""
     sd0 = np.array([t.design_sd for t in FITTED])
     mu, sd = split(phi)
     return mu, np.clip(1.5 * sd, 0.15, sd0)
 
 
-__all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design', 'FITTED', 'MIN_ESS',
+__all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DESIGN_ROUNDS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design', 'FITTED', 'MIN_ESS',
            'MIN_ESS_SHARE', 'OWN', 'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective',
            'objective_function',
            'paper_table', 'population_scene', 'run_design', 'run_designs', 'split', 'table_statistics',
