@@ -83,8 +83,10 @@ class AssumedTrait:
 #: with the pace trait: the paper's table loads condition 3 on what its subjects share as much
 #: as condition 1 (one factor: 0.92 and 0.93) and spreads it most (SD 2.98), which the arm's own
 #: misreading, shared with no other condition, cannot give. A median of its own would be a fifth
-#: median for four condition means, so its design value is profiled instead (docs/simulation.md).
-ARM_READ_S = 0.8
+#: median for four condition means, so its design value is profiled instead (docs/simulation.md):
+#: the three-round design's objective at 0.8 / 2.0 / 3.0 / 4.5 s was 23.85 / 17.16 / 14.13 / 27.11
+#: (30 November 2026; at 4.5 s condition 3's mean falls to 6.85 against the paper's 9.23).
+ARM_READ_S = 3.0
 
 FITTED = (
     FittedTrait('misreading', 'logit', ('cue_misreading.direction_p',), (0.3,), 1.2,
