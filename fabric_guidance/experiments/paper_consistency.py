@@ -88,7 +88,8 @@ def consistency_section(results: Sequence[tuple[int, BlockAnalysis]]) -> list[st
              f'Per seed: the four means within {MEANS_SE:g} SE of the paper\'s, the four SDs of subject means within '
              f'{lo:g}-{hi:g} times the paper\'s, condition 1 the best of more subjects than any other condition, '
              f'Friedman p < {ALPHA:g}, and the correlations over subjects between conditions (how consistent '
-             'a person is across conditions). The bars are the project\'s (docs/paper_comparison.md), not the paper\'s.',
+             'a person is across conditions). The bars are the project\'s (docs/paper_comparison.md), '
+             'not the paper\'s.',
              '']
     table = [[str(r.seed), f'{r.means_within}/4', f'{r.sds_within}/4', 'yes' if r.condition_1_best else 'no',
               format_p(r.p)] + [f'{r.correlations[p]:.2f}' for p in CORRELATION_PAIRS] for r in rows]
@@ -107,7 +108,8 @@ def consistency_section(results: Sequence[tuple[int, BlockAnalysis]]) -> list[st
         if n > 1:
             sd = float(values.std(ddof=1))
             within = abs(own[pair] - values.mean()) <= sd
-            lines.append(f'- {label}: mean over seeds {values.mean():.2f} (SD {sd:.2f}); the paper\'s {own[pair]:.2f} is '
+            lines.append(f'- {label}: mean over seeds {values.mean():.2f} (SD {sd:.2f}); '
+                         f'the paper\'s {own[pair]:.2f} is '
                          + ('within' if within else 'outside') + ' one seed SD of it.')
         else:
             lines.append(f'- {label}: {values[0]:.2f} (one seed); the paper\'s {own[pair]:.2f}.')
