@@ -173,6 +173,9 @@ class SceneWearer:
         self.body = body
         #: effects.CueMisreading of the run, or None (the cue is read exactly); Senses sets it.
         self.cue = None
+        #: How far the goals taken from the touch may go (deg): the seat's limits, or the
+        #: objects' region plus hololens_view.edge_deg while a visible target is looked for.
+        self.touch_limits = (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
         self.face_front()
 
     @staticmethod
@@ -233,12 +236,13 @@ class SceneWearer:
                 cue.read()
                 self.new_read = True
         self.acting = True
+        lim_yaw, lim_pitch = self.touch_limits
         if cue is None or (cue.factor_h == 1.0 and cue.factor_v == 1.0):
-            self.goal_yaw = _clip(self.anchor[0] + left - right, YAW_LIMIT_DEG)
-            self.goal_pitch = _clip(self.anchor[1] + up - down, PITCH_LIMIT_DEG)
+            self.goal_yaw = _clip(self.anchor[0] + left - right, lim_yaw)
+            self.goal_pitch = _clip(self.anchor[1] + up - down, lim_pitch)
         else:
-            self.goal_yaw = _clip(self.anchor[0] + cue.factor_h * (left - right), YAW_LIMIT_DEG)
-            self.goal_pitch = _clip(self.anchor[1] + cue.factor_v * (up - down), PITCH_LIMIT_DEG)
+            self.goal_yaw = _clip(self.anchor[0] + cue.factor_h * (left - right), lim_yaw)
+            self.goal_pitch = _clip(self.anchor[1] + cue.factor_v * (up - down), lim_pitch)
 
     def feel_again(self) -> None:
         """The cue was read again: the goal follows the new reading of the last percept."""

@@ -40,6 +40,12 @@ class HololensView(Effect):
     and eyes: the display's window widens by scan_deg on each side and the central-field
     condition is dropped. Assumption: head movements of that order are what people add to
     their eyes when searching a region (the display is fixed to the head).
+    edge_deg (deg, default None: off): a wearer who looks for an object keeps the goals they
+    take from the touch within the objects' region (the protocol's +-horizontal_deg /
+    +-vertical_deg, the paper's +-60 / +-30, which the participants saw) plus edge_deg, instead
+    of the seat's limits; standing still there without the target, they read the cue again
+    (cue_misreading.reread_s). Assumption: the paper says nothing of a subject who overshoots;
+    without it a misread under a rising pull runs to the body's 120 deg (docs/simulation.md).
     """
 
     name: ClassVar[str] = 'hololens_view'
@@ -54,6 +60,7 @@ class HololensView(Effect):
     confirm_s: float = param(0.5, 's', lo=0.0)
     scan_deg: float = param(15.0, 'deg', lo=0.0, hi=90.0)
     still_dps: float = param(5.0, 'deg/s', lo=0.0)
+    edge_deg: float | None = param(None, 'deg', lo=0.0, hi=120.0, optional=True)
 
     def validate(self) -> None:
         if not float(self.dummies).is_integer():
