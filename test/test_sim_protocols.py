@@ -236,9 +236,11 @@ def test_the_arm_spread_profile_runs_the_same_trials_as_each_scene_alone():
     from fabric_guidance.experiments import fit_wearer, population_fit as pf
     from fabric_guidance.sim.protocols import run_subject_arms
     scenes = [pf.design_scene(fit_wearer.base_scene('speed', a), 9, 3) for a in (0.0, 0.6)]
+    arm = [[], []]
     for subject in (0, 1):
         shared = run_subject_arms(scenes, subject)
         alone = [run_subject(scene, subject) for scene in scenes]
         assert [recs for _, recs in shared] == [recs for _, recs in alone]
-    arm = [[r.identified for r in recs if r.condition == 3] for _, recs in shared]
+        for k, (_, recs) in enumerate(shared):
+            arm[k] += [(r.identified, r.mean_find_s) for r in recs if r.condition == 3]
     assert arm[0] != arm[1]
