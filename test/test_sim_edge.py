@@ -7,7 +7,7 @@ import pytest
 from fabric_guidance.sim.engine import ClosedLoop, trial_run
 from fabric_guidance.sim.population import sample_wearer
 from fabric_guidance.sim.scene import SceneError
-from fabric_guidance.sim.wearer import PITCH_LIMIT_DEG, YAW_LIMIT_DEG
+from fabric_guidance.sim.wearer import SEAT_LIMITS
 from test_sim_engine import NOISY, exact_cal, scene, trace
 
 QUIET = [{'regulator_lag': {}}, {'body_dynamics': {}}]
@@ -47,12 +47,12 @@ def test_the_edge_holds_only_while_a_visible_target_is_looked_for():
     loop.present(40.0, 0.0, visible=True)
     assert loop.wearer.touch_limits == (70.0, 40.0)       # the paper's +-60 / +-30 plus 10
     loop.withdraw()
-    assert loop.wearer.touch_limits == (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+    assert loop.wearer.touch_limits == SEAT_LIMITS
     loop.present(40.0, 0.0, visible=False)                  # nothing to look for: the seat's limits
-    assert loop.wearer.touch_limits == (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+    assert loop.wearer.touch_limits == SEAT_LIMITS
     plain = loop_for(QUIET + [view()])
     plain.present(40.0, 0.0, visible=True)
-    assert plain.wearer.touch_limits == (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+    assert plain.wearer.touch_limits == SEAT_LIMITS
 
 
 def test_an_edge_beyond_the_seat_runs_as_without_one():

@@ -45,8 +45,8 @@ from ..core.power_law import CalibrationFitError, PowerLaw
 from ..core.speech import phrase
 from ..paths import config_path
 from .effects import RunContext, start_effects
-from .wearer import (PITCH_LIMIT_DEG, YAW_LIMIT_DEG, SceneWearer, Senses, angle_between_deg,  # noqa: F401
-                     gaze_from_angles, haversine)
+from .wearer import (PITCH_LIMIT_DEG, SEAT_LIMITS, YAW_LIMIT_DEG, SceneWearer, Senses,  # noqa: F401
+                     angle_between_deg, gaze_from_angles, haversine)
 
 #: Seconds of simulated time before a run starts: the gaze stream, its loss and latency state
 #: settle with the wearer at rest, facing front (the HoloLens streams before a trial begins).
@@ -203,11 +203,8 @@ class ClosedLoop:
             self.view.present(self.target if self.visible else None,
                               (proto.horizontal_deg, proto.vertical_deg))
             edge = self.view.edge_deg
-            if edge is not None and self.visible:
-                self.wearer.touch_limits = (min(proto.horizontal_deg + edge, YAW_LIMIT_DEG),
-                                            min(proto.vertical_deg + edge, PITCH_LIMIT_DEG))
-            else:
-                self.wearer.touch_limits = (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+            self.wearer.touch_limits = SEAT_LIMITS if edge is None or not self.visible else (
+                min(proto.horizontal_deg + edge, YAW_LIMIT_DEG), min(proto.vertical_deg + edge, PITCH_LIMIT_DEG))
         self._vent()                           # the node vents on a new target
         self.speech_due = bool(self.cond is not None and self.cond.speech)
 
@@ -219,7 +216,7 @@ class ClosedLoop:
         self.mode = 'front'
         self.front_visible = front_visible
         self.wearer.go_front()
-        self.wearer.touch_limits = (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+        self.wearer.touch_limits = SEAT_LIMITS
         if self.view is not None:
             self.view.present(None)
         self._vent()

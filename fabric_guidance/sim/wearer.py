@@ -132,6 +132,8 @@ PITCH_LIMIT_DEG = 89.0
 #: plus neck rotation (about 70-80 deg). An assumption of that order; it keeps a very
 #: sensitive wearer from turning round through 180 deg, where the angles wrap.
 YAW_LIMIT_DEG = 120.0
+#: The seat's limits for the goals taken from the touch (hololens_view.edge_deg narrows them).
+SEAT_LIMITS = (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
 
 
 def _clip(x: float, limit: float) -> float:
@@ -175,7 +177,7 @@ class SceneWearer:
         self.cue = None
         #: How far the goals taken from the touch may go (deg): the seat's limits, or the
         #: objects' region plus hololens_view.edge_deg while a visible target is looked for.
-        self.touch_limits = (YAW_LIMIT_DEG, PITCH_LIMIT_DEG)
+        self.touch_limits = SEAT_LIMITS
         self.face_front()
 
     @staticmethod

@@ -45,7 +45,7 @@ class HololensView(Effect):
     +-vertical_deg, the paper's +-60 / +-30, which the participants saw) plus edge_deg, instead
     of the seat's limits; standing still there without the target, they read the cue again
     (cue_misreading.reread_s). Assumption: the paper says nothing of a subject who overshoots;
-    without it a misread under a rising pull runs to the body's 120 deg (docs/simulation.md).
+    without it a misread under a rising pull runs to the seat's 120 deg (sim.wearer.YAW_LIMIT_DEG).
     """
 
     name: ClassVar[str] = 'hololens_view'
