@@ -258,6 +258,13 @@ class Operator:
             pending.wait()
         return pending
 
+    def parameters_ready(self, *nodes: str) -> list[str]:
+        """The nodes of `nodes` whose set_parameters_atomically service is not yet discovered
+        (empty: all are): a session waits for them before its first call."""
+        from rcl_interfaces.srv import SetParametersAtomically
+        return [n for n in nodes if not self._client(
+            SetParametersAtomically, self.node_name(n, 'set_parameters_atomically')).service_is_ready()]
+
     def node_name(self, node: str, service: str) -> str:
         """A node's service in this operator's namespace: /<ns>/<node>/<service>."""
         return interface.full_name(f'~/{service}', self.namespace, node)

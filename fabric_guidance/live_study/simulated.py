@@ -40,6 +40,8 @@ from .operator import STUDY_TARGET, Operator, target_position
 PAPER_DUMMIES = 50
 #: Graph start-up (seven processes, discovery) on a loaded machine [s].
 STARTUP_S = 60.0
+#: The nodes whose parameters a session sets (condition, target, repetition).
+PARAMETER_NODES = ('pressure_controller', 'target_selector', 'wearer_sim')
 
 
 @dataclass
@@ -123,8 +125,11 @@ class SimulatedParticipant:
         os.environ.update(loopback_dds_env())
         self.op = Operator(self.graph.domain_id)
         try:
-            wait_until(lambda: self.op.has_gaze() and self.op.controller_condition is not None,
-                       STARTUP_S, what='gaze and the controller on the study graph')
+            # The session's first calls set parameters on these nodes: waited for here, on the
+            # start's deadline, not raced by the first call's own (shorter) discovery wait.
+            wait_until(lambda: self.op.has_gaze() and self.op.controller_condition is not None
+                       and not self.op.parameters_ready(*PARAMETER_NODES),
+                       STARTUP_S, what='gaze, the controller and the parameter services on the study graph')
         except AssertionError:
             raise StudyError(self.startup_failure()) from None
         self.op.trial_gate(False)     # the session's gate: vented until the first trial
@@ -138,6 +143,7 @@ class SimulatedParticipant:
         missing = [what for what, heard in (('gaze from gaze_bridge', self.op.has_gaze()),
                                             ("pressure_controller's status on /diagnostics",
                                              self.op.controller_condition is not None)) if not heard]
+        missing += [f'{n}/set_parameters_atomically' for n in self.op.parameters_ready(*PARAMETER_NODES)]
         ended = ', '.join(f'{node} (exit {code})' for node, code in self.graph.ended().items())
         return (f'the study graph of participant {self.subject + 1:02d} (ROS_DOMAIN_ID {self.graph.domain_id}) '
                 f'did not start within {STARTUP_S:g} s: no {" and no ".join(missing)}; '
