@@ -5,7 +5,7 @@ import pytest
 
 from fabric_guidance.experiments import paper
 from fabric_guidance.experiments.paper import CONDITIONS
-from fabric_guidance.experiments.paper_consistency import consistency, consistency_section
+from fabric_guidance.experiments.paper_consistency import bars_chance, consistency, consistency_section
 from fabric_guidance.experiments.stats import analyze_blocks
 
 
@@ -69,3 +69,15 @@ def test_the_section_counts_seeds_and_says_whether_the_papers_correlation_is_wit
     verdict = 'within' if abs(r_own - mean) <= sd else 'outside'
     assert f"r 3-4: mean over seeds {mean:.2f} (SD {sd:.2f}); the paper's {r_own:.2f} is {verdict}" in text
     assert consistency_section([]) == []
+
+
+def test_people_as_varied_as_the_papers_meet_the_means_and_sd_bars_of_a_validation_only_by_chance():
+    wide, like, narrow = (bars_chance(k, validations=2000) for k in (1.1, 1.0, 0.8))
+    # one seed: the narrower the people, the likelier all four means and the less likely all four SDs
+    assert narrow['seed_means'] > like['seed_means'] > wide['seed_means']
+    assert narrow['seed_sds'] < like['seed_sds']
+    assert 0.85 < like['seed_means'] < 0.92          # four correlated conditions, 2 SE each
+    # a validation of three sets of five: people exactly as the paper's meet both bars about 2 times in 3
+    assert 0.55 < like['validation_both'] < 0.75
+    assert like['validation_both'] <= min(like['validation_means'], like['validation_sds'])
+    assert narrow['validation_sds'] < 0.3            # narrow enough for the means fails the SDs

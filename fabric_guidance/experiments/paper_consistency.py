@@ -15,6 +15,7 @@ paper's), not the paper's: the paper publishes one experiment, so a seed is one 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Sequence
 
 import numpy as np
@@ -28,6 +29,9 @@ MEANS_SE = 2.0
 SD_RATIO = (0.6, 1.6)
 ALPHA = 0.05
 CORRELATION_PAIRS = ((1, 3), (3, 4))
+#: A validation: SETS sets of PER_SET seeds; a bar is met on at least PER_SET_MIN seeds of every
+#: set and TOTAL_MIN of all (the issue that set the bars).
+SETS, PER_SET, PER_SET_MIN, TOTAL_MIN = 3, 5, 4, 12
 
 
 @dataclass(frozen=True)
@@ -114,3 +118,36 @@ def consistency_section(results: Sequence[tuple[int, BlockAnalysis]]) -> list[st
         else:
             lines.append(f'- {label}: {values[0]:.2f} (one seed); the paper\'s {own[pair]:.2f}.')
     return lines + ['']
+
+
+def bars_chance(scale: float = 1.0, validations: int = 10000, seed: int = 0) -> dict[str, float]:
+    """How often an ideal model meets the means and SD bars: each seed 15 people drawn from a
+    normal with the paper's own per-subject means and covariance (its spread times `scale`).
+    The chance that one seed meets each bar, and that a validation (SETS sets of PER_SET seeds)
+    does, for 'means', 'sds' and 'both'. Drawn in chunks: memory stays bounded for any count."""
+    table = paper.speed_table()
+    y = np.column_stack([table[name].to_numpy(float) for name in CONDITIONS.values()])
+    n = y.shape[0]
+    centre, sds = y.mean(axis=0), y.std(axis=0, ddof=1)
+    ses = sds / math.sqrt(n)
+    cov = np.cov(y.T) * scale ** 2
+    lo, hi = SD_RATIO
+    rng = np.random.default_rng(seed)
+    seeds = {'means': [], 'sds': []}
+    met = {'means': [], 'sds': [], 'both': []}
+    done = 0
+    while done < validations:
+        k = min(1000, validations - done)
+        x = rng.multivariate_normal(centre, cov, size=(k * SETS * PER_SET, n))
+        ok = {'means': (np.abs(x.mean(axis=1) - centre) <= MEANS_SE * ses).all(axis=-1)}
+        ratio = x.std(axis=1, ddof=1) / sds
+        ok['sds'] = ((ratio >= lo) & (ratio <= hi)).all(axis=-1)
+        for key in seeds:
+            seeds[key].append(ok[key])
+            per = ok[key].reshape(k, SETS, PER_SET).sum(axis=-1)
+            met[key].append((per >= PER_SET_MIN).all(axis=-1) & (per.sum(axis=-1) >= TOTAL_MIN))
+        met['both'].append(met['means'][-1] & met['sds'][-1])
+        done += k
+    out = {f'seed_{key}': float(np.concatenate(v).mean()) for key, v in seeds.items()}
+    out.update({f'validation_{key}': float(np.concatenate(v).mean()) for key, v in met.items()})
+    return out
