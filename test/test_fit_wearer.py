@@ -311,3 +311,17 @@ def test_fit_tradeoff_shows_each_emphasis_and_refuses_a_bad_one(tmp_path, capsys
     with pytest.raises(SystemExit) as e:
         fit_tradeoff.main(['--out', str(tmp_path), '--emphasis', '1,x'])
     assert e.value.code == 2 and '--emphasis' in capsys.readouterr().err
+
+
+def test_an_optional_effect_parameter_left_off_is_not_written(tmp_path, monkeypatch):
+    """hololens_view.edge_deg defaults to None (off): a fit that does not hold it writes scenes
+    without it, which load with the edge off (not the string 'None')."""
+    fixed = {k: v for k, v in fit_wearer.FIXED.items() if k != ('hololens_view', 'edge_deg')}
+    monkeypatch.setattr(fit_wearer, 'FIXED', fixed)
+    phi = np.concatenate([np.zeros(len(pf.OWN)), [0.5 * t.design_sd for t in pf.FITTED]])
+    text = fit_wearer.fitted_text('paper-speed', 'paper-fitted-speed', phi, [], 0.0)
+    line = next(x for x in text.splitlines() if x.startswith('  - hololens_view:'))
+    assert 'edge_deg' not in line and 'None' not in line
+    (tmp_path / 'scene.yaml').write_text(text)
+    spec = next(e for e in load_scene(tmp_path / 'scene.yaml').effects if e.name == 'hololens_view')
+    assert spec.params_dict.get('edge_deg') is None

@@ -211,7 +211,9 @@ def fitted_text(base_name: str, new_name: str, phi, header: list[str], arm_sprea
         raise ValueError(f'{base_name}: no population.arm_spread line to put the traits after')
     lines = text.rstrip('\n').split('\n')
     for name in MODEL_EFFECTS:
-        params = {p: v for p, (v, _) in effect_class(name).parameters().items()}
+        # An optional parameter left at its default (None: off) is not written: YAML would read
+        # the word None as a string, and leaving it out is that default.
+        params = {p: v for p, (v, _) in effect_class(name).parameters().items() if v is not None}
         set_here = {p: v for (e, p), v in medians.items() if e == name}
         params.update(set_here)
         fitted_here = [p for p in set_here if (name, p) in FITTED_PARAMS]
