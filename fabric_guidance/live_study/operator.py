@@ -258,7 +258,7 @@ class Operator:
             pending.wait()
         return pending
 
-    def parameters_ready(self, *nodes: str) -> list[str]:
+    def parameter_services_missing(self, *nodes: str) -> list[str]:
         """The nodes of `nodes` whose set_parameters_atomically service is not yet discovered
         (empty: all are): a session waits for them before its first call."""
         from rcl_interfaces.srv import SetParametersAtomically

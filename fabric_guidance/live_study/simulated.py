@@ -128,7 +128,7 @@ class SimulatedParticipant:
             # The session's first calls set parameters on these nodes: waited for here, on the
             # start's deadline, not raced by the first call's own (shorter) discovery wait.
             wait_until(lambda: self.op.has_gaze() and self.op.controller_condition is not None
-                       and not self.op.parameters_ready(*PARAMETER_NODES),
+                       and not self.op.parameter_services_missing(*PARAMETER_NODES),
                        STARTUP_S, what='gaze, the controller and the parameter services on the study graph')
         except AssertionError:
             raise StudyError(self.startup_failure()) from None
@@ -143,7 +143,7 @@ class SimulatedParticipant:
         missing = [what for what, heard in (('gaze from gaze_bridge', self.op.has_gaze()),
                                             ("pressure_controller's status on /diagnostics",
                                              self.op.controller_condition is not None)) if not heard]
-        missing += [f'{n}/set_parameters_atomically' for n in self.op.parameters_ready(*PARAMETER_NODES)]
+        missing += [f'{n}/set_parameters_atomically' for n in self.op.parameter_services_missing(*PARAMETER_NODES)]
         ended = ', '.join(f'{node} (exit {code})' for node, code in self.graph.ended().items())
         return (f'the study graph of participant {self.subject + 1:02d} (ROS_DOMAIN_ID {self.graph.domain_id}) '
                 f'did not start within {STARTUP_S:g} s: no {" and no ".join(missing)}; '
