@@ -15,7 +15,6 @@ paper's), not the paper's: the paper publishes one experiment, so a seed is one 
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 from typing import Sequence
 
 import numpy as np
@@ -128,12 +127,14 @@ def bars_chance(scale: float = 1.0, validations: int = 10000, seed: int = 0) -> 
     table = paper.speed_table()
     y = np.column_stack([table[name].to_numpy(float) for name in CONDITIONS.values()])
     n = y.shape[0]
-    centre, sds = y.mean(axis=0), y.std(axis=0, ddof=1)
-    ses = sds / math.sqrt(n)
+    # The bars' own figures of the paper (as consistency() judges a seed against them)
+    centre = np.array([paper.speed_means()[c] for c in CONDITIONS])
+    ses = np.array([paper.speed_standard_errors()[c] for c in CONDITIONS])
+    sds = y.std(axis=0, ddof=1)
     cov = np.cov(y.T) * scale ** 2
     lo, hi = SD_RATIO
     rng = np.random.default_rng(seed)
-    seeds = {'means': [], 'sds': []}
+    per_seed = {'means': [], 'sds': []}
     met = {'means': [], 'sds': [], 'both': []}
     done = 0
     while done < validations:
@@ -142,12 +143,12 @@ def bars_chance(scale: float = 1.0, validations: int = 10000, seed: int = 0) -> 
         ok = {'means': (np.abs(x.mean(axis=1) - centre) <= MEANS_SE * ses).all(axis=-1)}
         ratio = x.std(axis=1, ddof=1) / sds
         ok['sds'] = ((ratio >= lo) & (ratio <= hi)).all(axis=-1)
-        for key in seeds:
-            seeds[key].append(ok[key])
+        for key in per_seed:
+            per_seed[key].append(ok[key])
             per = ok[key].reshape(k, SETS, PER_SET).sum(axis=-1)
             met[key].append((per >= PER_SET_MIN).all(axis=-1) & (per.sum(axis=-1) >= TOTAL_MIN))
         met['both'].append(met['means'][-1] & met['sds'][-1])
         done += k
-    out = {f'seed_{key}': float(np.concatenate(v).mean()) for key, v in seeds.items()}
+    out = {f'seed_{key}': float(np.concatenate(v).mean()) for key, v in per_seed.items()}
     out.update({f'validation_{key}': float(np.concatenate(v).mean()) for key, v in met.items()})
     return out
