@@ -261,7 +261,8 @@ def plot_plane(result: 'SweepResult', path: Path, dpi: int = 130, title: str | N
         whole.set_title('the whole plane (dashed box: the zoom on the right)', fontsize=10)
         outside = [str(int(r.value)) for r in cond_rows if int(r.value) not in in_zoom]
         zoom.set_title(f'zoom: the knobs swept in condition {cond} (package values at its point)'
-                       + (f'\nconditions {", ".join(outside)} lie outside the zoom' if outside else ''),
+                       + (f'\ncondition{"s" if len(outside) > 1 else ""} {", ".join(outside)} '
+                          f'{"lie" if len(outside) > 1 else "lies"} outside the zoom' if outside else ''),
                        fontsize=10)
     heading = ((title or 'What accuracy costs in time: conditions 1-4 at the package defaults and every knob')
                + f';\n{s.subjects} wearers, {whiskers}' + ('; grey: each run\'s own point' if k > 1 else '')
