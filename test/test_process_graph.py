@@ -2,10 +2,13 @@
 workers never meet, and a run's processes are found by a variable in their environment (not by
 their command line, which other graphs started from the same files share)."""
 import os
+import socket
 import subprocess
 import sys
 
-from fabric_guidance.graph.process_graph import fresh_domain_id, processes_with
+import pytest
+
+from fabric_guidance.graph.process_graph import _above_ephemeral, free_port, fresh_domain_id, processes_with
 from rosgraph import wait_until
 
 
@@ -57,3 +60,17 @@ def test_processes_with_finds_a_marked_process_and_its_child_until_they_end():
         os.killpg(proc.pid, 9)
         proc.wait(10)
     wait_until(lambda: processes_with('FABRIC_GUIDANCE_TEST_MARK', mark) == [], 10.0, what='the marked processes gone')
+
+
+def test_a_graphs_ports_lie_above_the_kernels_ephemeral_range_and_are_free():
+    """A port the kernel hands out (a connect, a bind to 0) can never be one a graph chose before
+    its node bound it: free_port takes them above the ephemeral range (here 32768-60999)."""
+    span = _above_ephemeral()
+    if span is None:
+        pytest.skip('no ephemeral range to read, or no room above it')
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        ports = {free_port(kind) for _ in range(20)}
+        assert all(span[0] <= p <= span[1] for p in ports), (span, sorted(ports))
+        assert len(ports) > 1                     # drawn, not one fixed port
+        with socket.socket(socket.AF_INET, kind) as s:
+            s.bind(('127.0.0.1', ports.pop()))     # still free to bind

@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 import os
 from pathlib import Path
+import random
 import signal
 import socket
 import subprocess
@@ -74,7 +75,30 @@ def _xdist_worker() -> tuple[int, int]:
     return 0, 1
 
 
+def _above_ephemeral() -> tuple[int, int] | None:
+    """The ports above the kernel's ephemeral range (Linux: 61000-65535), or None where there is
+    no such range to read or no room above it."""
+    try:
+        _, high = map(int, Path('/proc/sys/net/ipv4/ip_local_port_range').read_text().split())
+    except (OSError, ValueError):
+        return None
+    return (high + 1, 65535) if high < 65000 else None
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A port free on 127.0.0.1 now, for a node to bind later. Taken above the kernel's ephemeral
+    range where there is one: a port the kernel numbers (a client's connect, a bind to port 0)
+    was once given the port a graph had chosen before its node bound it ("Address already in
+    use": wearer_sim's display port in a full test run), which cannot happen there."""
+    span = _above_ephemeral()
+    for _ in range(64 if span else 0):
+        port = random.randint(*span)
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(('127.0.0.1', port))
+            except OSError:
+                continue        # in use: another
+            return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
