@@ -258,6 +258,43 @@ def test_cue_misreading_flips_directions_at_the_stated_rate_with_a_fixed_number_
         assert (a.factor_h, a.factor_v) == (b.factor_h, b.factor_v)
 
 
+def test_cue_misreadings_trial_sds_move_each_runs_rates_and_arm_read_time_and_nothing_else():
+    """trial_sd: a run's rates are the median's moved by trial_sd * z (logit), z ~ N(0, 1) from a
+    stream of its own: over many runs the logits have that spread around the median's, both rates
+    move together, a rate of 0 stays 0, none exceeds 0.5, and the reads' draws are untouched."""
+    def logit(p):
+        return math.log(p / (1 - p))
+
+    runs = [started('cue_misreading', run=(2, 1, r), direction_p=0.2, arm_direction_p=0.05, trial_sd=0.8)
+            for r in range(3000)]
+    arm = np.array([logit(c.arm_direction_p) for c in runs])      # 0.05: never near 0.5 here
+    assert np.median(arm) == pytest.approx(logit(0.05), abs=0.06)
+    assert np.std(arm) == pytest.approx(0.8, rel=0.06)
+    unclipped = [i for i, c in enumerate(runs) if c.direction_p < 0.5]
+    assert 0.9 * len(runs) < len(unclipped) < len(runs)
+    np.testing.assert_allclose([logit(runs[i].direction_p) - arm[i] for i in unclipped],
+                               logit(0.2) - logit(0.05))                # one shift for both
+    assert max(c.direction_p for c in runs) == 0.5 and all(c.p == c.direction_p for c in runs)
+    assert {started('cue_misreading', run=(2, 1, r), direction_p=0.0, trial_sd=2.0).direction_p
+            for r in range(50)} == {0.0}
+    # arm_read_trial_sd: the arm's read time of a run is arm_read_s times exp(sd * z - sd^2 / 2),
+    # so arm_read_s stays the mean.
+    arm_runs = [started('cue_misreading', run=(2, 3, r), arm_read_s=2.0, arm_read_trial_sd=0.5)
+                for r in range(3000)]
+    times = np.array([c.arm_read_s for c in arm_runs])
+    assert np.std(np.log(times)) == pytest.approx(0.5, rel=0.06)
+    assert np.mean(times) == pytest.approx(2.0, rel=0.03)
+    assert np.median(np.log(times / 2.0)) == pytest.approx(-0.125, abs=0.04)
+    assert {c.direction_p for c in arm_runs} == {0.15}        # the rates stay the scene's
+    # The reads draw from their own streams: the signs of a run's reads are those of a run
+    # without trial_sd at the same rate.
+    moved = runs[7]
+    plain = started('cue_misreading', run=(2, 1, 7), direction_p=moved.direction_p)
+    for _ in range(50):
+        moved.read(), plain.read()
+        assert (moved.factor_h, moved.factor_v) == (plain.factor_h, plain.factor_v)
+
+
 def test_cue_misreading_of_zero_reads_exactly():
     cue = started('cue_misreading', direction_p=0.0, magnitude_sd=0.0)
     for _ in range(100):

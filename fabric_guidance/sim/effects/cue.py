@@ -47,10 +47,21 @@ class CueMisreading(Effect):
     as the suit; fitted with the pace trait by experiments.fit_wearer (the same person
     searches, confirms and reads the arm slowly or fast), so that condition 3's spread of people is
     the one conditions 1 and 4 share, as in the paper's table.
+    trial_sd (-, logit, default 0) and arm_read_trial_sd (-, log, default 0): how much a wearer
+    varies from trial to trial: every run (a trial of the protocols) moves both misreading rates
+    by trial_sd * z1 on the logit scale (at most to 0.5) and multiplies arm_read_s by
+    exp(arm_read_trial_sd * z2 - arm_read_trial_sd^2 / 2) (mean 1: arm_read_s stays the wearer's
+    mean read time), z1, z2 ~ N(0, 1). The paper's text gives each condition's SD over
+    all trials (3.0, 3.3, 4.0, 1.4), larger than its table's spread of people: each subject's own
+    trials varied, condition 3's most (the paper: on the arm a large error is not felt). A trait
+    over them gives each wearer their own consistency. Fitted so, trial_sd went to its floor and
+    arm_read_trial_sd cost the paper's consistency across conditions, so the fitted scenes keep
+    both 0 (docs/simulation.md, "Within-person variation").
 
     Random numbers: two uniform and two normal draws per read from its own streams, whatever
-    the read changes (arm_read_s draws none). direction_p = magnitude_sd = arm_read_s = 0 leaves
-    every run bit-identical to no effect.
+    the read changes (arm_read_s draws none); two normal draws per run from a third when
+    trial_sd or arm_read_trial_sd is above 0. direction_p = magnitude_sd = arm_read_s =
+    trial_sd = arm_read_trial_sd = 0 leaves every run bit-identical to no effect.
     """
 
     name: ClassVar[str] = 'cue_misreading'
@@ -64,8 +75,20 @@ class CueMisreading(Effect):
     still_dps: float = param(5.0, 'deg/s', lo=0.0)
     still_gain: float = param(0.25, '-', lo=0.0, hi=10.0)
     arm_read_s: float = param(0.0, 's', lo=0.0, hi=10.0)
+    trial_sd: float = param(0.0, '-', lo=0.0, hi=5.0)
+    arm_read_trial_sd: float = param(0.0, '-', lo=0.0, hi=3.0)
 
     def start(self, ctx: RunContext) -> None:
+        if self.trial_sd > 0.0 or self.arm_read_trial_sd > 0.0:
+            # This run's own values; the draws come from a stream of their own, so every other
+            # draw of the run stays where it was.
+            z1, z2 = ctx.rng(self.name + '.trial').standard_normal(2)
+            shift = self.trial_sd * float(z1)
+            self.direction_p = _logit_shifted(self.direction_p, shift)
+            self.arm_direction_p = _logit_shifted(self.arm_direction_p, shift)
+            # exp(sd z - sd^2 / 2) has mean 1: arm_read_s stays the wearer's mean read time.
+            sd = self.arm_read_trial_sd
+            self.arm_read_s *= math.exp(sd * float(z2) - 0.5 * sd * sd)
         self.p = self.direction_p      # the layout's; Senses sets arm_direction_p for the arm
         self._u = Draws(ctx.rng(self.name + '.direction'), 'uniform')
         self._n = Draws(ctx.rng(self.name + '.magnitude'), 'normal')
@@ -95,6 +118,15 @@ class CueMisreading(Effect):
         self.sign_h, self.sign_v = sh, sv
         self.factor_h, self.factor_v = sh * mh, sv * mv
         return changed
+
+
+def _logit_shifted(p: float, shift: float) -> float:
+    """p moved by `shift` on the logit scale, at most 0.5 (more often wrong than right is reading
+    the other way); 0 stays 0 (a wearer who never misreads)."""
+    if p <= 0.0:
+        return p
+    q = 1.0 / (1.0 + math.exp(-(math.log(p / (1.0 - p)) + shift))) if p < 1.0 else p
+    return min(q, 0.5)
 
 
 @dataclass
