@@ -259,7 +259,7 @@ def test_the_fits_objective_is_the_composition_of_weights_statistics_and_discrep
     def reference(design, phi):
         w = pf.weights(design, phi)
         d = pf.discrepancy(pf.weighted_statistics(design, w, n), target, n)
-        total = sum(float(np.sum(v ** 2)) for v in d.values())
+        total = sum(k * float(np.sum(d[g] ** 2)) for g, k in zip(pf.GROUPS, pf.DEFAULT_EMPHASIS) if g in d)
         ess, floor = 1.0 / float(np.sum(w ** 2)), pf.MIN_ESS_SHARE * len(design.y)
         return total + (10.0 * (floor - ess) if ess < floor else 0.0)
 
@@ -276,8 +276,8 @@ def test_the_fits_objective_is_the_composition_of_weights_statistics_and_discrep
 
 
 def test_the_objectives_emphasis_weighs_one_group_and_leaves_the_fit_unchanged_at_one():
-    """emphasis (1, 1, 1, 1) is the fit's objective, float for float; (1, 1, 1, k) adds (k - 1)
-    times the correlations' squared distance, as discrepancy computes it."""
+    """emphasis (1, 1, 1, 1, 0) is the fit's objective, float for float; (1, 1, 1, k, 0) adds (k - 1)
+    times the correlations' squared distance, as discrepancy computes it; a weight too few is refused."""
     from fabric_guidance.paths import config_path
     table = fit_wearer.read_table()
     n = table.shape[0]
@@ -285,8 +285,10 @@ def test_the_objectives_emphasis_weighs_one_group_and_leaves_the_fit_unchanged_a
     design = pf.Design.load(config_path('scenes/fit') / 'design-arm_spread-0.1.npz')
     rng = np.random.default_rng(7)
     b = np.array(pf.bounds())
-    plain, ones = pf.objective_function(design, target, n), pf.objective_function(design, target, n, (1, 1, 1, 1))
-    heavy = pf.objective_function(design, target, n, (1, 1, 1, 8))
+    plain, ones = pf.objective_function(design, target, n), pf.objective_function(design, target, n, (1, 1, 1, 1, 0))
+    heavy = pf.objective_function(design, target, n, (1, 1, 1, 8, 0))
+    with pytest.raises(ValueError, match='one weight per group'):
+        pf.objective_function(design, target, n, (1, 1, 1, 8))
     for phi in rng.uniform(b[:, 0], b[:, 1], (40, len(b))):
         if not np.isfinite(plain(phi)):
             continue
@@ -294,6 +296,36 @@ def test_the_objectives_emphasis_weighs_one_group_and_leaves_the_fit_unchanged_a
         stats = pf.weighted_statistics(design, pf.weights(design, phi), n)
         corr = float(np.sum(pf.discrepancy(stats, target, n)['corr'] ** 2))
         assert heavy(phi) == pytest.approx(plain(phi) + 7 * corr, rel=1e-9)
+
+
+def test_the_trial_sds_are_the_sd_over_all_trials_and_weigh_only_when_asked():
+    """trial_sd (from the SD of people's means and their mean variance over their own trials) is
+    the SD over all trials computed directly; a design that recorded its trials reports them;
+    the default objective leaves them out and emphasis (1, 1, 1, 1, 1) adds their squared
+    distance, as discrepancy computes it."""
+    rng = np.random.default_rng(5)
+    trials = rng.normal(rng.normal(9, 2.5, (15, 1, 4)), rng.uniform(0.5, 3, (15, 1, 4)), (15, 6, 4))
+    means, within = trials.mean(axis=1), trials.var(axis=1, ddof=1).mean(axis=0)
+    np.testing.assert_allclose(pf.trial_sd(means.std(axis=0, ddof=1), within, 15),
+                               trials.reshape(90, 4).std(axis=0, ddof=1), rtol=1e-12)
+    np.testing.assert_allclose(pf.table_statistics(means)['trial_sds'], [3.0, 3.3, 4.0, 1.4])
+
+    sd0 = np.array([t.design_sd for t in pf.FITTED])
+    u = rng.normal(0, sd0, (400, len(sd0)))
+    v = np.outer(np.exp(u[:, 2]), [2.0, 3.0, 9.0, 0.5])       # slower people vary more
+    design = pf.Design(u, rng.normal(9, 2.5, (400, 4)), np.zeros(400), v=v)
+    target = pf.table_statistics(fit_wearer.read_table())
+    phi = np.concatenate([np.zeros(len(pf.OWN)), 0.8 * sd0])
+    w = pf.weights(design, phi)
+    stats = pf.weighted_statistics(design, w, 15)
+    np.testing.assert_allclose(stats['trial_sds'], pf.trial_sd(stats['sds'], w @ v, 15))
+    d = pf.discrepancy(stats, target, 15)
+    untimed = pf.Design(u, design.y, design.seeds)            # no trials recorded: nothing to report
+    assert 'trial_sds' not in pf.weighted_statistics(untimed, w, 15)
+    assert pf.objective(design, phi, target, 15) == pf.objective(untimed, phi, target, 15)
+    weighed = pf.objective_function(design, target, 15, (1, 1, 1, 1, 1))(phi)
+    assert weighed == pytest.approx(pf.objective(design, phi, target, 15) + float(np.sum(d['trial_sds'] ** 2)))
+    assert float(np.sum(d['trial_sds'] ** 2)) > 1.0           # the test's people are not the paper's
 
 
 def test_fit_tradeoff_shows_each_emphasis_and_refuses_a_bad_one(tmp_path, capsys):

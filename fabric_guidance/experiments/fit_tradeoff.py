@@ -54,11 +54,11 @@ def tradeoff(designs, table: np.ndarray, emphases, draws: int, seed: int = 34, s
     target = pf.table_statistics(table)
     rows = []
     for k in emphases:
-        fits = [(pf.fit_population(d, target, n, emphasis=(1.0, 1.0, 1.0, k)), d) for d in designs]
+        fits = [(pf.fit_population(d, target, n, emphasis=(1.0, 1.0, 1.0, k, 0.0)), d) for d in designs]
         (phi, weighted), design = min(fits, key=lambda f: f[0][1])
         w = pf.weights(design, phi)
         stats = pf.weighted_statistics(design, w, n)
-        parts = {g: float(np.sum(v ** 2)) for g, v in pf.discrepancy(stats, target, n).items()}
+        parts = {g: float(np.sum(v ** 2)) for g, v in pf.discrepancy(stats, target, n).items() if g in WEIGHED}
         sig, first = predicted_bar(design, w, n, draws, seed)
         rows.append(dict(emphasis=k, arm_spread=design.arm_spread, ess=1.0 / float(np.sum(w ** 2)),
                          objective=sum(parts.values()), parts=parts, stats=stats, friedman=sig, first_best=first))
@@ -84,15 +84,18 @@ def report(rows: list[dict], table: np.ndarray, draws: int) -> str:
     for r in rows:
         p, s = r['parts'], r['stats']
         lines.append(f"| x{r['emphasis']:g} | {r['arm_spread']:g} | {r['objective']:.1f}: "
-                     + fmt(f'{p[g]:.1f}' for g in pf.GROUPS) + ' | ' + fmt(f'{v:.2f}' for v in s['means'])
+                     + fmt(f'{p[g]:.1f}' for g in WEIGHED) + ' | ' + fmt(f'{v:.2f}' for v in s['means'])
                      + ' | ' + fmt(f'{v:.2f}' for v in s['sds']) + ' | ' + fmt(f'{v:.2f}' for v in s['corr'])
                      + f" | {r['friedman']:.2f} | {r['first_best']:.2f} |")
     return '\n'.join(lines) + '\n'
 
 
+#: The groups of statistics the fit weighs (population_fit.DEFAULT_EMPHASIS above 0).
+WEIGHED = tuple(g for g, k in zip(pf.GROUPS, pf.DEFAULT_EMPHASIS) if k > 0)
 #: What each group of the fit's statistics is (population_fit.GROUPS), for the legend.
 GROUP_NAMES = {'means': 'the four conditions\' means', 'sds': 'the SDs of the subjects\' means',
-               'best': 'how often each condition is best', 'corr': 'the correlations between conditions'}
+               'best': 'how often each condition is best', 'corr': 'the correlations between conditions',
+               'trial_sds': 'the SDs over all trials'}
 
 
 def plot(rows: list[dict], table: np.ndarray, path: Path) -> None:
@@ -118,7 +121,7 @@ def plot(rows: list[dict], table: np.ndarray, path: Path) -> None:
     n = table.shape[0]
     a.plot(k, [r['friedman'] for r in rows], 's-k', label=f'share of draws of {n} people with Friedman p < 0.05')
     a.set(ylabel='correlation, or share of draws', ylim=(0, 1.02), title='What the fit reaches')
-    for g in pf.GROUPS:
+    for g in WEIGHED:
         b.plot(k, [r['parts'][g] for r in rows], 'o-', color=next(colours), label=GROUP_NAMES.get(g, g))
     b.set(ylabel='squared standardized distance (sum over the group)', title='What it costs each group',
           ylim=(0, None))

@@ -125,13 +125,15 @@ def base_scene(protocol: str = 'speed', arm_spread: float | None = None):
 # Reporting
 
 STAT_NAMES = {'means': 'mean', 'sds': 'SD of subject means', 'best': 'best-condition count',
-              'corr': 'correlation'}
+              'corr': 'correlation', 'trial_sds': 'SD over all trials (reported, not fitted)'}
 PAIRS = ('1-2', '1-3', '1-4', '2-3', '2-4', '3-4')
 
 
 def statistics_lines(model: dict, target: dict) -> list[str]:
     lines = []
     for key, label in STAT_NAMES.items():
+        if key not in model or key not in target:      # trial SDs: a design that recorded its trials
+            continue
         names = PAIRS if key == 'corr' else [f'c{c}' for c in pf.CONDITIONS]
         lines.append(f'{label}: ' + ', '.join(f'{nm} {m:.2f} vs {t:.2f}'
                                               for nm, m, t in zip(names, model[key], target[key])))

@@ -22,11 +22,15 @@ into each wearer's laws, not a weighted trait: it is profiled (a design per valu
 the ten fitted on each, the lowest objective kept). All are fitted to eighteen numbers of the
 paper's table (experiments/paper.py): the four condition means, the four SDs of the subject
 means, the four best-condition counts and the six correlations between conditions over
-subjects.
+subjects. The four SDs over all trials its text states (3.0, 3.3, 4.0, 1.4) are reported beside
+them where a design recorded its trials (Design.v), not fitted (DEFAULT_EMPHASIS): weighed, with a
+trait for a person's trial-to-trial variation (cue_misreading.arm_read_trial_sd), they cost the
+paper's consistency across conditions (docs/simulation.md, "Within-person variation").
 
 How, in minutes on two cores: the speed protocol runs once on a *design* population (several
 seeds, many wearers each, every trait drawn with a wide spread around the design's values);
-each design wearer's four condition means (six 40 s trials each, as the paper's) are then
+each design wearer's four condition means and the variances of their trials (six 40 s trials
+each, as the paper's) are then
 reweighted to any population (mu, sd) by importance weights, the ratio of the population's and
 the design's trait densities. The statistics of fifteen people drawn from that population are
 computed from the weighted design, and scipy's Nelder-Mead minimizes their distance to the
@@ -137,13 +141,24 @@ def split(phi) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------------------------------------
 # The paper's statistics
 
-def table_statistics(table: np.ndarray) -> dict[str, np.ndarray]:
+#: The SD over all trials of each condition the paper's text states (Section VI); a subject table
+#: holds only means, so a resampled table keeps these.
+TRIAL_SDS = np.array([paper.SPEED_TRIAL_SD[c] for c in CONDITIONS])
+
+
+def table_statistics(table: np.ndarray, trial_sds=TRIAL_SDS) -> dict[str, np.ndarray]:
     """means, sds (of subject means, ddof 1), best counts (ties count for each), corr (6 pairs:
-    12 13 14 23 24 34) of a subjects x 4 table."""
+    12 13 14 23 24 34) of a subjects x 4 table, and the trial SDs (the paper's text's)."""
     best = (table == table.max(axis=1, keepdims=True)).sum(axis=0).astype(float)
     c = np.corrcoef(table.T)
     return {'means': table.mean(axis=0), 'sds': table.std(axis=0, ddof=1), 'best': best,
-            'corr': c[np.triu_indices(4, 1)]}
+            'corr': c[np.triu_indices(4, 1)], 'trial_sds': np.asarray(trial_sds, dtype=float)}
+
+
+def trial_sd(sds, within_var, n: int, r: int = paper.SPEED_REPETITIONS):
+    """The SD over all n * r trials (ddof 1) of n people with r trials each, from the SD of their
+    means and the mean variance of a person's own trials (ddof 1): the sums of squares add."""
+    return np.sqrt((r * (n - 1) * np.square(sds) + n * (r - 1) * np.asarray(within_var)) / (n * r - 1))
 
 
 def paper_table() -> np.ndarray:
@@ -159,7 +174,8 @@ class Design:
     traits' design_values), y (wearers x 4 condition means of identified targets), the seed, and
     the round of the design it came from; `rounds` holds each round's proposal (mu, sd) per
     trait and its share of the wearers; `arm_spread` the population.arm_spread every wearer of
-    the design was simulated with (None: not recorded)."""
+    the design was simulated with (None: not recorded); v (wearers x 4) the variance of each
+    wearer's trials per condition (None: not recorded, and the fit leaves the trial SDs out)."""
 
     u: np.ndarray
     y: np.ndarray
@@ -167,6 +183,7 @@ class Design:
     round: np.ndarray | None = None
     rounds: tuple = ()
     arm_spread: float | None = None
+    v: np.ndarray | None = None
 
     def __post_init__(self):
         if self.round is None:
@@ -176,7 +193,8 @@ class Design:
             self.rounds = ((np.zeros(k), np.array([t.design_sd for t in FITTED][:k])),)
 
     def subset(self, idx) -> 'Design':
-        return Design(self.u[idx], self.y[idx], self.seeds[idx], self.round[idx], self.rounds, self.arm_spread)
+        return Design(self.u[idx], self.y[idx], self.seeds[idx], self.round[idx], self.rounds, self.arm_spread,
+                      None if self.v is None else self.v[idx])
 
     def joined(self, other: 'Design') -> 'Design':
         if self.arm_spread != other.arm_spread:
@@ -184,19 +202,20 @@ class Design:
         return Design(np.vstack([self.u, other.u]), np.vstack([self.y, other.y]),
                       np.concatenate([self.seeds, other.seeds]),
                       np.concatenate([self.round, other.round + len(self.rounds)]), self.rounds + other.rounds,
-                      self.arm_spread)
+                      self.arm_spread, None if self.v is None or other.v is None else np.vstack([self.v, other.v]))
 
     def save(self, path) -> None:
         np.savez(path, u=self.u, y=self.y, seeds=self.seeds, round=self.round,
                  mus=np.array([mu for mu, _ in self.rounds]), sds=np.array([sd for _, sd in self.rounds]),
-                 arm_spread=np.nan if self.arm_spread is None else self.arm_spread)
+                 arm_spread=np.nan if self.arm_spread is None else self.arm_spread,
+                 **({} if self.v is None else {'v': self.v}))
 
     @classmethod
     def load(cls, path) -> 'Design':
         with np.load(path) as d:
             arm = float(d['arm_spread']) if 'arm_spread' in d.files else math.nan
             return cls(d['u'], d['y'], d['seeds'], d['round'], tuple(zip(d['mus'], d['sds'])),
-                       None if math.isnan(arm) else arm)
+                       None if math.isnan(arm) else arm, d['v'] if 'v' in d.files else None)
 
     def best(self) -> np.ndarray:
         """Per wearer, 1 for each condition of their highest mean (cached)."""
@@ -240,7 +259,7 @@ def weights(design: Design, phi: np.ndarray) -> np.ndarray:
 
 def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.ndarray]:
     """The statistics of n people drawn from the weighted design: means, sds, expected best
-    counts, corr."""
+    counts, corr, and trial_sds where the design recorded its trials' variances."""
     y = design.y
     means = w @ y
     d = y - means
@@ -249,32 +268,43 @@ def weighted_statistics(design: Design, w: np.ndarray, n: int) -> dict[str, np.n
     best = n * (w @ design.best())
     with np.errstate(invalid='ignore', divide='ignore'):   # no spread, no correlation: nan
         corr = (cov / np.outer(sds, sds))[_PAIRS]
-    return {'means': means, 'sds': sds, 'best': best, 'corr': corr}
+    out = {'means': means, 'sds': sds, 'best': best, 'corr': corr}
+    if design.v is not None:
+        out['trial_sds'] = trial_sd(sds, w @ design.v, n)
+    return out
 
 
 def discrepancy(stats: dict, target: dict, n: int) -> dict[str, np.ndarray]:
     """Each statistic's standardized distance from the target (the paper's): means by their SE,
-    SDs by the SE of an SD, best counts by a binomial SD, correlations by Fisher's z."""
+    SDs by the SE of an SD, best counts by a binomial SD, correlations by Fisher's z; trial SDs (when
+    both have them) by the SE of an SD of n people, as the spread of people dominates them."""
     se_mean = target['sds'] / math.sqrt(n)
     se_sd = target['sds'] / math.sqrt(2 * (n - 1))
     p = np.clip(target['best'] / n, 0.5 / n, 1 - 0.5 / n)
     se_best = np.sqrt(n * p * (1 - p))
     z = np.arctanh(np.clip(stats['corr'], -0.99, 0.99)) - np.arctanh(np.clip(target['corr'], -0.99, 0.99))
-    return {'means': (stats['means'] - target['means']) / se_mean,
-            'sds': (stats['sds'] - target['sds']) / se_sd,
-            'best': (stats['best'] - target['best']) / se_best,
-            'corr': z * math.sqrt(n - 3)}
+    out = {'means': (stats['means'] - target['means']) / se_mean,
+           'sds': (stats['sds'] - target['sds']) / se_sd,
+           'best': (stats['best'] - target['best']) / se_best,
+           'corr': z * math.sqrt(n - 3)}
+    if 'trial_sds' in stats and 'trial_sds' in target:
+        se_trial = target['trial_sds'] / math.sqrt(2 * (n - 1))
+        out['trial_sds'] = (stats['trial_sds'] - target['trial_sds']) / se_trial
+    return out
 
 
 def objective(design: Design, phi: np.ndarray, target: dict, n: int) -> float:
     """The fit's distance at phi: the squared standardized discrepancies of the statistics
-    (weights, weighted_statistics, discrepancy) plus the penalty under the effective-wearer
-    floor. One arithmetic: objective_function's (test_fit_wearer checks it against those three)."""
+    (weights, weighted_statistics, discrepancy; the groups DEFAULT_EMPHASIS weighs) plus the
+    penalty under the effective-wearer floor. One arithmetic: objective_function's
+    (test_fit_wearer checks it against those three)."""
     return objective_function(design, target, n)(phi)
 
 
 #: The objective's statistic groups, in the order of its sum (emphasis weights follow it).
-GROUPS = ('means', 'sds', 'best', 'corr')
+GROUPS = ('means', 'sds', 'best', 'corr', 'trial_sds')
+#: The fit's weights of GROUPS: the trial SDs reported, not weighed (see the module docstring).
+DEFAULT_EMPHASIS = (1.0, 1.0, 1.0, 1.0, 0.0)
 
 
 def objective_function(design: Design, target: dict, n: int,
@@ -283,10 +313,14 @@ def objective_function(design: Design, target: dict, n: int,
     phi computed once (the paper's SEs and Fisher z, the design's arrays and proposal density),
     in a third of the time of composing weights, weighted_statistics and discrepancy (an
     evaluation is mostly numpy's per-call overhead; the fits and refits make tens of thousands).
-    emphasis: a weight per GROUPS entry (None: 1 each, the fit's; experiments.fit_tradeoff varies
-    it to show which statistics pull against which)."""
-    g = [1.0] * len(GROUPS) if emphasis is None else [float(x) for x in emphasis]
+    emphasis: a weight per GROUPS entry (None: DEFAULT_EMPHASIS, the fit's; experiments.fit_tradeoff
+    varies it to show which statistics pull against which)."""
+    g = list(DEFAULT_EMPHASIS) if emphasis is None else [float(x) for x in emphasis]
+    if len(g) != len(GROUPS):
+        raise ValueError(f'emphasis: one weight per group {GROUPS}, got {len(g)}')
     u, y, best, logq = design.u, design.y, design.best(), design.log_proposal()
+    # Weighed only with a weight above 0, a design that recorded its trials and a target that has them.
+    v = design.v if 'trial_sds' in target and g[4] > 0.0 else None
     own, k, traits = list(OWN), len(OWN), len(FITTED)
     i, j = _PAIRS
     se_mean = target['sds'] / math.sqrt(n)
@@ -295,6 +329,8 @@ def objective_function(design: Design, target: dict, n: int,
     se_best = np.sqrt(n * p * (1 - p))
     z_target = np.arctanh(np.clip(target['corr'], -0.99, 0.99))
     t_means, t_sds, t_best, root = target['means'], target['sds'], target['best'], math.sqrt(n - 3)
+    t_trial = target.get('trial_sds')
+    se_trial = None if t_trial is None else t_trial / math.sqrt(2 * (n - 1))
     floor = MIN_ESS_SHARE * len(y)
 
     def f(phi) -> float:
@@ -315,9 +351,11 @@ def objective_function(design: Design, target: dict, n: int,
             corr = cov[i, j] / (sds[i] * sds[j])
         z = np.arctanh(corr.clip(-0.99, 0.99)) - z_target
         total = 0.0
-        for gk, v in zip(g, ((means - t_means) / se_mean, (sds - t_sds) / se_sd, (n * (w @ best) - t_best) / se_best,
-                             z * root)):
-            total += gk * float((v ** 2).sum())      # 1.0 * x is x: the fit's floats unchanged
+        parts = [(means - t_means) / se_mean, (sds - t_sds) / se_sd, (n * (w @ best) - t_best) / se_best, z * root]
+        if v is not None:
+            parts.append((trial_sd(sds, w @ v, n) - t_trial) / se_trial)
+        for gk, d in zip(g, parts):
+            total += gk * float((d ** 2).sum())      # 1.0 * x is x: the fit's floats unchanged
         if ess < floor:
             total += 10.0 * (floor - ess)
         return total
@@ -508,7 +546,7 @@ def run_designs(bases: Sequence, seeds: Sequence[int] = DESIGN_SEEDS, wearers: i
                 progress(f'design: wearer {done}/{len(jobs)} of seeds {", ".join(map(str, seeds))}')
     designs = []
     for j, base in enumerate(bases):
-        us, ys, ss = [], [], []
+        us, ys, vs, ss = [], [], [], []
         for seed in seeds:
             for subject in range(wearers):
                 by = {}
@@ -519,9 +557,10 @@ def run_designs(bases: Sequence, seeds: Sequence[int] = DESIGN_SEEDS, wearers: i
                 spec = sample_wearer(scenes[seed][j], subject)
                 us.append([mu[i] + spec.traits[t.name] for i, t in enumerate(FITTED)])
                 ys.append([float(np.mean(by[c])) for c in CONDITIONS])
+                vs.append([float(np.var(by[c], ddof=1)) for c in CONDITIONS])
                 ss.append(seed)
         designs.append(Design(np.array(us), np.array(ys), np.array(ss), None, ((mu, sd),),
-                              float(base.population.arm_spread)))
+                              float(base.population.arm_spread), np.array(vs)))
     return designs
 
 
@@ -539,7 +578,8 @@ def focused(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mu, np.clip(1.5 * sd, 0.15, sd0)
 
 
-__all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DESIGN_ROUNDS', 'DESIGN_SEEDS', 'DESIGN_WEARERS', 'Design',
-           'FITTED', 'MIN_ESS', 'MIN_ESS_SHARE', 'OWN', 'bootstrap', 'design_scene', 'discrepancy', 'fit_population',
-           'focused', 'objective', 'objective_function', 'paper_table', 'population_scene', 'run_design',
-           'run_designs', 'split', 'table_statistics', 'trait_values', 'weighted_statistics', 'weights']
+__all__ = ['ARM_SPREADS', 'ASSUMED', 'CONDITIONS', 'DEFAULT_EMPHASIS', 'DESIGN_ROUNDS', 'DESIGN_SEEDS',
+           'DESIGN_WEARERS', 'Design', 'FITTED', 'GROUPS', 'MIN_ESS', 'MIN_ESS_SHARE', 'OWN', 'TRIAL_SDS',
+           'bootstrap', 'design_scene', 'discrepancy', 'fit_population', 'focused', 'objective',
+           'objective_function', 'paper_table', 'population_scene', 'run_design', 'run_designs', 'split',
+           'table_statistics', 'trait_values', 'trial_sd', 'weighted_statistics', 'weights']
