@@ -243,7 +243,7 @@ def test_vent_and_enable_services(controller):
     graph, probe, upstream, _ = controller
     f40 = guide_to_left40(upstream, probe, 'guiding')
     assert probe.call(Trigger, interface.VENT, Trigger.Request()).success
-    wait_until(lambda: channels_equal(probe, {}), 1.0, what='vented by the service')
+    wait_until(lambda: channels_equal(probe, {}), 10.0, what='vented by the service')
     assert probe.call(SetBool, interface.ENABLE, SetBool.Request(data=True)).success
     wait_until(lambda: channels_equal(probe, {'L1': f40, 'L2': f40}), 5.0, what='guiding again')
 
@@ -265,7 +265,7 @@ def test_sigterm_vents_before_exit(controller):
     guide_to_left40(upstream, probe, 'guiding')
     import signal
     assert graph.stop('pressure_controller', signal.SIGTERM) == 0
-    wait_until(lambda: channels_equal(probe, {}), 2.0, what='the last command sent being all zeros')
+    wait_until(lambda: channels_equal(probe, {}), 10.0, what='the last command sent being all zeros')
     assert 'vented on shutdown' in graph.log('pressure_controller')
 
 
@@ -379,7 +379,7 @@ def test_calibration_is_refused_without_gaze(controller):
     assert not others, f'gaze publishers of another graph on domain {graph.domain_id}: {others}'
     assert not reply.success
     assert 'no valid gaze' in reply.message
-    wait_until(lambda: channels_equal(probe, {}), 2.0, what='nothing commanded')
+    wait_until(lambda: channels_equal(probe, {}), 10.0, what='nothing commanded')
 
 
 #: The calibration_file parameter that stands for sim-wearer's calibration with G = 0, written by
@@ -442,7 +442,7 @@ def test_parameters_set_over_the_service_take_effect_at_once_or_are_refused(cont
     t0 = time.monotonic()
     (result,) = set_parameters(probe, p_max_kpa=100.0)
     assert result.successful, result.reason
-    wait_until(lambda: channels_equal(probe, {'L1': 100.0, 'L2': 100.0}) or channels_equal(probe, {}), 2.0,
+    wait_until(lambda: channels_equal(probe, {'L1': 100.0, 'L2': 100.0}) or channels_equal(probe, {}), 10.0,
                what='the new limit in force')
     n = len(commands)
     print(f'p_max_kpa 100 in force {time.monotonic() - t0:.3f} s after the call')

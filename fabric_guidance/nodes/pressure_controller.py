@@ -54,6 +54,7 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
@@ -566,6 +567,9 @@ class PressureController(ControlInputs, Gates, LiveParameters, ManagedNode):
         self.active = False
         if self.zeros.size:
             self.publish(self.zeros)
+            # Reliable: wait (briefly) until the subscribers have it, the process ends right after
+            # (a test under load once saw the zeros never arrive).
+            self.command_pub.wait_for_all_acked(Duration(seconds=1.0))
             self.get_logger().info('vented on shutdown')
 
 
