@@ -69,8 +69,19 @@ def test_a_graphs_ports_lie_above_the_kernels_ephemeral_range_and_are_free():
     if span is None:
         pytest.skip('no ephemeral range to read, or no room above it')
     for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
-        ports = {free_port(kind) for _ in range(20)}
+        ports = [free_port(kind) for _ in range(20)]
         assert all(span[0] <= p <= span[1] for p in ports), (span, sorted(ports))
-        assert len(ports) > 1                     # drawn, not one fixed port
+        assert len(set(ports)) == 20              # never the same port twice before it is bound
         with socket.socket(socket.AF_INET, kind) as s:
             s.bind(('127.0.0.1', ports.pop()))     # still free to bind
+
+
+def test_each_xdist_worker_takes_ports_of_its_own(monkeypatch):
+    """Workers run graphs side by side: worker i of n takes only ports equal to i modulo n, so
+    two workers never choose the same port before either binds it."""
+    if _above_ephemeral() is None:
+        pytest.skip('no ephemeral range to read, or no room above it')
+    for worker in range(3):
+        monkeypatch.setenv('PYTEST_XDIST_WORKER', f'gw{worker}')
+        monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', '3')
+        assert {free_port() % 3 for _ in range(10)} == {worker}

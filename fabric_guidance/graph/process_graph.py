@@ -89,19 +89,40 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     """A port free on 127.0.0.1 now, for a node to bind later. Taken above the kernel's ephemeral
     range where there is one: a port the kernel numbers (a client's connect, a bind to port 0)
     was once given the port a graph had chosen before its node bound it ("Address already in
-    use": wearer_sim's display port in a full test run), which cannot happen there."""
-    span = _above_ephemeral()
-    for _ in range(64 if span else 0):
-        port = random.randint(*span)
+    use": wearer_sim's display port in a full test run), which cannot happen there. Within that
+    range each pytest-xdist worker has its own ports (those equal to its index modulo the count,
+    as fresh_domain_id's ids) and a process hands them out in turn from a random start: two
+    calls before either port is bound (a test's listen port, then its bridge's) once drew the
+    same port at random."""
+    candidates = _port_candidates()
+    for _ in range(64 if candidates is not None else 0):
+        port = next(candidates)
         with socket.socket(socket.AF_INET, kind) as s:
             try:
                 s.bind(('127.0.0.1', port))
             except OSError:
-                continue        # in use: another
+                continue        # in use: the next
             return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
+
+
+_PORT_CYCLES: dict = {}
+
+
+def _port_candidates():
+    """This process's turn through its worker's ports above the ephemeral range (None: no range)."""
+    span = _above_ephemeral()
+    if span is None:
+        return None
+    worker, workers = _xdist_worker()
+    key = (span, worker, workers)
+    if key not in _PORT_CYCLES:
+        ports = [p for p in range(span[0], span[1] + 1) if p % workers == worker]
+        start = random.SystemRandom().randrange(len(ports))    # another process, another start
+        _PORT_CYCLES[key] = itertools.cycle(ports[start:] + ports[:start])
+    return _PORT_CYCLES[key]
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float, interval: float = 0.02, what: str = 'condition') -> Any:
