@@ -54,7 +54,7 @@ def tradeoff(designs, table: np.ndarray, emphases, draws: int, seed: int = 34, s
     target = pf.table_statistics(table)
     rows = []
     for k in emphases:
-        fits = [(pf.fit_population(d, target, n, emphasis=(1.0, 1.0, 1.0, k, 0.0)), d) for d in designs]
+        fits = [(pf.fit_population(d, target, n, emphasis=emphasis_of(k)), d) for d in designs]
         (phi, weighted), design = min(fits, key=lambda f: f[0][1])
         w = pf.weights(design, phi)
         stats = pf.weighted_statistics(design, w, n)
@@ -88,6 +88,11 @@ def report(rows: list[dict], table: np.ndarray, draws: int) -> str:
                      + ' | ' + fmt(f'{v:.2f}' for v in s['sds']) + ' | ' + fmt(f'{v:.2f}' for v in s['corr'])
                      + f" | {r['friedman']:.2f} | {r['first_best']:.2f} |")
     return '\n'.join(lines) + '\n'
+
+
+def emphasis_of(k: float) -> tuple[float, ...]:
+    """The fit's weights (population_fit.DEFAULT_EMPHASIS) with the correlations' times k."""
+    return tuple(k * g if name == 'corr' else g for name, g in zip(pf.GROUPS, pf.DEFAULT_EMPHASIS))
 
 
 #: The groups of statistics the fit weighs (population_fit.DEFAULT_EMPHASIS above 0).

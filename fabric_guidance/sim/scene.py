@@ -43,6 +43,7 @@ from ..core.geometry import DIRECTIONS
 from ..core.power_law import PowerLaw
 from ..paths import config_path
 from .effects import REGISTRY, Effect, EffectError, make_effect
+from .effects.base import logit_shifted
 
 
 class SceneError(ValueError):
@@ -121,10 +122,7 @@ class TraitSpec:
         scale (0; a probability of 0 or 1: a sweep may set one) is the same for everyone."""
         if self.scale == 'log':
             return value * math.exp(u) if value > 0 else value
-        if not 0.0 < value < 1.0:
-            return value
-        z = math.log(value / (1.0 - value)) + u
-        return 1.0 / (1.0 + math.exp(-z))
+        return logit_shifted(value, u)
 
 
 @dataclass(frozen=True)

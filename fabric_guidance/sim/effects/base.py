@@ -24,6 +24,13 @@ class EffectError(ValueError):
 # Random streams
 
 
+def logit_shifted(p: float, u: float) -> float:
+    """p moved by u on the logit scale; a probability at an end of the scale (0 or 1) stays."""
+    if not 0.0 < p < 1.0:
+        return p
+    return 1.0 / (1.0 + math.exp(-(math.log(p / (1.0 - p)) + u)))
+
+
 def stream_key(name: str) -> int:
     """A stable 32-bit number for a name (crc32: the same in every process and version)."""
     return zlib.crc32(name.encode('utf-8'))

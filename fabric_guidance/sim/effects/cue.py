@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import math
 from typing import ClassVar
 
-from .base import Draws, Effect, RunContext, param
+from .base import Draws, Effect, RunContext, logit_shifted, param
 
 # The wearer's reading of the cue (the wearer who can be wrong). The wearer (wearer.SceneWearer) interprets the
 # haptic percept through cue_misreading's current reading; wearer.Senses decides when the cue is
@@ -123,10 +123,7 @@ class CueMisreading(Effect):
 def _logit_shifted(p: float, shift: float) -> float:
     """p moved by `shift` on the logit scale, at most 0.5 (more often wrong than right is reading
     the other way); 0 stays 0 (a wearer who never misreads)."""
-    if p <= 0.0:
-        return p
-    q = 1.0 / (1.0 + math.exp(-(math.log(p / (1.0 - p)) + shift))) if p < 1.0 else p
-    return min(q, 0.5)
+    return min(logit_shifted(p, shift), 0.5) if p > 0.0 else p
 
 
 @dataclass
