@@ -87,11 +87,13 @@ GIL_HELD = textwrap.dedent('''
 ''')
 
 
-def test_a_teardown_that_holds_the_gil_still_ends_and_says_where(tmp_path):
-    """The teardown's timer needs the GIL; faulthandler's watchdog does not: the process ends
-    within the backstop with status 1, every thread's stack in its output."""
+def test_a_teardown_that_holds_the_gil_still_ends_with_its_status_and_says_where(tmp_path):
+    """The teardown's timer needs the GIL; faulthandler's watchdog and the C library's exit timer
+    do not: every thread's stack in its output, then the process ends with status 0, because it
+    vented (CI: wearer_sim's DDS teardown hung in destroy_node, and its status 1 failed a launch
+    test that had vented)."""
     code, text = _stopped_with_sigint(GIL_HELD, tmp_path)
-    assert 'vented' in text and code == 1, (code, text)
+    assert 'vented' in text and code == 0, (code, text)
     assert 'Timeout (0:00:03.500000)!' in text and 'in destroy_node' in text, text
 
 

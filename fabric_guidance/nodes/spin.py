@@ -18,6 +18,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from . import exit_timer
 from .managed import ConfigureError, ManagedNode
 from .parent import die_with_parent
 from .parameters import check_params_files
@@ -27,9 +28,12 @@ from .parameters import check_params_files
 #: exit) gets this long before the process ends itself [s]; `ros2 launch` escalates after 5 s.
 TEARDOWN_LIMIT_S = 2.0
 #: ... and if the timer that ends it cannot run (it needs the GIL, which a call into C may hold
-#: while it waits), faulthandler's watchdog, a C thread, ends it this much later with status 1,
-#: writing every thread's stack to stderr (the node's log) first [s].
+#: while it waits: Fast DDS deadlocking in an entity's deletion), faulthandler's watchdog, a C
+#: thread, writes every thread's stack to stderr (the node's log) this much later [s] ...
 TEARDOWN_BACKSTOP_S = 1.5
+#: ... and a C library timer (nodes/exit_timer.py) ends the process this much after that, with the
+#: status the node would have had: the vent was done, a hung teardown is not the node's failure [s].
+STACKS_WRITE_S = 0.25
 
 
 def _end_process(code: int) -> None:
@@ -136,12 +140,16 @@ def run(make_node: Callable[[], Node], args: Sequence[str] | None = None, execut
                 safe_shutdown()
         # From here on nothing is left to do that matters to the suit: bound the rest.
         failing = sys.exc_info()[0] is not None  # an error on its way out: exit 1, not 0
-        limit = threading.Timer(TEARDOWN_LIMIT_S, _end_process, args=(1 if failing else code,))
+        status = 1 if failing else code
+        limit = threading.Timer(TEARDOWN_LIMIT_S, _end_process, args=(status,))
         limit.daemon = True
         limit.start()
-        # A launch test saw headset_display outlive SIGINT and then SIGTERM by 15 s (where it hung
-        # is not known): should the teardown hold the GIL, the stacks say where, and it still ends.
-        faulthandler.dump_traceback_later(TEARDOWN_LIMIT_S + TEARDOWN_BACKSTOP_S, exit=True)
+        # Should the teardown hold the GIL (headset_display outlived SIGINT and SIGTERM by 15 s in a
+        # launch test; wearer_sim hung in destroy_node in CI), the stacks say where and it still
+        # ends, with its own status where the C library can (else faulthandler's status 1).
+        backstop = TEARDOWN_LIMIT_S + TEARDOWN_BACKSTOP_S
+        armed = exit_timer.arm(backstop + STACKS_WRITE_S, status)
+        faulthandler.dump_traceback_later(backstop, exit=not armed)
         # rclpy's order: the executor lets go of the node's entities while the node and the context
         # stand. Left to the events executor's destructor at this function's end, an entity's
         # release came after both were gone and once hung there holding the GIL (wearer_sim, in
