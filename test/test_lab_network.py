@@ -117,7 +117,43 @@ def test_every_profile_setting_names_the_variable_of_the_distributions_fast_dds(
 
 def test_the_loopback_profile_of_the_demo_passes_the_same_check():
     """The check reads any profile of this shape: the simulated graph's pins 127.0.0.1."""
+    fastdds_schema().validate(str(CONFIG / 'fastdds_loopback.xml'))
     assert lab_network.validate_profile((CONFIG / 'fastdds_loopback.xml').read_text()) == '127.0.0.1'
+
+
+#: A participant that says 'ready' once it exists and lives until its stdin closes.
+READY_PARTICIPANT = ("import sys, rclpy; rclpy.init(); node = rclpy.create_node('tls_probe'); "
+                     "print('ready', flush=True); sys.stdin.read()")
+
+
+def _thread_names(profile: Path | None) -> list[str]:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(fresh_domain_id()))
+    for name in lab_network.PROFILE_VARIABLES:
+        env.pop(name, None)
+    if profile is not None:
+        env.update(process_env(profile))
+    proc = subprocess.Popen([sys.executable, '-c', READY_PARTICIPANT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        assert proc.stdout.readline() == 'ready\n'
+        task = Path('/proc') / str(proc.pid) / 'task'
+        return sorted((task / t / 'comm').read_text().strip() for t in os.listdir(task))
+    finally:
+        proc.stdin.close()
+        proc.wait(60)
+
+
+@pytest.mark.graph
+def test_no_participant_of_the_packages_profiles_runs_the_type_lookup_service(tmp_path):
+    """Fast DDS 3.2's type lookup reply thread killed plc_output at discovery in CI: SIGSEGV in
+    TypeLookupManager::notify_callbacks (the kernel log named the thread, dds.tls.replies), and the
+    node's log stayed empty. Both profiles turn the service off (fastdds.type_propagation disabled):
+    a participant made with either has no dds.tls thread. Control: with no profile it has them."""
+    assert any(name.startswith('dds.tls.') for name in _thread_names(None))
+    for profile in (CONFIG / 'fastdds_loopback.xml', write_profile(tmp_path / 'lab.xml', 'lo')):
+        names = _thread_names(profile)
+        assert any(name.startswith('dds.udp.') for name in names), (profile, names)   # Fast DDS is there
+        assert not any(name.startswith('dds.tls.') for name in names), (profile, names)
 
 
 @pytest.mark.parametrize('bad, reason', [

@@ -96,6 +96,16 @@ def interface_profile(interface: str) -> str:
           <transport_id>{TRANSPORT_ID}</transport_id>
         </userTransports>
         <useBuiltinTransports>false</useBuiltinTransports>
+        <!-- No XTypes type lookup service (Fast DDS 3.2's can crash a node at discovery:
+             config/fastdds_loopback.xml says why); Fast DDS 2.14 has none and ignores this. -->
+        <propertiesPolicy>
+          <properties>
+            <property>
+              <name>fastdds.type_propagation</name>
+              <value>disabled</value>
+            </property>
+          </properties>
+        </propertiesPolicy>
       </rtps>
     </participant>
   </profiles>
