@@ -146,7 +146,9 @@ def test_a_study_killed_with_sigkill_leaves_no_process_and_resumes_into_clean_lo
     tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
     proc = _study(scene, out)
     try:
-        wait_until(lambda: tsv.exists() and len(read_tsv(tsv)[1]) >= 1, 240, 0.05, what='a trial written')
+        wait_until(lambda: proc.poll() is not None or (tsv.exists() and len(read_tsv(tsv)[1]) >= 1), 240, 0.05,
+                   what='a trial written')
+        assert proc.poll() is None, proc.communicate()[0]     # a study that stopped says why
         nodes = {p: c for p, c in children_of(proc.pid).items() if 'fabric_guidance.nodes.' in c}
         assert len(nodes) >= 7, nodes          # the graph's seven nodes (and the block's recorder)
         proc.send_signal(signal.SIGKILL)        # the study process alone, not its group
@@ -169,3 +171,27 @@ def test_a_study_killed_with_sigkill_leaves_no_process_and_resumes_into_clean_lo
     cut = side['BlocksInterrupted'][0]
     assert cut['bags'] == ['sub-01_ses-1_task-speed_run-1_bag'], cut
     assert (out / 'sub-01' / 'ses-1' / 'beh' / cut['bags'][0]).is_dir()
+
+
+def test_a_node_lost_mid_session_stops_the_study_before_its_next_trial(tmp_path):
+    """plc_output ended under a running simulated session (CI once saw it gone, its log empty, while
+    the session went on): the next trial is not run without it, the study says which node it lost
+    and with what status, and the trials already written stay."""
+    scene = short_scene(tmp_path, conditions=(1,), trials=6, trial_s=2.0)
+    out = tmp_path / 'study'
+    tsv = out / 'sub-01' / 'ses-1' / 'beh' / 'sub-01_ses-1_task-speed_beh.tsv'
+    proc = _study(scene, out)
+    try:
+        wait_until(lambda: tsv.exists() and len(read_tsv(tsv)[1]) >= 1, 240, 0.05, what='a trial written')
+        plc_output = [p for p, c in children_of(proc.pid).items() if 'fabric_guidance.nodes.plc_output ' in c]
+        assert len(plc_output) == 1, children_of(proc.pid)
+        os.kill(plc_output[0], signal.SIGKILL)
+        output, _ = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 1, output
+    assert 'lost plc_output (exit -9): no trial is run without it' in output, output
+    rows = read_tsv(tsv)[1]
+    assert 1 <= len(rows) < 6, rows     # stopped before the block's end, nothing written lost

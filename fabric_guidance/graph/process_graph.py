@@ -199,7 +199,8 @@ class Graph:
         self.processes: dict[str, subprocess.Popen] = {}
         self.records_files: list[Path] = []   # one per mock_plc started, restarts included
         self.token = f'{os.getpid()}-{self.domain_id}-{next(_counter)}-{time.monotonic_ns()}'
-        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1',
+        # PYTHONFAULTHANDLER: a node that dies of a signal in native code writes its stacks to its log.
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1', PYTHONFAULTHANDLER='1',
                         RCUTILS_COLORIZED_OUTPUT='0', **{GRAPH_TOKEN: self.token}, **loopback_dds_env())
         # The limits its controller holds across restarts (nodes/held_limits.py) are this graph's
         # own: every restart within it finds them, no other graph does.

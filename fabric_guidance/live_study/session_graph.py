@@ -69,6 +69,7 @@ def run_participant(scene, design, study: Study, subject: int, say, timing: dict
             bags.begin(session.block)     # after a switch: the recorder hears the restarted nodes
 
         def before_trial(cond: int, repetition: int) -> None:
+            part.check_nodes()
             part.op.set_parameters('wearer_sim', condition=cond, repetition=repetition)
         driver = SessionDriver(part.op, session, bags, say, set_condition, before_trial)
         try:

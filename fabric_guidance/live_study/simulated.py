@@ -133,9 +133,19 @@ class SimulatedParticipant:
         except AssertionError:
             raise StudyError(self.startup_failure()) from None
         self.op.trial_gate(False)     # the session's gate: vented until the first trial
+        self.check_nodes()
         # The simulated operator arms the controller once: this call stands for the person at
         # the console (the session itself never calls enable).
         self.op.enable(True)
+
+    def check_nodes(self) -> None:
+        """StudyError when a node of the graph has ended on its own. Without plc_output no
+        pressure reaches the simulated wearer: its trials would be recorded as guided."""
+        ended = self.graph.ended()
+        if ended:
+            nodes = ', '.join(f'{node} (exit {code})' for node, code in sorted(ended.items()))
+            raise StudyError(f'the study graph of participant {self.subject + 1:02d} lost {nodes}: no trial is run '
+                             f'without it (the same command resumes); logs in {self.graph.log_dir}')
 
     def startup_failure(self) -> str:
         """One line: what of the graph was not heard within STARTUP_S, which nodes ended, where
