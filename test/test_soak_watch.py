@@ -24,7 +24,12 @@ def test_a_stalled_watch_sees_every_control_step_once_it_runs_again():
         matcher = LatencyMatcher(lambda kpa: [0] * len(kpa), ())
         SoakWatch(watching, matcher)
         pub = controller.node.create_publisher(Float64MultiArray, interface.CONTROLLER_INPUT, qos.COMMAND_QOS)
-        wait_until(lambda: pub.get_subscription_count() >= 1, 30, what='the watch to match controller_input')
+        # Both sides: a volatile reader that matches the writer after a sample was sent never gets
+        # it, and a lost first step is not a gap (fresh run 131: 288 of 300, none unseen).
+        topic = watching.node.resolve_topic_name(interface.CONTROLLER_INPUT)
+        sub = next(s for s in watching.node.subscriptions if s.topic_name == topic)
+        wait_until(lambda: pub.get_subscription_count() >= 1 and sub.get_publisher_count() >= 1, 30,
+                   what='the watch and the controller matched on controller_input, both ways')
         msg = Float64MultiArray(data=[0.0] * INPUT_SIZE)
         # The matcher's lock held: the watch's thread stops in its first on_input, as under a
         # long GIL hold or a busy core, while 300 steps (30 depths of 10) are published.
