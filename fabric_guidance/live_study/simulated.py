@@ -141,11 +141,14 @@ class SimulatedParticipant:
     def check_nodes(self) -> None:
         """StudyError when a node of the graph has ended on its own. Without plc_output no
         pressure reaches the simulated wearer: its trials would be recorded as guided."""
-        ended = self.graph.ended()
+        ended = self.ended_nodes()
         if ended:
-            nodes = ', '.join(f'{node} (exit {code})' for node, code in sorted(ended.items()))
-            raise StudyError(f'the study graph of participant {self.subject + 1:02d} lost {nodes}: no trial is run '
+            raise StudyError(f'the study graph of participant {self.subject + 1:02d} lost {ended}: no trial is run '
                              f'without it (the same command resumes); logs in {self.graph.log_dir}')
+
+    def ended_nodes(self) -> str:
+        """The graph's nodes that ended on their own, with their exit statuses ('' none)."""
+        return ', '.join(f'{node} (exit {code})' for node, code in sorted(self.graph.ended().items()))
 
     def startup_failure(self) -> str:
         """One line: what of the graph was not heard within STARTUP_S, which nodes ended, where
@@ -154,7 +157,7 @@ class SimulatedParticipant:
                                             ("pressure_controller's status on /diagnostics",
                                              self.op.controller_condition is not None)) if not heard]
         missing += [f'{n}/set_parameters_atomically' for n in self.op.parameter_services_missing(*PARAMETER_NODES)]
-        ended = ', '.join(f'{node} (exit {code})' for node, code in self.graph.ended().items())
+        ended = self.ended_nodes()
         return (f'the study graph of participant {self.subject + 1:02d} (ROS_DOMAIN_ID {self.graph.domain_id}) '
                 f'did not start within {STARTUP_S:g} s: no {" and no ".join(missing)}; '
                 f'{"nodes ended: " + ended if ended else "every node still running"}; logs in {self.graph.log_dir}')
